@@ -1,0 +1,451 @@
+"""Scene descriptions: pure data, validated, loaded from TOML.
+
+A scene says what object vibrates (geometry, materials, boundary conditions, damping,
+excitation), for how long it is simulated, and how it is seen (camera, rendering). It holds no
+arrays and runs no physics: the backends in :mod:`vvtbench.fem` and :mod:`vvtbench.render`
+consume it. Every key is documented with units and defaults in ``docs/scenes.md``.
+
+>>> scene = Scene.model_validate({"name": "tiny", "geometry": {"kind": "box", "cells": [2, 2, 2]}})
+>>> scene.geometry.size, scene.material.E, scene.boundary.fixed
+((0.05, 0.05, 0.05), 9000.0, ['bottom'])
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+Vec3 = tuple[float, float, float]
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Poisson = Annotated[float, Field(gt=-1.0, lt=0.5)]
+
+SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+BUILTIN_MESHES = ("bunny",)
+
+
+class SceneError(ValueError):
+    """A scene file is malformed: the message names the file, the key and what is allowed."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BoxGeometry(_Strict):
+    """Structured hexahedral grid of an axis-aligned box with its lowest corner at the origin."""
+
+    kind: Literal["box"]
+    size: tuple[Positive, Positive, Positive] = (0.05, 0.05, 0.05)
+    cells: tuple[
+        Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]
+    ] = (10, 10, 10)
+    order: Literal[1, 2] = 1
+
+
+class MeshGeometry(_Strict):
+    """A closed surface mesh, tetrahedralized with pytetwild."""
+
+    kind: Literal["mesh"]
+    path: str = "bunny"
+    up_axis: Literal["x", "y", "z"] = "z"
+    scale_to: Positive | None = None
+    target_faces: Annotated[int, Field(ge=100)] | None = 2000
+    edge_length_fac: Annotated[float, Field(gt=0, le=1)] = 0.1
+    epsilon: Annotated[float, Field(gt=0, le=0.1)] = 5e-3
+    stop_energy: Annotated[float, Field(gt=3)] = 10.0
+    coarsen: bool = False
+    order: Literal[1, 2] = 1
+
+
+class DrumGeometry(_Strict):
+    """A membrane on a rigid frame: square (side ``size``) or circular (diameter ``size``)."""
+
+    kind: Literal["drum"]
+    shape: Literal["square", "circle"] = "square"
+    size: Positive = 0.1016
+    cells: Annotated[int, Field(ge=2)] = 40
+
+
+Geometry = Annotated[BoxGeometry | MeshGeometry | DrumGeometry, Field(discriminator="kind")]
+
+
+class Defect(_Strict):
+    """A region whose elements (by centroid) take other material values.
+
+    ``size`` means: box -> full side lengths (3); sphere -> radius (1); cylinder -> radius and
+    height (2), along ``axis``; ellipsoid -> semi-axes (3). For drums only x, y matter.
+    """
+
+    shape: Literal["box", "sphere", "cylinder", "ellipsoid"]
+    center: Vec3
+    size: tuple[Positive, ...]
+    axis: Literal["x", "y", "z"] = "z"
+    E: Positive | None = None
+    rho: Positive | None = None
+    nu: Poisson | None = None
+    tension: Positive | None = None
+    areal_density: Positive | None = None
+
+    @model_validator(mode="after")
+    def _size_matches_shape(self) -> Defect:
+        expected = {"box": 3, "sphere": 1, "cylinder": 2, "ellipsoid": 3}[self.shape]
+        if len(self.size) != expected:
+            raise ValueError(
+                f"size of a {self.shape} defect needs {expected} value(s), got {len(self.size)}"
+            )
+        return self
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Which of ``points`` (N, 3) lie inside the region."""
+        d = np.asarray(points, dtype=float) - np.asarray(self.center)
+        s = np.asarray(self.size, dtype=float)
+        if self.shape == "box":
+            return np.all(np.abs(d) <= s / 2 + 1e-12, axis=1)
+        if self.shape == "sphere":
+            return np.linalg.norm(d, axis=1) <= s[0] + 1e-12
+        if self.shape == "ellipsoid":
+            return np.sum((d / s) ** 2, axis=1) <= 1 + 1e-12
+        a = "xyz".index(self.axis)
+        radial = np.delete(d, a, axis=1)
+        return (np.linalg.norm(radial, axis=1) <= s[0] + 1e-12) & (np.abs(d[:, a]) <= s[1] / 2)
+
+
+class Material(_Strict):
+    """Base material plus defects. Solids use E, rho, nu; drums use tension, areal_density."""
+
+    E: Positive = 9000.0
+    rho: Positive = 1270.0
+    nu: Poisson = 0.3
+    tension: Positive = 40.0
+    areal_density: Positive = 0.5
+    defects: list[Defect] = []
+    field_file: str | None = None
+
+
+class NodeRegion(_Strict):
+    """Named node set: nodes inside an axis-aligned box, or listed by index."""
+
+    box_min: Vec3 | None = None
+    box_max: Vec3 | None = None
+    indices: list[Annotated[int, Field(ge=0)]] | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> NodeRegion:
+        has_box = self.box_min is not None or self.box_max is not None
+        if has_box == (self.indices is not None):
+            raise ValueError("give either box_min and box_max, or indices")
+        if has_box and (self.box_min is None or self.box_max is None):
+            raise ValueError("box_min and box_max go together")
+        return self
+
+
+class Boundary(_Strict):
+    """Fixed node sets. Built-in names depend on the geometry (see docs/scenes.md)."""
+
+    fixed: list[str] | None = None
+    node_sets: dict[str, NodeRegion] = {}
+
+
+class Damping(_Strict):
+    """Rayleigh damping C = alpha M + beta K, given directly or by two (frequency Hz, zeta)."""
+
+    alpha: NonNegative = 0.0
+    beta: NonNegative = 0.0
+    pairs: list[tuple[Positive, NonNegative]] | None = None
+
+    @model_validator(mode="after")
+    def _pairs_or_coefficients(self) -> Damping:
+        if self.pairs is not None:
+            if len(self.pairs) != 2:
+                raise ValueError("pairs needs exactly two [frequency_hz, zeta] pairs")
+            if self.alpha or self.beta:
+                raise ValueError("give either alpha/beta or pairs, not both")
+            if math.isclose(self.pairs[0][0], self.pairs[1][0]):
+                raise ValueError("the two pairs need different frequencies")
+        return self
+
+    def coefficients(self) -> tuple[float, float]:
+        """(alpha, beta) in (1/s, s); from the pairs when given.
+
+        >>> a, b = Damping(pairs=[(12.5, 0.01749), (15.5, 0.01999)]).coefficients()
+        >>> round(rayleigh_zeta(a, b, 12.5), 5), round(rayleigh_zeta(a, b, 15.5), 5)
+        (0.01749, 0.01999)
+        """
+        if self.pairs is None:
+            return self.alpha, self.beta
+        return rayleigh_from_pairs(self.pairs)
+
+
+def rayleigh_from_pairs(pairs: list[tuple[float, float]]) -> tuple[float, float]:
+    """Rayleigh (alpha, beta) giving damping ratio zeta_i at frequency f_i (Hz), i = 1, 2."""
+    w = np.array([2 * np.pi * f for f, _ in pairs])
+    z = np.array([zeta for _, zeta in pairs])
+    a = np.column_stack([1 / (2 * w), w / 2])
+    alpha, beta = np.linalg.solve(a, z)
+    if alpha < 0 or beta < 0:
+        raise ValueError(
+            f"damping pairs {pairs} need a negative Rayleigh coefficient "
+            f"(alpha={alpha:.4g}, beta={beta:.4g}); choose pairs with zeta rising less steeply"
+        )
+    return float(alpha), float(beta)
+
+
+def rayleigh_zeta(alpha: float, beta: float, frequency_hz):
+    """Damping ratio of Rayleigh damping at a frequency (Hz): alpha/(2w) + beta w/2."""
+    w = 2 * np.pi * np.asarray(frequency_hz, dtype=float)
+    return alpha / (2 * w) + beta * w / 2
+
+
+class Chirp(_Strict):
+    """Linear frequency sweep force, amplitude in N (a speaker's drive)."""
+
+    kind: Literal["chirp"]
+    f0: Positive = 50.0
+    f1: Positive = 1000.0
+    duration: Positive = 3.5
+    amplitude: Positive = 1e-3
+    start: NonNegative = 0.0
+
+
+class ForceFile(_Strict):
+    """Force time series from a file: .npy/.npz/.csv with columns time (s), force (N)."""
+
+    kind: Literal["file"]
+    path: str
+
+
+class Impulse(_Strict):
+    """Half-sine force pulse (a tap), peak amplitude in N."""
+
+    kind: Literal["impulse"]
+    amplitude: Positive = 1e-3
+    width: Positive = 1e-3
+    start: NonNegative = 0.0
+
+
+Signal = Annotated[Chirp | ForceFile | Impulse, Field(discriminator="kind")]
+
+
+class Excitation(_Strict):
+    """How the object is set in motion.
+
+    pluck: a static deflection under a point (``radius`` 0) or patch load at ``at`` along
+    ``direction``, scaled so the loaded node(s) move by ``displacement`` (m) along it, released
+    at rest. velocity: nodes within ``radius`` of ``at`` start with ``velocity`` (m/s).
+    force: a load on the same nodes following ``signal``. For drums, direction is out of plane.
+    """
+
+    kind: Literal["pluck", "velocity", "force", "none"] = "pluck"
+    at: Vec3 | None = None
+    radius: NonNegative = 0.0
+    direction: Vec3 = (1.0, 1.0, 1.0)
+    displacement: Positive = 0.005
+    velocity: Vec3 = (0.0, 0.0, 0.01)
+    signal: Signal | None = None
+
+    @model_validator(mode="after")
+    def _complete(self) -> Excitation:
+        if self.kind != "none" and self.at is None:
+            raise ValueError(f"excitation kind '{self.kind}' needs 'at' = [x, y, z] (m)")
+        if self.kind == "force" and self.signal is None:
+            raise ValueError("excitation kind 'force' needs a [excitation.signal] table")
+        if np.linalg.norm(self.direction) == 0:
+            raise ValueError("direction must be a non-zero vector")
+        return self
+
+
+class Simulation(_Strict):
+    """Modal analysis and transient sampling."""
+
+    n_modes: Annotated[int, Field(ge=1, le=2000)] = 50
+    fps: Positive = 2000.0
+    duration: Positive = 6.0
+    method: Literal["modal", "newmark"] = "modal"
+    newmark_substeps: Annotated[int, Field(ge=1)] = 4
+
+
+class CameraSpec(_Strict):
+    """Pinhole camera: pose by position/look_at/up; intrinsics by fov_y or focal length fx."""
+
+    position: Vec3 = (0.15, -0.2, 0.15)
+    look_at: Vec3 = (0.025, 0.025, 0.02)
+    up: Vec3 = (0.0, 0.0, 1.0)
+    fov_y_deg: Annotated[float, Field(gt=0, lt=180)] | None = 20.0
+    fx: Positive | None = None
+    resolution: tuple[Annotated[int, Field(ge=8)], Annotated[int, Field(ge=8)]] = (256, 256)
+
+
+class RenderSpec(_Strict):
+    """How frames are drawn and recorded (used by the renderer)."""
+
+    supersample: Annotated[int, Field(ge=1, le=8)] = 4
+    texture_density: Annotated[float, Field(gt=0, le=1)] = 0.5
+    texture_contrast: Annotated[float, Field(gt=0, le=1)] = 1.0
+    texture_seed: int = 0
+    motion_scale: Positive = 1.0
+    lighting: Literal["flat", "lit"] = "flat"
+    bit_depth: Literal[8, 12, 16] = 16
+    read_noise_dn: NonNegative = 0.0
+    shot_noise: bool = False
+    frame_average: Annotated[int, Field(ge=1)] = 1
+
+
+class Scene(_Strict):
+    """A whole scene. See docs/scenes.md."""
+
+    name: str
+    description: str = ""
+    seed: int = 0
+    geometry: Geometry
+    material: Material = Material()
+    boundary: Boundary = Boundary()
+    damping: Damping = Damping()
+    excitation: Excitation = Excitation(kind="none")
+    simulation: Simulation = Simulation()
+    camera: CameraSpec = CameraSpec()
+    render: RenderSpec = RenderSpec()
+    source: str | None = Field(default=None, exclude=True)
+
+    @field_validator("name")
+    @classmethod
+    def _name_is_a_slug(cls, name: str) -> str:
+        if not name or not all(c.isalnum() or c in "-_." for c in name):
+            raise ValueError("name may contain only letters, digits, '-', '_' and '.'")
+        return name
+
+    @model_validator(mode="after")
+    def _defects_fit_geometry(self) -> Scene:
+        is_drum = self.geometry.kind == "drum"
+        for i, d in enumerate(self.material.defects):
+            solid_keys = [k for k in ("E", "rho", "nu") if getattr(d, k) is not None]
+            drum_keys = [k for k in ("tension", "areal_density") if getattr(d, k) is not None]
+            if is_drum and solid_keys:
+                raise ValueError(
+                    f"material.defects[{i}]: a drum defect takes tension and areal_density, "
+                    f"not {', '.join(solid_keys)}"
+                )
+            if not is_drum and drum_keys:
+                raise ValueError(
+                    f"material.defects[{i}]: a solid defect takes E, rho and nu, "
+                    f"not {', '.join(drum_keys)}"
+                )
+            if not (solid_keys or drum_keys):
+                raise ValueError(f"material.defects[{i}] sets no material value")
+        return self
+
+    @property
+    def fixed_sets(self) -> list[str]:
+        if self.boundary.fixed is not None:
+            return list(self.boundary.fixed)
+        return ["rim"] if self.geometry.kind == "drum" else ["bottom"]
+
+    def resolve_path(self, path: str) -> Path:
+        """A path from the scene, relative to the scene file's folder when not absolute."""
+        p = Path(path)
+        if not p.is_absolute() and self.source is not None:
+            p = Path(self.source).parent / p
+        return p
+
+    def to_toml_dict(self) -> dict:
+        """The resolved scene (every default filled in) as TOML-ready data."""
+        return _drop_none(self.model_dump(mode="json"))
+
+
+def _drop_none(value):
+    if isinstance(value, dict):
+        return {k: _drop_none(v) for k, v in value.items() if v is not None}
+    if isinstance(value, list):
+        return [_drop_none(v) for v in value]
+    return value
+
+
+def _format_error(source: str, error: ValidationError) -> str:
+    lines = [f"{source}: invalid scene ({error.error_count()} problem(s))"]
+    for e in error.errors():
+        key = ".".join(str(p) for p in e["loc"] if not str(p).startswith("function-after"))
+        key = key.replace(".box.", ".").replace(".mesh.", ".").replace(".drum.", ".")
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            parent = key.rsplit(".", 1)[0] if "." in key else ""
+            msg = f"unknown key; allowed keys here: {_allowed_keys(parent)}"
+        elif e["type"] == "union_tag_invalid":
+            msg = f"{msg}"
+        lines.append(f"  key '{key or '<top level>'}': {msg}")
+    return "\n".join(lines)
+
+
+def _allowed_keys(parent: str) -> str:
+    models = {
+        "": Scene, "material": Material, "boundary": Boundary, "damping": Damping,
+        "excitation": Excitation, "simulation": Simulation, "camera": CameraSpec,
+        "render": RenderSpec, "geometry": None,
+    }
+    head = parent.split(".")[0]
+    if head == "material" and "defects" in parent:
+        model = Defect
+    elif head == "excitation" and "signal" in parent:
+        return "kind, and per kind: " + "; ".join(
+            f"{m.model_fields['kind'].annotation.__args__[0]}: "
+            + ", ".join(k for k in m.model_fields if k != "kind")
+            for m in (Chirp, ForceFile, Impulse)
+        )
+    elif head == "boundary" and "node_sets" in parent:
+        model = NodeRegion
+    else:
+        model = models.get(head)
+    if model is None:
+        return "; ".join(
+            f"{m.model_fields['kind'].annotation.__args__[0]}: "
+            + ", ".join(k for k in m.model_fields)
+            for m in (BoxGeometry, MeshGeometry, DrumGeometry)
+        )
+    return ", ".join(k for k in model.model_fields if k != "source")
+
+
+def parse_scene(data: dict, source: str = "<scene>") -> Scene:
+    """Validate a scene dict; errors name ``source``, the key and what is allowed."""
+    try:
+        scene = Scene.model_validate(data)
+    except ValidationError as error:
+        raise SceneError(_format_error(source, error)) from None
+    return scene.model_copy(update={"source": source})
+
+
+def find_scene(name_or_path: str | Path) -> Path:
+    """A scene file by path, or by name among the shipped scenes in ``scenes/``."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    for candidate in (SCENES_DIR / f"{name_or_path}.toml", SCENES_DIR / str(name_or_path)):
+        if candidate.is_file():
+            return candidate
+    known = sorted(q.stem for q in SCENES_DIR.glob("*.toml")) if SCENES_DIR.is_dir() else []
+    raise SceneError(
+        f"{name_or_path}: no such scene file, and not a shipped scene; shipped scenes: "
+        + (", ".join(known) or "(none found in " + str(SCENES_DIR) + ")")
+    )
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Read and validate a scene TOML file (or a shipped scene by name)."""
+    path = find_scene(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise SceneError(f"{path}: not valid TOML: {error}") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: not a text (UTF-8 TOML) file") from None
+    return parse_scene(data, str(path))

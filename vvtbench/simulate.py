@@ -1,0 +1,340 @@
+"""From a Scene to a simulated object: mesh, material fields, eigenmodes, transient response.
+
+This is the simulation backend: it reads only the scene (pure data) and returns plain arrays.
+
+>>> from vvtbench.scene import parse_scene
+>>> scene = parse_scene({"name": "t", "geometry": {"kind": "box", "cells": [3, 3, 3]},
+...                      "simulation": {"n_modes": 4, "duration": 0.01}})
+>>> result = simulate(scene)
+>>> result.frequencies_hz.shape, result.displacements.shape[0]
+((4,), 20)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .fem.assembly import ParametricModel
+from .fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
+from .fem.modal import Factorization, Modes, eigenmodes
+from .fem.transient import damping_ratios, modal_damping, modal_response, newmark_response
+from .scene import Chirp, ForceFile, Impulse, Scene, SceneError
+
+
+@dataclass(frozen=True)
+class MaterialFields:
+    """Per-element material: stiffness is E (Pa) or tension (N/m); density is rho (kg/m^3) or
+    areal density (kg/m^2); nu is Poisson's ratio (unused by membranes)."""
+
+    stiffness: np.ndarray
+    density: np.ndarray
+    nu: np.ndarray
+
+
+@dataclass
+class SimulationResult:
+    """Everything the simulator computed for one scene."""
+
+    scene: Scene
+    mesh: Mesh
+    fields: MaterialFields
+    model: ParametricModel
+    modes: Modes
+    alpha: float
+    beta: float
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    surface_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    displacements: np.ndarray | None = None
+    truncation_error: float | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def frequencies_hz(self) -> np.ndarray:
+        return self.modes.frequencies_hz
+
+    @property
+    def damping_ratios(self) -> np.ndarray:
+        return damping_ratios(self.modes.omega, self.alpha, self.beta)
+
+
+def build_mesh(scene: Scene) -> Mesh:
+    """The simulation mesh of a scene, with its built-in and custom node sets."""
+    g = scene.geometry
+    if g.kind == "box":
+        mesh = box_mesh(g.cells, g.size, g.order)
+    elif g.kind == "drum":
+        mesh = drum_mesh(g.shape, g.size, g.cells)
+    else:
+        path = g.path if g.path == "bunny" else str(scene.resolve_path(g.path))
+        try:
+            v, f = load_surface(path, g.up_axis, g.scale_to, g.target_faces)
+        except (FileNotFoundError, ValueError) as error:
+            raise SceneError(f"{scene.source}: key 'geometry.path': {error}") from None
+        mesh = tet_mesh(v, f, g.edge_length_fac, g.epsilon, g.stop_energy, g.coarsen, g.order)
+    extra = {}
+    for name, region in scene.boundary.node_sets.items():
+        if region.indices is not None:
+            idx = np.asarray(region.indices, dtype=np.int64)
+            if idx.size and idx.max() >= mesh.n_nodes:
+                raise SceneError(
+                    f"{scene.source}: key 'boundary.node_sets.{name}.indices': node index "
+                    f"{idx.max()} out of range; the mesh has {mesh.n_nodes} nodes"
+                )
+        else:
+            lo, hi = np.asarray(region.box_min), np.asarray(region.box_max)
+            idx = np.flatnonzero(np.all((mesh.points >= lo) & (mesh.points <= hi), axis=1))
+        extra[name] = idx
+    return mesh.with_node_sets(extra) if extra else mesh
+
+
+def material_fields(scene: Scene, mesh: Mesh) -> MaterialFields:
+    """Per-element material values: base, then defects in order (by element centroid), or
+    read from ``material.field_file``."""
+    m = scene.material
+    n = mesh.n_elements
+    drum = scene.geometry.kind == "drum"
+    if m.field_file is not None:
+        return _fields_from_file(scene, n, drum)
+    stiffness = np.full(n, m.tension if drum else m.E)
+    density = np.full(n, m.areal_density if drum else m.rho)
+    nu = np.full(n, m.nu)
+    centroids = mesh.centroids
+    for defect in m.defects:
+        inside = defect.contains(centroids)
+        if drum:
+            if defect.tension is not None:
+                stiffness[inside] = defect.tension
+            if defect.areal_density is not None:
+                density[inside] = defect.areal_density
+        else:
+            if defect.E is not None:
+                stiffness[inside] = defect.E
+            if defect.rho is not None:
+                density[inside] = defect.rho
+            if defect.nu is not None:
+                nu[inside] = defect.nu
+    return MaterialFields(stiffness, density, nu)
+
+
+def _fields_from_file(scene: Scene, n: int, drum: bool) -> MaterialFields:
+    path = scene.resolve_path(scene.material.field_file)
+    where = f"{path} (from key 'material.field_file')"
+    try:
+        data = np.load(path)
+    except (OSError, ValueError) as error:
+        raise SceneError(f"{where}: cannot read an .npz array file: {error}") from None
+    keys = ("tension", "areal_density") if drum else ("E", "rho")
+    allowed = ", ".join(keys + (() if drum else ("nu",)))
+    out = {}
+    for key in keys + (() if drum else ("nu",)):
+        if key not in data:
+            if key == "nu":
+                out[key] = np.full(n, scene.material.nu)
+                continue
+            raise SceneError(f"{where}: missing array '{key}'; arrays read: {allowed}")
+        arr = np.asarray(data[key], dtype=float).ravel()
+        if arr.shape != (n,):
+            raise SceneError(
+                f"{where}: array '{key}' has {arr.size} values; the mesh has {n} elements"
+            )
+        if not np.all(np.isfinite(arr)) or (key != "nu" and np.any(arr <= 0)):
+            raise SceneError(f"{where}: array '{key}' must be finite and positive")
+        out[key] = arr
+    nu = out.get("nu", np.full(n, scene.material.nu))
+    return MaterialFields(out[keys[0]], out[keys[1]], nu)
+
+
+def fixed_nodes(scene: Scene, mesh: Mesh) -> np.ndarray:
+    """Union of the node sets named in ``boundary.fixed`` ("none" fixes nothing)."""
+    names = [s for s in scene.fixed_sets if s != "none"]
+    unknown = [s for s in names if s not in mesh.node_sets]
+    if unknown:
+        raise SceneError(
+            f"{scene.source}: key 'boundary.fixed': unknown node set(s) {unknown}; allowed for "
+            f"this geometry: none, {', '.join(sorted(mesh.node_sets))}"
+        )
+    if not names:
+        return np.zeros(0, np.int64)
+    return np.unique(np.concatenate([mesh.node_sets[s] for s in names]))
+
+
+def build_model(scene: Scene, mesh: Mesh, fields: MaterialFields) -> ParametricModel:
+    """Per-element parametric model (each element its own parameter)."""
+    return ParametricModel(mesh, nu=fields.nu, fixed_nodes=fixed_nodes(scene, mesh))
+
+
+def load_nodes(scene: Scene, mesh: Mesh) -> np.ndarray:
+    """Nodes within ``excitation.radius`` of ``excitation.at`` (the nearest node if none)."""
+    at = np.asarray(scene.excitation.at, dtype=float)
+    dist = np.linalg.norm(mesh.points - at, axis=1)
+    nodes = np.flatnonzero(dist <= scene.excitation.radius)
+    return nodes if nodes.size else np.array([int(np.argmin(dist))])
+
+
+def load_vector(
+    scene: Scene, mesh: Mesh, model: ParametricModel
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(load over the free DOFs: unit total along the direction, load nodes, direction)."""
+    nodes = load_nodes(scene, mesh)
+    d = mesh.dofs_per_node
+    direction = np.asarray(scene.excitation.direction, dtype=float)
+    direction = direction / np.linalg.norm(direction)
+    if d == 1:
+        direction = np.array([1.0 if direction[2] >= 0 else -1.0])
+    full = np.zeros(mesh.n_dofs)
+    full[mesh.dofs_of(nodes)] = np.tile(direction / len(nodes), len(nodes))
+    f = model.restrict(full)
+    if not np.any(f):
+        raise SceneError(
+            f"{scene.source}: key 'excitation.at': every loaded node is fixed; "
+            "move the load off the fixed boundary"
+        )
+    return f, nodes, direction
+
+
+def force_signal(scene: Scene):
+    """(f(t), suggested integration step) for a force excitation."""
+    s = scene.excitation.signal
+    if isinstance(s, Chirp):
+        rate = (s.f1 - s.f0) / s.duration
+
+        def f(t):
+            tau = np.asarray(t) - s.start
+            on = (tau >= 0) & (tau <= s.duration)
+            return np.where(on, s.amplitude * np.sin(2 * np.pi * (s.f0 * tau + rate * tau**2 / 2)), 0)
+
+        return f, 1.0 / (20 * max(s.f0, s.f1))
+    if isinstance(s, Impulse):
+
+        def f(t):
+            tau = np.asarray(t) - s.start
+            on = (tau >= 0) & (tau <= s.width)
+            return np.where(on, s.amplitude * np.sin(np.pi * tau / s.width), 0.0)
+
+        return f, s.width / 20
+    assert isinstance(s, ForceFile)
+    path = scene.resolve_path(s.path)
+    ts, fs = _read_force_file(path)
+    return (lambda t: np.interp(t, ts, fs, left=0.0, right=0.0)), float(np.min(np.diff(ts)))
+
+
+def _read_force_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    where = f"{path} (from key 'excitation.signal.path')"
+    try:
+        if path.suffix == ".csv":
+            arr = np.loadtxt(path, delimiter=",", ndmin=2)
+        elif path.suffix == ".npz":
+            z = np.load(path)
+            arr = np.column_stack([z["time"], z["force"]])
+        else:
+            arr = np.load(path)
+    except (OSError, ValueError, KeyError) as error:
+        raise SceneError(
+            f"{where}: cannot read a force series (.csv/.npy with columns time, force, or .npz "
+            f"with arrays time and force): {error}"
+        ) from None
+    if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 2:
+        raise SceneError(f"{where}: need at least two rows of (time s, force N); got {arr.shape}")
+    if np.any(np.diff(arr[:, 0]) <= 0):
+        raise SceneError(f"{where}: times must be strictly increasing")
+    return arr[:, 0], arr[:, 1]
+
+
+def frame_times(scene: Scene) -> np.ndarray:
+    n = int(round(scene.simulation.duration * scene.simulation.fps))
+    return np.arange(n) / scene.simulation.fps
+
+
+def simulate(scene: Scene, transient: bool = True, method: str | None = None) -> SimulationResult:
+    """Mesh, materials, the lowest ``simulation.n_modes`` modes and (optionally) the transient
+    response at every surface node, sampled at the scene's frame rate."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    mesh = build_mesh(scene)
+    timings["mesh"] = time.perf_counter() - t0
+    fields = material_fields(scene, mesh)
+    t0 = time.perf_counter()
+    model = build_model(scene, mesh, fields)
+    K, M = model.K(fields.stiffness), model.M(fields.density)
+    timings["assembly"] = time.perf_counter() - t0
+    n_modes = scene.simulation.n_modes
+    if n_modes >= model.n_free:
+        raise SceneError(
+            f"{scene.source}: key 'simulation.n_modes': {n_modes} modes asked, but the mesh has "
+            f"only {model.n_free} free DOFs; allowed: 1..{model.n_free - 1}"
+        )
+    t0 = time.perf_counter()
+    modes = eigenmodes(K, M, n_modes, seed=scene.seed)
+    timings["modes"] = time.perf_counter() - t0
+    alpha, beta = scene.damping.coefficients()
+    result = SimulationResult(scene, mesh, fields, model, modes, alpha, beta, timings=timings)
+    if not transient or scene.excitation.kind == "none":
+        return result
+    t0 = time.perf_counter()
+    _transient(result, K, M, method or scene.simulation.method)
+    timings["transient"] = time.perf_counter() - t0
+    return result
+
+
+def initial_conditions(scene: Scene, result: SimulationResult, K, M):
+    """(u0, v0, force, force_shape, force_dt) over the free DOFs for the scene's excitation."""
+    mesh, model = result.mesh, result.model
+    ex = scene.excitation
+    f, nodes, direction = load_vector(scene, mesh, model)
+    u0 = v0 = force = None
+    force_dt = None
+    if ex.kind == "pluck":
+        if len(model.fixed_dofs) == 0:
+            raise SceneError(
+                f"{scene.source}: key 'excitation.kind': a pluck (static deflection) needs a "
+                "fixed boundary; set boundary.fixed or use 'velocity'"
+            )
+        static = Factorization(K)(f)
+        moved = model.nodal(static)[0][nodes] @ direction
+        u0 = static * (ex.displacement / float(np.mean(moved)))
+    elif ex.kind == "velocity":
+        full = np.zeros(mesh.n_dofs)
+        vel = np.asarray(ex.velocity, dtype=float)
+        vel = vel[2:] if mesh.dofs_per_node == 1 else vel
+        full[mesh.dofs_of(nodes)] = np.tile(vel, len(nodes))
+        v0 = model.restrict(full)
+    elif ex.kind == "force":
+        force, force_dt = force_signal(scene)
+    return u0, v0, force, f, force_dt
+
+
+def _transient(result: SimulationResult, K, M, method: str) -> None:
+    scene, mesh, model, modes = result.scene, result.mesh, result.model, result.modes
+    u0, v0, force, shape, force_dt = initial_conditions(scene, result, K, M)
+    times = frame_times(scene)
+    surface = mesh.surface_nodes
+    d = mesh.dofs_per_node
+    rows = model.free_index[mesh.dofs_of(surface)]
+    observed = np.zeros((len(rows), len(modes)))
+    observed[rows >= 0] = modes.vectors[rows[rows >= 0]]
+    if u0 is not None:
+        residual = u0 - modes.vectors @ (modes.vectors.T @ (M @ u0))
+        result.truncation_error = float(
+            np.sqrt((residual @ (M @ residual)) / (u0 @ (M @ u0)))
+        )
+    if method == "modal":
+        c = modal_damping(modes.omega, result.alpha, result.beta)
+        u = modal_response(
+            modes.vectors, modes.omega, c, M, times, u0, v0, force, shape, force_dt, observed
+        )
+    elif method == "newmark":
+        obs = np.where(rows >= 0, rows, 0)
+        u = newmark_response(
+            K, M, result.alpha, result.beta, times, u0, v0, force, shape,
+            scene.simulation.newmark_substeps, obs,
+        ).astype(np.float32)
+        u[:, rows < 0] = 0.0
+    else:
+        raise ValueError(f"transient method must be 'modal' or 'newmark', got {method!r}")
+    result.times = times
+    result.surface_nodes = surface
+    result.displacements = u.reshape(len(times), len(surface), d)
