@@ -1,0 +1,408 @@
+"""Phase-based sub-pixel displacement (Wadhwa et al. 2013, Fleet--Jepson 1990).
+
+For every band ``b`` of a complex steerable pyramid the phase difference to the reference
+frame, ``dphi_b = angle(c_b * conj(c_ref_b))``, obeys to first order the constraint
+
+    g_b . d = -dphi_b,
+
+where ``d = (dx, dy)`` is the displacement in pixels and ``g_b`` the spatial frequency
+vector of the band at that pixel (rad/pixel): either the *local* frequency, i.e. the phase
+gradient of the reference band, or the band *centre* frequency.  All bands (orientations
+and scales, coarse scales bilinearly upsampled) are combined per pixel by least squares
+with weights ``|c_ref_b|**2`` (phase noise variance ~ 1 / amplitude**2).  Outliers are
+removed and the normal equations are Gaussian-smoothed before solving, which amounts to an
+amplitude-weighted local least-squares fit over a Gaussian window.
+
+Conventions: ``x`` = columns (right), ``y`` = rows (down); content moving right/down gives
+positive ``dx``/``dy``, in full-resolution pixels.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from collections.abc import Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.ndimage import gaussian_filter
+
+from .pyramid import SteerablePyramid, get_pyramid
+
+__all__ = ["PhaseMotion", "iter_displacements", "solve2x2", "upsample_periodic"]
+
+Frequency = Literal["local", "centre"]
+
+
+def upsample_periodic(a: NDArray[np.floating], shape: tuple[int, int]) -> NDArray[np.floating]:
+    """Bilinear, periodic upsampling of the last two axes to ``shape``.
+
+    Sample ``i`` of an ``n``-point axis sits at full-resolution position ``i * N / n``,
+    matching a spectrally cropped (downsampled) pyramid band.
+
+    Parameters
+    ----------
+    a : ndarray
+        ``(..., h, w)`` array.
+    shape : tuple of int
+        Output ``(H, W)``.
+
+    Returns
+    -------
+    ndarray
+        ``(..., H, W)`` array of the same dtype (``a`` itself if already that shape).
+    """
+    out = a
+    for axis, n_out in ((-2, shape[0]), (-1, shape[1])):
+        n_in = out.shape[axis]
+        if n_in == n_out:
+            continue
+        pos = np.arange(n_out) * (n_in / n_out)
+        i0 = np.floor(pos).astype(np.intp)
+        t = (pos - i0).astype(out.dtype)
+        i1 = (i0 + 1) % n_in
+        tshape = (-1, 1) if axis == -2 else (-1,)
+        t = t.reshape(tshape)
+        lo = np.take(out, i0, axis=axis)
+        hi = np.take(out, i1, axis=axis)
+        hi -= lo
+        hi *= t
+        lo += hi
+        out = lo
+    return out
+
+
+def solve2x2(
+    m: NDArray[np.floating], b: NDArray[np.floating], ridge: float = 0.0
+) -> NDArray[np.floating]:
+    """Solve the per-pixel symmetric 2x2 systems ``(M + ridge I) d = b``.
+
+    Parameters
+    ----------
+    m : ndarray
+        ``(3, ...)`` entries ``(M_xx, M_xy, M_yy)``.
+    b : ndarray
+        ``(2, ...)`` right-hand sides, broadcastable against ``m[0]``.
+    ridge : float
+        Tikhonov term added to the diagonal.
+
+    Returns
+    -------
+    ndarray
+        ``(2, ...)`` solution ``(dx, dy)``; zero where the system is singular.
+    """
+    mxx = m[0] + ridge
+    mxy = m[1]
+    myy = m[2] + ridge
+    det = mxx * myy - mxy * mxy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = np.where(det > 0, 1.0 / det, 0.0).astype(det.dtype)
+    return np.stack([(myy * b[0] - mxy * b[1]) * inv, (mxx * b[1] - mxy * b[0]) * inv])
+
+
+def _min_eig(m: NDArray[np.floating]) -> NDArray[np.floating]:
+    """Smallest eigenvalue of per-pixel symmetric 2x2 matrices ``(3, ...)``."""
+    half_tr = 0.5 * (m[0] + m[2])
+    disc = np.sqrt(np.maximum(0.25 * (m[0] - m[2]) ** 2 + m[1] ** 2, 0.0))
+    return np.maximum(half_tr - disc, 0.0)
+
+
+class PhaseMotion:
+    """Phase-based displacement relative to a reference frame.
+
+    Parameters
+    ----------
+    reference_frame : array_like
+        ``(H, W)`` real image; displacements are measured relative to it.
+    n_scales : int, default 3
+        Pyramid scales used (band centre frequencies ``pi / 2**(s + 1)`` rad/px).
+    n_orientations : int, default 4
+        Pyramid orientations (``>= 2``).
+    frequency : {"local", "centre"}, default "local"
+        Spatial frequency used to convert phase to pixels: the local phase gradient of the
+        reference band (2-D vector, computed spectrally; pixels where it is implausible for
+        the band get zero weight) or the band centre frequency vector.
+    sigma : float, default 2.0
+        Standard deviation (pixels) of the Gaussian window of the amplitude-weighted
+        smoothing; ``0`` disables it.
+    outlier_fraction : float, default 0.01
+        Fraction of pixels per frame with the largest unsmoothed displacement magnitude that
+        are discarded before smoothing (they are then filled from their neighbours); ``0``
+        disables it.
+    downsample : bool, default True
+        Process coarse scales at reduced resolution.
+    ridge : float, default 1e-4
+        Tikhonov regularisation relative to the mean trace of the normal matrix; weakly
+        textured pixels are shrunk towards zero displacement.
+    workers : int, optional
+        Threads: a batch is split into up to ``workers`` sub-batches processed concurrently
+        (NumPy, SciPy FFT and ndimage release the GIL); ``-1`` = all CPUs, default 1.  Results
+        do not depend on it.
+
+    Attributes
+    ----------
+    pyramid : SteerablePyramid
+    confidence : ndarray
+        ``(H, W)`` float32: smallest eigenvalue of the smoothed normal matrix
+        ``sum_b |c_ref_b|**2 g_b g_b^T``, i.e. the inverse variance (up to a constant) of the
+        worst-determined displacement component; ~0 on untextured or 1-D-textured pixels.
+    """
+
+    def __init__(
+        self,
+        reference_frame: ArrayLike,
+        n_scales: int = 3,
+        n_orientations: int = 4,
+        *,
+        frequency: Frequency = "local",
+        sigma: float = 2.0,
+        outlier_fraction: float = 0.01,
+        downsample: bool = True,
+        ridge: float = 1e-4,
+        workers: int | None = None,
+    ) -> None:
+        ref = np.asarray(reference_frame)
+        if ref.ndim != 2:
+            raise ValueError(f"reference_frame must be a 2-D (H, W) image, got shape {ref.shape}")
+        if frequency not in ("local", "centre"):
+            raise ValueError(f"frequency must be 'local' or 'centre', got {frequency!r}")
+        if sigma < 0:
+            raise ValueError(f"sigma must be >= 0, got {sigma}")
+        if not 0.0 <= outlier_fraction < 1.0:
+            raise ValueError(f"outlier_fraction must be in [0, 1), got {outlier_fraction}")
+        self.pyramid: SteerablePyramid = get_pyramid(
+            ref.shape, n_scales, n_orientations, downsample
+        )
+        self.shape: tuple[int, int] = self.pyramid.shape
+        self.frequency = frequency
+        self.sigma = float(sigma)
+        self.outlier_fraction = float(outlier_fraction)
+        if workers is None:
+            workers = 1
+        if workers == -1:
+            workers = os.cpu_count() or 1
+        if int(workers) != workers or workers < 1:
+            raise ValueError(f"workers must be a positive integer or -1, got {workers!r}")
+        self.workers = int(workers)
+
+        self._cref: list[NDArray[np.complex64]] = []  # conj of reference coefficients
+        self._wg: list[NDArray[np.float32]] = []  # (2, h, w): weight * (gx, gy)
+        m = np.zeros((3, *self.shape), np.float32)
+        m_s: NDArray[np.float32] | None = None
+        for band, c, grad in self.pyramid.iter_bands(ref, gradient=True, workers=self.workers):
+            c, grad = c[0], grad[:, 0]
+            a2 = (c.real**2 + c.imag**2).astype(np.float32)
+            wc = band.radial_frequency
+            ux, uy = band.direction
+            if frequency == "local":
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    g = (np.conj(c)[None] * grad).imag / a2
+                along = g[0] * ux + g[1] * uy
+                ok = (a2 > 0) & (along >= 0.25 * wc) & (np.hypot(g[0], g[1]) <= 4.0 * wc)
+                g = np.where(ok[None], g, 0.0).astype(np.float32)
+                w = np.where(ok, a2, 0.0).astype(np.float32)
+            else:
+                g = np.empty((2, *c.shape), np.float32)
+                g[0], g[1] = band.frequency
+                w = a2
+            if band.orientation == 0:
+                m_s = np.zeros((3, *c.shape), np.float32)
+            m_s[0] += w * g[0] * g[0]
+            m_s[1] += w * g[0] * g[1]
+            m_s[2] += w * g[1] * g[1]
+            if band.orientation == self.pyramid.n_orientations - 1:
+                m += upsample_periodic(m_s, self.shape)
+            self._cref.append(np.conj(c).astype(np.complex64))
+            self._wg.append((w * g).astype(np.float32))
+        self._m = m
+        self._ridge = float(ridge * np.mean(m[0] + m[2]))
+        self._m_smooth = self._smooth(m)
+        self.confidence: NDArray[np.float32] = _min_eig(self._m_smooth).astype(np.float32)
+
+    def __repr__(self) -> str:
+        p = self.pyramid
+        return (
+            f"PhaseMotion(shape={self.shape}, n_scales={p.n_scales}, "
+            f"n_orientations={p.n_orientations}, frequency={self.frequency!r}, "
+            f"sigma={self.sigma}, outlier_fraction={self.outlier_fraction})"
+        )
+
+    def _smooth(self, a: NDArray[np.float32]) -> NDArray[np.float32]:
+        if self.sigma == 0:
+            return a
+        return gaussian_filter(a, self.sigma, axes=(-2, -1), mode="reflect", truncate=3.0)
+
+    def _check(self, frames: ArrayLike) -> NDArray[np.float32]:
+        x = np.asarray(frames)
+        if x.ndim != 3:
+            raise ValueError(
+                f"frames must be a 3-D (B, H, W) array, got shape {x.shape}"
+                + (" (use frame[None] for a single frame)" if x.ndim == 2 else "")
+            )
+        if x.shape[1:] != self.shape:
+            raise ValueError(
+                f"frame size {x.shape[1:]} does not match the reference frame's {self.shape}"
+            )
+        if np.iscomplexobj(x):
+            raise ValueError("frames must be real-valued")
+        return x.astype(np.float32, copy=False)
+
+    def rhs(self, frames: ArrayLike) -> NDArray[np.float32]:
+        """Right-hand side ``-sum_b w_b dphi_b g_b`` of the normal equations.
+
+        Parameters
+        ----------
+        frames : array_like
+            ``(B, H, W)`` frames.
+
+        Returns
+        -------
+        ndarray
+            ``(2, B, H, W)`` float32 (unsmoothed, full resolution).
+        """
+        return self._rhs(self._check(frames))
+
+    def _rhs(self, x: NDArray[np.float32]) -> NDArray[np.float32]:
+        B = x.shape[0]
+        b = np.zeros((2, B, *self.shape), np.float32)
+        b_s: NDArray[np.float32] | None = None
+        n_or = self.pyramid.n_orientations
+        for i, (band, c) in enumerate(self.pyramid.iter_bands(x, workers=1)):
+            c *= self._cref[i]
+            dphi = np.angle(c).astype(np.float32, copy=False)
+            if band.orientation == 0:
+                b_s = np.zeros((2, B, *c.shape[1:]), np.float32)
+            b_s[0] -= self._wg[i][0] * dphi
+            b_s[1] -= self._wg[i][1] * dphi
+            if band.orientation == n_or - 1:
+                b += upsample_periodic(b_s, self.shape)
+        return b
+
+    def displacement(
+        self, frames: ArrayLike, *, return_outliers: bool = False
+    ) -> NDArray[np.float32] | tuple[NDArray[np.float32], NDArray[np.bool_]]:
+        """Displacement of each frame relative to the reference.
+
+        Parameters
+        ----------
+        frames : array_like
+            ``(B, H, W)`` real frames of the reference's size.
+        return_outliers : bool, default False
+            Also return the ``(B, H, W)`` boolean mask of pixels discarded as outliers.
+
+        Returns
+        -------
+        d : ndarray
+            ``(B, H, W, 2)`` float32 ``(dx, dy)`` in pixels (x right, y down).
+        outliers : ndarray
+            Only if ``return_outliers``.
+        """
+        x = self._check(frames)
+        n = min(self.workers, x.shape[0])
+        if n > 1:
+            chunks = np.array_split(x, n)
+            with ThreadPoolExecutor(n) as ex:
+                parts = list(ex.map(self._displacement, chunks))
+            d = np.concatenate([p[0] for p in parts])
+            outliers = np.concatenate([p[1] for p in parts])
+        else:
+            d, outliers = self._displacement(x)
+        return (d, outliers) if return_outliers else d
+
+    def _displacement(
+        self, x: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+        b = self._rhs(x)
+        B = b.shape[1]
+        m = self._m[:, None]
+        outliers = np.zeros((B, *self.shape), np.bool_)
+        if self.outlier_fraction > 0:
+            raw = solve2x2(m, b, self._ridge)
+            mag2 = (raw[0] ** 2 + raw[1] ** 2).reshape(B, -1)
+            thr = np.quantile(mag2, 1.0 - self.outlier_fraction, axis=1)
+            outliers = (mag2 > thr[:, None]).reshape(B, *self.shape)
+            keep = (~outliers).astype(np.float32)
+            b *= keep
+            ms = self._smooth(m * keep)
+        else:
+            ms = self._m_smooth[:, None]
+        bs = self._smooth(b)
+        d = solve2x2(ms, bs, self._ridge)
+        return np.ascontiguousarray(np.moveaxis(d, 0, -1), dtype=np.float32), outliers
+
+    def iter_displacements(
+        self, frames: Iterable[ArrayLike], batch: int = 32
+    ) -> Iterator[NDArray[np.float32]]:
+        """Stream displacements batch by batch (memory independent of video length).
+
+        Parameters
+        ----------
+        frames : iterable
+            Frames ``(H, W)`` (or chunks ``(n, H, W)``), e.g. a video reader or an array.
+        batch : int, default 32
+            Frames per processed batch.
+
+        Yields
+        ------
+        ndarray
+            ``(n, H, W, 2)`` float32 with ``n == batch`` except possibly for the last.
+        """
+        if batch < 1:
+            raise ValueError(f"batch must be >= 1, got {batch}")
+        buf: list[NDArray] = []
+        n = 0
+        for item in frames:
+            a = np.asarray(item)
+            if a.ndim == 2:
+                a = a[None]
+            if a.ndim != 3 or a.shape[1:] != self.shape:
+                raise ValueError(
+                    f"streamed frames must be (H, W) = {self.shape} or (n, H, W), got {a.shape}"
+                )
+            buf.append(a)
+            n += a.shape[0]
+            while n >= batch:
+                cat = np.concatenate(buf, axis=0)
+                yield self.displacement(cat[:batch])
+                rest = cat[batch:]
+                buf, n = ([rest] if rest.shape[0] else []), rest.shape[0]
+        if n:
+            yield self.displacement(np.concatenate(buf, axis=0))
+
+
+def iter_displacements(
+    frame_iterable: Iterable[ArrayLike],
+    batch: int = 32,
+    reference: ArrayLike | None = None,
+    **kwargs,
+) -> Iterator[NDArray[np.float32]]:
+    """Stream displacements of a video, batch by batch.
+
+    Parameters
+    ----------
+    frame_iterable : iterable
+        Frames ``(H, W)`` (or chunks ``(n, H, W)``).
+    batch : int, default 32
+        Frames per batch.
+    reference : array_like, optional
+        Reference frame; default the first frame of the stream (which is also processed).
+    **kwargs
+        Passed to :class:`PhaseMotion`.
+
+    Yields
+    ------
+    ndarray
+        ``(n, H, W, 2)`` float32 displacement batches.
+    """
+    it = iter(frame_iterable)
+    if reference is None:
+        try:
+            first = np.asarray(next(it))
+        except StopIteration:
+            return
+        reference = first if first.ndim == 2 else first[0]
+        it = itertools.chain([first], it)
+    pm = PhaseMotion(reference, **kwargs)
+    yield from pm.iter_displacements(it, batch=batch)
