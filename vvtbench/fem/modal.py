@@ -97,8 +97,10 @@ def eigenmodes(
         Systems of at most 600 DOFs always use "dense".
     """
     n = K.shape[0]
-    if not 1 <= k < n:
-        raise ValueError(f"asked for {k} modes of a system with {n} free DOFs; need 1 <= k < {n}")
+    dense = n <= 600 or method == "dense"
+    if not 1 <= k <= n or (k == n and not dense):
+        limit = n if dense else n - 1
+        raise ValueError(f"asked for {k} modes of a system with {n} free DOFs; need 1..{limit}")
     K = sp.csc_matrix(K)
     M = sp.csc_matrix(M)
     if sigma is None:
@@ -108,7 +110,7 @@ def eigenmodes(
         raise ValueError(f"method must be 'auto', 'block', 'arpack' or 'dense', got {method!r}")
     if method == "auto":
         method = "arpack" if n < 10_000 else "block"
-    if n <= 600 or method == "dense":
+    if dense:
         lam, phi = _dense(K, M)
         lam, phi = lam[:k], phi[:, :k]
     elif method == "block":
