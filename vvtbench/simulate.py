@@ -21,7 +21,7 @@ import numpy as np
 from .fem.assembly import ParametricModel
 from .fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
 from .fem.modal import Factorization, Modes, eigenmodes
-from .fem.transient import damping_ratios, modal_damping, modal_response, newmark_response
+from .fem.transient import damping_ratios, modal_coordinates, modal_damping, newmark_response
 from .scene import Chirp, ForceFile, Impulse, Scene, SceneError
 
 
@@ -48,9 +48,34 @@ class SimulationResult:
     beta: float
     times: np.ndarray = field(default_factory=lambda: np.zeros(0))
     surface_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    displacements: np.ndarray | None = None
+    modal_coordinates: np.ndarray | None = None
+    observed_modes: np.ndarray | None = None
+    direct_displacements: np.ndarray | None = None
     truncation_error: float | None = None
     timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def has_transient(self) -> bool:
+        return self.modal_coordinates is not None or self.direct_displacements is not None
+
+    def displacement_frames(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Surface-node displacements of frames ``start:stop``: (n, n_surface, dofs_per_node)
+        float32 (m). Modal results keep only the modal coordinates (frames x modes), so any
+        chunk of a long response costs memory for that chunk alone."""
+        if not self.has_transient:
+            raise ValueError("no transient response: the scene's excitation kind is 'none'")
+        d = self.mesh.dofs_per_node
+        if self.direct_displacements is not None:
+            u = self.direct_displacements[start:stop]
+        else:
+            q = self.modal_coordinates[start:stop]
+            u = (q @ self.observed_modes.T).astype(np.float32)
+        return u.reshape(len(u), len(self.surface_nodes), d)
+
+    @property
+    def displacements(self) -> np.ndarray | None:
+        """All frames of :meth:`displacement_frames`, or None without a transient."""
+        return self.displacement_frames() if self.has_transient else None
 
     @property
     def frequencies_hz(self) -> np.ndarray:
@@ -324,9 +349,10 @@ def _transient(result: SimulationResult, K, M, method: str) -> None:
         )
     if method == "modal":
         c = modal_damping(modes.omega, result.alpha, result.beta)
-        u = modal_response(
-            modes.vectors, modes.omega, c, M, times, u0, v0, force, shape, force_dt, observed
+        result.modal_coordinates = modal_coordinates(
+            modes.vectors, modes.omega, c, M, times, u0, v0, force, shape, force_dt
         )
+        result.observed_modes = observed.astype(np.float32)
     elif method == "newmark":
         obs = np.where(rows >= 0, rows, 0)
         u = newmark_response(
@@ -334,8 +360,8 @@ def _transient(result: SimulationResult, K, M, method: str) -> None:
             scene.simulation.newmark_substeps, obs,
         ).astype(np.float32)
         u[:, rows < 0] = 0.0
+        result.direct_displacements = u.reshape(len(times), len(surface), d)
     else:
         raise ValueError(f"transient method must be 'modal' or 'newmark', got {method!r}")
     result.times = times
     result.surface_nodes = surface
-    result.displacements = u.reshape(len(times), len(surface), d)

@@ -113,6 +113,32 @@ def forced_modal_coordinates(
     return out
 
 
+def modal_coordinates(
+    vectors: np.ndarray,
+    omega: np.ndarray,
+    c: np.ndarray,
+    M: sp.spmatrix,
+    times: np.ndarray,
+    u0: np.ndarray | None = None,
+    v0: np.ndarray | None = None,
+    force: Callable[[np.ndarray], np.ndarray] | None = None,
+    force_shape: np.ndarray | None = None,
+    force_dt: float | None = None,
+) -> np.ndarray:
+    """Modal coordinates q(t) (len(times), k) of the response; see :func:`modal_response`."""
+    times = np.asarray(times, dtype=float)
+    k = vectors.shape[1]
+    q0 = vectors.T @ (M @ u0) if u0 is not None else np.zeros(k)
+    qd0 = vectors.T @ (M @ v0) if v0 is not None else np.zeros(k)
+    if force is None:
+        return free_modal_coordinates(times, omega, c, q0, qd0)
+    frame_dt = times[1] - times[0] if len(times) > 1 else 1.0
+    sub = max(1, int(np.ceil(frame_dt / force_dt - 1e-9))) if force_dt else 1
+    fine_t = np.arange((len(times) - 1) * sub + 1) * (frame_dt / sub)
+    p = np.outer(force(fine_t), vectors.T @ force_shape)
+    return forced_modal_coordinates(frame_dt / sub, p, omega, c, q0, qd0)[::sub]
+
+
 def modal_response(
     vectors: np.ndarray,
     omega: np.ndarray,
@@ -144,18 +170,7 @@ def modal_response(
     -------
     (len(times), n_observed) array of ``dtype``.
     """
-    times = np.asarray(times, dtype=float)
-    k = vectors.shape[1]
-    q0 = vectors.T @ (M @ u0) if u0 is not None else np.zeros(k)
-    qd0 = vectors.T @ (M @ v0) if v0 is not None else np.zeros(k)
-    if force is None:
-        q = free_modal_coordinates(times, omega, c, q0, qd0)
-    else:
-        frame_dt = times[1] - times[0] if len(times) > 1 else 1.0
-        sub = max(1, int(np.ceil(frame_dt / force_dt - 1e-9))) if force_dt else 1
-        fine_t = np.arange((len(times) - 1) * sub + 1) * (frame_dt / sub)
-        p = np.outer(force(fine_t), vectors.T @ force_shape)
-        q = forced_modal_coordinates(frame_dt / sub, p, omega, c, q0, qd0)[::sub]
+    q = modal_coordinates(vectors, omega, c, M, times, u0, v0, force, force_shape, force_dt)
     obs = vectors if observe is None else observe
     return (q @ obs.T).astype(dtype, copy=False)
 
