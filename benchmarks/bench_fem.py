@@ -54,10 +54,12 @@ def case_transient() -> dict:
         update={"duration": 6.0, "fps": 2000.0})})
     t0 = time.perf_counter()
     result = simulate(scene)
-    total = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    u = result.displacements
+    t2 = time.perf_counter()
     return {"frames": len(result.times), "surface_nodes": len(result.surface_nodes),
-            "transient_s": result.timings["transient"], "total_s": total,
-            "output_mib": result.displacements.nbytes / 2**20}
+            "transient_s": result.timings["transient"] + t2 - t1, "total_s": t2 - t0,
+            "output_mib": u.nbytes / 2**20}
 
 
 def case_bunny() -> dict:

@@ -230,7 +230,8 @@ def force_signal(scene: Scene):
         def f(t):
             tau = np.asarray(t) - s.start
             on = (tau >= 0) & (tau <= s.duration)
-            return np.where(on, s.amplitude * np.sin(2 * np.pi * (s.f0 * tau + rate * tau**2 / 2)), 0)
+            phase = 2 * np.pi * (s.f0 * tau + rate * tau**2 / 2)
+            return np.where(on, s.amplitude * np.sin(phase), 0.0)
 
         return f, 1.0 / (20 * max(s.f0, s.f1))
     if isinstance(s, Impulse):

@@ -139,7 +139,8 @@ def box_mesh(
         "back": np.flatnonzero(points[:, 1] > size[1] - tol),
         "all": np.arange(len(points)),
     }
-    return Mesh(points, conn.astype(np.int64), element, sets, boundary_surface(points, conn, element))
+    surface = boundary_surface(points, conn, element)
+    return Mesh(points, conn.astype(np.int64), element, sets, surface)
 
 
 def _hex_local_faces(order: int) -> list[np.ndarray]:
@@ -345,7 +346,9 @@ def tet_mesh(
     return tets_to_mesh(pts, tets, order=order, bottom_tol=bottom_tol)
 
 
-def tets_to_mesh(points: np.ndarray, tets: np.ndarray, order: int = 1, bottom_tol: float = 0.02) -> Mesh:
+def tets_to_mesh(
+    points: np.ndarray, tets: np.ndarray, order: int = 1, bottom_tol: float = 0.02
+) -> Mesh:
     """A tet4/tet10 Mesh from tetrahedra, with positive orientation and midside nodes."""
     p = points[tets]
     vol = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])

@@ -91,9 +91,10 @@ def eigenmodes(
     tol : normwise backward error (see :func:`backward_errors`) every mode must reach
         ("block"); ARPACK's relative tolerance ("arpack").
     cluster_rtol : eigenvalues closer than this (relative) are treated as one repeated value.
-    method : "auto" (ARPACK below 10 000 DOFs, where it is faster, else block), "block" (shift-invert block Krylov with Rayleigh-Ritz restarts: one sparse
-        factorization, block solves; handles repeated eigenvalues naturally), "arpack"
-        (scipy's eigsh in shift-invert mode) or "dense" (LAPACK, small systems only).
+    method : "auto" (ARPACK below 5000 DOFs, where it is faster, else block); "block"
+        (shift-invert block Krylov with Rayleigh-Ritz restarts: one sparse factorization,
+        block solves; handles repeated eigenvalues naturally); "arpack" (scipy's eigsh in
+        shift-invert mode); "dense" (LAPACK, small systems only).
         Systems of at most 600 DOFs always use "dense".
     """
     n = K.shape[0]
@@ -109,7 +110,7 @@ def eigenmodes(
     if method not in ("auto", "block", "arpack", "dense"):
         raise ValueError(f"method must be 'auto', 'block', 'arpack' or 'dense', got {method!r}")
     if method == "auto":
-        method = "arpack" if n < 10_000 else "block"
+        method = "arpack" if n < 5_000 else "block"
     if dense:
         lam, phi = _dense(K, M)
         lam, phi = lam[:k], phi[:, :k]
