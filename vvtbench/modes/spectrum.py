@@ -2,8 +2,8 @@
 
 Displacement batches ``(B, H, W, 2)`` (e.g. from :meth:`PhaseMotion.iter_displacements`) are
 appended to a :class:`DisplacementStore`, which keeps them in RAM while they fit in a memory
-budget and otherwise spills them, time-major, to a raw float32 file in a temporary directory
-that is read back as a ``numpy.memmap``.  Spectra are then computed by *pixel blocks*: for a
+budget and otherwise spills them to a raw float32 file in a temporary directory (batch by
+batch, each batch cut into column tiles so that pixel blocks read back cheaply).  Spectra are then computed by *pixel blocks*: for a
 block of ``P`` columns of the ``(T, H*W*2)`` matrix an ``rfft`` over time of the ``(T, P)``
 slice, so peak RAM is ``O(T * P)`` whatever the video length.
 
@@ -50,7 +50,7 @@ def frequency_axis(n_frames: int, fps: float) -> NDArray[np.float64]:
 
 
 class DisplacementStore:
-    """Append-only, time-major store of displacement fields, RAM or disk backed.
+    """Append-only store of displacement fields ``(T, H, W, 2)``, RAM or disk backed.
 
     Parameters
     ----------
@@ -60,27 +60,39 @@ class DisplacementStore:
         there directly.  ``0`` always uses the disk.
     tmpdir : str, optional
         Parent directory of the temporary directory (default: the system's).
+    tile_columns : int, default 2048
+        Disk layout: every appended batch ``(B, C)`` (``C = H*W*2`` columns) is written as
+        consecutive contiguous tiles ``(B, tile_columns)``, so that a pixel block over all
+        frames is read with one large ``pread`` per batch (no memory map: the page cache is
+        not charged to the process' RSS).
 
     Notes
     -----
     Use as a context manager (or call :meth:`close`) to delete the temporary file.
-    :meth:`array` returns the ``(T, H, W, 2)`` float32 data (an ``ndarray`` or a read-only
-    ``numpy.memmap``).
     """
 
-    def __init__(self, memory_budget: int = DEFAULT_BUDGET, tmpdir: str | None = None) -> None:
+    def __init__(
+        self,
+        memory_budget: int = DEFAULT_BUDGET,
+        tmpdir: str | None = None,
+        tile_columns: int = 2048,
+    ) -> None:
         if memory_budget < 0:
             raise ValueError(f"memory_budget must be >= 0, got {memory_budget}")
+        if tile_columns < 1:
+            raise ValueError(f"tile_columns must be >= 1, got {tile_columns}")
         self.memory_budget = int(memory_budget)
         self.tmpdir = tmpdir
+        self.tile_columns = int(tile_columns)
         self.frame_shape: tuple[int, int, int] | None = None
         self.n_frames = 0
         self._ram: list[NDArray[np.float32]] = []
         self._ram_bytes = 0
         self._dir: str | None = None
-        self._file = None
         self._path: str | None = None
-        self._cache: NDArray[np.float32] | None = None
+        self._fd: int | None = None
+        self._chunks: list[tuple[int, int]] = []  # (n_frames, byte offset) per written batch
+        self._offset = 0
 
     # -------------------------------------------------------------- context management
     def __enter__(self) -> DisplacementStore:
@@ -91,11 +103,10 @@ class DisplacementStore:
 
     def close(self) -> None:
         """Release the data and delete the temporary directory (idempotent)."""
-        self._cache = None
         self._ram = []
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
@@ -116,6 +127,13 @@ class DisplacementStore:
         """Path of the raw float32 file, if spilled."""
         return self._path
 
+    @property
+    def n_columns(self) -> int:
+        """``H * W * 2``."""
+        if self.frame_shape is None:
+            return 0
+        return int(np.prod(self.frame_shape))
+
     # -------------------------------------------------------------- writing
     def append(self, batch: ArrayLike) -> None:
         """Append a ``(B, H, W, 2)`` (or ``(H, W, 2)``) batch of displacements."""
@@ -128,15 +146,16 @@ class DisplacementStore:
             self.frame_shape = a.shape[1:]
         elif a.shape[1:] != self.frame_shape:
             raise ValueError(f"batch frame shape {a.shape[1:]} != first batch's {self.frame_shape}")
-        self._cache = None
+        if a.shape[0] == 0:
+            return
         self.n_frames += a.shape[0]
-        if self._file is None and self._ram_bytes + a.nbytes <= self.memory_budget:
+        if self._fd is None and self._ram_bytes + a.nbytes <= self.memory_budget:
             self._ram.append(np.ascontiguousarray(a))
             self._ram_bytes += a.nbytes
             return
-        if self._file is None:
+        if self._fd is None:
             self._spill()
-        self._file.write(np.ascontiguousarray(a).tobytes())
+        self._write(a)
 
     def extend(self, batches: Iterable[ArrayLike]) -> None:
         """Append every batch of an iterable."""
@@ -146,33 +165,65 @@ class DisplacementStore:
     def _spill(self) -> None:
         self._dir = tempfile.mkdtemp(prefix="vvtbench-disp-", dir=self.tmpdir)
         self._path = os.path.join(self._dir, "displacements.f32")
-        self._file = open(self._path, "wb")  # noqa: SIM115 - closed in close()
-        for a in self._ram:
-            self._file.write(a.tobytes())
-        self._ram = []
-        self._ram_bytes = 0
+        self._fd = os.open(self._path, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
+        ram, self._ram, self._ram_bytes = self._ram, [], 0
+        for a in ram:
+            self._write(a)
+
+    def _write(self, a: NDArray[np.float32]) -> None:
+        m = a.reshape(a.shape[0], -1)
+        B, C = m.shape
+        self._chunks.append((B, self._offset))
+        for c0 in range(0, C, self.tile_columns):
+            tile = np.ascontiguousarray(m[:, c0 : c0 + self.tile_columns])
+            os.pwrite(self._fd, tile.data, self._offset)
+            self._offset += tile.nbytes
 
     # -------------------------------------------------------------- reading
-    def array(self) -> NDArray[np.float32]:
-        """All displacements, ``(T, H, W, 2)`` float32 (read-only memmap if spilled)."""
+    def column_block(self, start: int, stop: int) -> NDArray[np.float32]:
+        """Columns ``start:stop`` of the ``(T, H*W*2)`` matrix over all frames, float32.
+
+        On disk, ``start`` must be a multiple of ``tile_columns``.
+        """
         if self.frame_shape is None:
             raise ValueError("the store is empty")
-        if self._cache is not None:
-            return self._cache
-        shape = (self.n_frames, *self.frame_shape)
-        if self._file is not None:
-            self._file.flush()
-            arr = np.memmap(self._path, dtype=np.float32, mode="r", shape=shape)
-        else:
-            arr = np.concatenate(self._ram, axis=0) if len(self._ram) > 1 else self._ram[0]
-            self._ram = [arr]
-        self._cache = arr
-        return arr
+        C = self.n_columns
+        stop = min(stop, C)
+        if self._fd is None:
+            return np.concatenate([a.reshape(a.shape[0], -1)[:, start:stop] for a in self._ram])
+        tc = self.tile_columns
+        if start % tc:
+            raise ValueError(f"start={start} is not a multiple of tile_columns={tc}")
+        out = np.empty((self.n_frames, stop - start), np.float32)
+        t0 = 0
+        for B, off in self._chunks:
+            for c0 in range(start, stop, tc):
+                w = min(tc, C - c0)
+                buf = out[t0 : t0 + B, c0 - start : c0 - start + w]
+                nbytes = B * w * 4
+                raw = os.pread(self._fd, nbytes, off + B * c0 * 4)
+                if len(raw) != nbytes:
+                    raise OSError(f"short read from {self._path}")
+                buf[...] = np.frombuffer(raw, np.float32).reshape(B, w)
+            t0 += B
+        return out
 
-    def matrix(self) -> NDArray[np.float32]:
-        """The data as a ``(T, H*W*2)`` matrix (same memory)."""
-        a = self.array()
-        return a.reshape(a.shape[0], -1)
+    def block_size(self, block_bytes: int) -> int:
+        """Columns per pixel block for :func:`block_columns`, rounded to whole tiles."""
+        P = block_columns(self.n_frames, block_bytes, self.n_columns)
+        if self.on_disk:
+            P = max(self.tile_columns, P // self.tile_columns * self.tile_columns)
+        return P
+
+    def array(self) -> NDArray[np.float32]:
+        """All displacements as one ``(T, H, W, 2)`` float32 array (loads it into RAM)."""
+        if self.frame_shape is None:
+            raise ValueError("the store is empty")
+        if self._fd is None:
+            if len(self._ram) > 1:
+                self._ram = [np.concatenate(self._ram, axis=0)]
+            return self._ram[0]
+        return self.column_block(0, self.n_columns).reshape(self.n_frames, *self.frame_shape)
 
 
 def block_columns(n_frames: int, block_bytes: int, n_columns: int) -> int:
@@ -220,24 +271,30 @@ def _column_weights(
     return np.repeat(w.ravel(), 2)
 
 
-def _as_matrix(disp: DisplacementStore | ArrayLike) -> tuple[NDArray[np.float32], tuple]:
+def _as_store(disp: DisplacementStore | ArrayLike) -> DisplacementStore:
     if isinstance(disp, DisplacementStore):
-        a = disp.array()
-    else:
-        a = np.asarray(disp)
-        if a.ndim != 4 or a.shape[-1] != 2:
-            raise ValueError(f"displacements must be (T, H, W, 2), got {a.shape}")
-    return a.reshape(a.shape[0], -1), a.shape[1:]
+        if disp.frame_shape is None:
+            raise ValueError("the displacement store is empty")
+        return disp
+    a = np.asarray(disp)
+    if a.ndim != 4 or a.shape[-1] != 2:
+        raise ValueError(f"displacements must be (T, H, W, 2), got {a.shape}")
+    store = DisplacementStore(memory_budget=max(a.nbytes, 1))
+    store.frame_shape = a.shape[1:]
+    store.n_frames = a.shape[0]
+    store._ram = [a]
+    return store
 
 
 def _iter_blocks(
-    mat: NDArray[np.float32], block_bytes: int, detrend: Detrend
+    store: DisplacementStore, block_bytes: int, detrend: Detrend
 ) -> Iterator[tuple[slice, NDArray[np.float64]]]:
-    T, n_cols = mat.shape
-    P = block_columns(T, block_bytes, n_cols)
-    for c0 in range(0, n_cols, P):
-        sl = slice(c0, min(c0 + P, n_cols))
-        yield sl, _detrend(np.array(mat[:, sl], dtype=np.float64), detrend)
+    P = store.block_size(block_bytes)
+    C = store.n_columns
+    for c0 in range(0, C, P):
+        sl = slice(c0, min(c0 + P, C))
+        x = np.asarray(store.column_block(sl.start, sl.stop), dtype=np.float64)
+        yield sl, _detrend(x, detrend)
 
 
 def motion_power_spectrum(
@@ -271,14 +328,14 @@ def motion_power_spectrum(
         ``(T//2 + 1,)`` float64, px**2 (unnormalised DFT, see module notes).
     """
     detrend = _check_detrend(detrend)
-    mat, fshape = _as_matrix(disp)
-    T = mat.shape[0]
+    store = _as_store(disp)
+    fshape, T = store.frame_shape, store.n_frames
     if T < 2:
         raise ValueError(f"need at least 2 frames for a spectrum, got {T}")
     freqs = frequency_axis(T, fps)
     wcol = _column_weights(weights, fshape)
     power = np.zeros(freqs.size, np.float64)
-    for sl, x in _iter_blocks(mat, block_bytes, detrend):
+    for sl, x in _iter_blocks(store, block_bytes, detrend):
         X = np.fft.rfft(x, axis=0)
         p = X.real**2 + X.imag**2
         power += p.sum(axis=1) if wcol is None else p @ wcol[sl]
@@ -311,17 +368,17 @@ def bin_fields(
         ``(k, H, W, 2)`` complex128, ``X_l = sum_t d_t exp(-2 pi i l t / T)``.
     """
     detrend = _check_detrend(detrend)
-    mat, fshape = _as_matrix(disp)
-    T = mat.shape[0]
+    store = _as_store(disp)
+    fshape, T = store.frame_shape, store.n_frames
     b = np.atleast_1d(np.asarray(bins, dtype=np.int64))
     if b.ndim != 1 or np.any(b < 0) or np.any(b > T // 2):
         raise ValueError(f"bins must be integers in [0, {T // 2}], got {b.tolist()}")
-    out = np.empty((b.size, mat.shape[1]), np.complex128)
+    out = np.empty((b.size, store.n_columns), np.complex128)
     if b.size == 0:
         return out.reshape(0, *fshape)
     t = np.arange(T)
     # (k, T) DFT rows; exact integer phase reduction keeps it accurate for long videos
     E = np.exp(-2j * np.pi * ((b[:, None] * t[None, :]) % T) / T)
-    for sl, x in _iter_blocks(mat, block_bytes, detrend):
+    for sl, x in _iter_blocks(store, block_bytes, detrend):
         out[:, sl] = E @ x
     return out.reshape(b.size, *fshape)

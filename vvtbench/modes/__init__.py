@@ -1,0 +1,1 @@
+"""Image-space mode identification: streamed spectra, peaks, sampling at mesh vertices."""

@@ -1,0 +1,486 @@
+"""Peak picking on the motion power spectrum and per-peak mode analysis.
+
+* :func:`pick_peaks`: automatic peaks of ``log10(power)`` with :func:`scipy.signal.find_peaks`
+  (prominence in decades, minimal separation in Hz, band limits, Nyquist check).
+* :func:`align_phase`: real image-space mode from a complex FFT field, after rotating by the
+  phase that maximises the energy of the real part (closed form).
+* :func:`damping_half_power` and :func:`damping_lorentzian`: damping ratio of a peak
+  (Davis et al. 2015).
+* :func:`translation_mac`: similarity of a mode with the best rigid image translation
+  (global camera shake detection).
+* :func:`merge_modes`: merge modes identified in several videos of the same view.
+
+Image-space modes are arrays ``(H, W, 2)`` (``[..., 0] = dx`` right, ``[..., 1] = dy`` down).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+from scipy.signal import find_peaks
+
+__all__ = [
+    "MergedModes",
+    "Peaks",
+    "align_phase",
+    "check_band",
+    "damping_half_power",
+    "damping_lorentzian",
+    "mac",
+    "merge_modes",
+    "pick_peaks",
+    "refine_frequency",
+    "translation_mac",
+]
+
+
+# --------------------------------------------------------------------------- peak picking
+def check_band(fps: float, fmin: float | None, fmax: float | None) -> tuple[float, float]:
+    """Validate a frequency band against the Nyquist frequency ``fps / 2``.
+
+    Parameters
+    ----------
+    fps : float
+        Frame rate (Hz).
+    fmin, fmax : float, optional
+        Band limits (Hz); defaults ``0`` and ``fps / 2``.
+
+    Returns
+    -------
+    tuple of float
+        ``(fmin, fmax)``.
+
+    Raises
+    ------
+    ValueError
+        If ``fmax`` exceeds the Nyquist frequency or the band is empty or negative.
+    """
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    nyq = fps / 2.0
+    lo = 0.0 if fmin is None else float(fmin)
+    hi = nyq if fmax is None else float(fmax)
+    if hi > nyq * (1 + 1e-12):
+        raise ValueError(
+            f"fmax = {hi:g} Hz exceeds the Nyquist frequency fps/2 = {nyq:g} Hz "
+            f"(fps = {fps:g}): motion above {nyq:g} Hz is aliased; lower fmax or film faster"
+        )
+    if lo < 0 or lo >= hi:
+        raise ValueError(f"need 0 <= fmin < fmax, got fmin = {lo:g} Hz, fmax = {hi:g} Hz")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class Peaks:
+    """Picked spectral peaks, sorted by frequency.
+
+    Attributes
+    ----------
+    bins : ndarray
+        ``(k,)`` int, DFT bin of each peak.
+    frequencies_hz : ndarray
+        ``(k,)`` bin frequencies (Hz).
+    prominences : ndarray
+        ``(k,)`` prominence in decades of power (``log10`` units).
+    """
+
+    bins: NDArray[np.int64]
+    frequencies_hz: NDArray[np.float64]
+    prominences: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return int(self.bins.size)
+
+
+def pick_peaks(
+    freqs: ArrayLike,
+    power: ArrayLike,
+    fps: float,
+    *,
+    fmin: float | None = None,
+    fmax: float | None = None,
+    prominence: float = 0.5,
+    min_separation_hz: float | None = None,
+    max_peaks: int | None = None,
+) -> Peaks:
+    """Automatic peaks of the log power spectrum.
+
+    Parameters
+    ----------
+    freqs, power : array_like
+        ``(F,)`` frequency axis (Hz, uniform, starting at 0) and power spectrum.
+    fps : float
+        Frame rate (Hz), for the Nyquist check.
+    fmin, fmax : float, optional
+        Band (Hz) in which peaks are searched; default ``(0, fps / 2]``.  The DC bin is never
+        a peak.
+    prominence : float, default 0.5
+        Minimal prominence of a peak of ``log10(power)`` (decades; 0.5 = a factor 3.2 above
+        the higher of its two surrounding valleys).
+    min_separation_hz : float, optional
+        Minimal distance between peaks (Hz); default one bin.  The more prominent peak wins.
+    max_peaks : int, optional
+        Keep at most this many, the most prominent.
+
+    Returns
+    -------
+    Peaks
+
+    Raises
+    ------
+    ValueError
+        If the band exceeds the Nyquist frequency (see :func:`check_band`) or the inputs are
+        inconsistent.
+    """
+    f = np.asarray(freqs, dtype=np.float64)
+    p = np.asarray(power, dtype=np.float64)
+    if f.ndim != 1 or f.shape != p.shape or f.size < 3:
+        raise ValueError(f"freqs and power must be 1-D of equal length >= 3, got {f.shape}, {p.shape}")
+    lo, hi = check_band(fps, fmin, fmax)
+    if prominence < 0:
+        raise ValueError(f"prominence must be >= 0, got {prominence}")
+    if max_peaks is not None and max_peaks < 1:
+        raise ValueError(f"max_peaks must be >= 1, got {max_peaks}")
+    df = f[1] - f[0]
+    floor = np.max(p) * 1e-30 + np.finfo(float).tiny
+    logp = np.log10(np.maximum(p, floor))
+    distance = 1 if not min_separation_hz else max(1, int(math.ceil(min_separation_hz / df - 1e-9)))
+    idx, props = find_peaks(logp, prominence=prominence, distance=distance)
+    prom = props["prominences"]
+    keep = (idx > 0) & (f[idx] >= lo) & (f[idx] <= hi)
+    idx, prom = idx[keep], prom[keep]
+    if max_peaks is not None and idx.size > max_peaks:
+        top = np.argsort(-prom, kind="stable")[:max_peaks]
+        idx, prom = idx[top], prom[top]
+    order = np.argsort(idx)
+    idx, prom = idx[order].astype(np.int64), prom[order]
+    return Peaks(bins=idx, frequencies_hz=f[idx], prominences=prom)
+
+
+def refine_frequency(freqs: ArrayLike, power: ArrayLike, k: int) -> float:
+    """Sub-bin peak frequency by a parabola through ``log(power)`` at bins ``k-1, k, k+1``."""
+    f = np.asarray(freqs, dtype=np.float64)
+    p = np.asarray(power, dtype=np.float64)
+    if k <= 0 or k >= f.size - 1 or np.any(p[k - 1 : k + 2] <= 0):
+        return float(f[k])
+    a, b, c = np.log(p[k - 1 : k + 2])
+    den = a - 2 * b + c
+    if den >= 0:
+        return float(f[k])
+    delta = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    return float(f[k] + delta * (f[1] - f[0]))
+
+
+# --------------------------------------------------------------------------- damping
+def _valley(p: NDArray[np.float64], k: int, step: int) -> int:
+    """Index of the first local minimum from peak ``k`` going in direction ``step``."""
+    i = k
+    while 0 < i + step < p.size and p[i + step] <= p[i]:
+        i += step
+    return i
+
+
+def damping_half_power(freqs: ArrayLike, power: ArrayLike, k: int) -> float:
+    """Damping ratio from the half-power bandwidth, ``zeta = (f2 - f1) / (2 f_k)``.
+
+    ``f1 < f_k < f2`` are where the power, linearly interpolated between bins, falls to half
+    of ``power[k]``, searched up to the neighbouring valleys.
+
+    Returns
+    -------
+    float
+        ``nan`` when a half-power point is not reached before a valley or the spectrum edge.
+        Resolution limited: a bandwidth under about two bins is not meaningful.
+    """
+    f = np.asarray(freqs, dtype=np.float64)
+    p = np.asarray(power, dtype=np.float64)
+    half = 0.5 * p[k]
+    edges = []
+    for step in (-1, 1):
+        stop = _valley(p, k, step)
+        i = k
+        while i != stop and p[i + step] > half:
+            i += step
+        if i == stop:
+            return float("nan")
+        j = i + step
+        t = (p[i] - half) / (p[i] - p[j])
+        edges.append(f[i] + t * (f[j] - f[i]))
+    return float((edges[1] - edges[0]) / (2.0 * f[k]))
+
+
+def damping_lorentzian(
+    freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: int | None = None
+) -> tuple[float, float, float]:
+    """Damping ratio from a Lorentzian fit of the power around peak ``k``.
+
+    The power of a free decay ``exp(-zeta w0 t) cos(w_d t)`` near ``f_d`` is the Lorentzian
+    ``a / ((f - f_d)**2 + g**2)`` with half width at half maximum ``g = zeta f0``
+    (``f0 = sqrt(f_d**2 + g**2)``).  The model ``a / ((f - f_d)**2 + g**2) + c`` is fitted to
+    ``log(power)`` (robust to the multiplicative noise of periodograms) over the bins between
+    the neighbouring valleys, at most ``half_width_bins`` on each side.
+
+    Parameters
+    ----------
+    freqs, power : array_like
+        ``(F,)`` spectrum.
+    k : int
+        Peak bin.
+    half_width_bins : int, optional
+        Maximal fit half window; default ``max(4, 6 * half-power half width)`` bins.
+
+    Returns
+    -------
+    zeta : float
+        ``g / f0``; ``nan`` if the fit failed.
+    f_d : float
+        Fitted peak frequency (Hz).
+    g : float
+        Fitted half width at half maximum (Hz); below one bin the damping is not resolved.
+    """
+    f = np.asarray(freqs, dtype=np.float64)
+    p = np.asarray(power, dtype=np.float64)
+    df = f[1] - f[0]
+    if half_width_bins is None:
+        z = damping_half_power(f, p, k)
+        hw = 1.0 if not np.isfinite(z) else z * f[k] / df
+        half_width_bins = int(max(4, math.ceil(6 * hw)))
+    lo = max(_valley(p, k, -1), k - half_width_bins, 1)
+    hi = min(_valley(p, k, 1), k + half_width_bins, f.size - 1)
+    sl = slice(lo, hi + 1)
+    fs, ps = f[sl], p[sl]
+    ok = ps > 0
+    if ok.sum() < 4:
+        return float("nan"), float(f[k]), float("nan")
+    fs, lp = fs[ok], np.log(ps[ok])
+    g0 = df
+    a0 = p[k] * g0**2
+    c0 = max(float(np.min(ps[ok])) * 0.1, p[k] * 1e-12)
+    x0 = np.array([math.log(a0), f[k], math.log(g0), math.log(c0)])
+
+    def resid(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        a, fd, g, c = math.exp(x[0]), x[1], math.exp(x[2]), math.exp(x[3])
+        return np.log(a / ((fs - fd) ** 2 + g**2) + c) - lp
+
+    lb = [-np.inf, f[k] - 2 * df, math.log(1e-4 * df), math.log(p[k] * 1e-20)]
+    ub = [np.inf, f[k] + 2 * df, math.log(max(f[k], 2 * df)), math.log(p[k])]
+    x0 = np.clip(x0, np.array(lb) + 1e-9, np.array(ub) - 1e-9)
+    try:
+        res = least_squares(resid, x0, bounds=(lb, ub), x_scale="jac", max_nfev=400)
+    except (ValueError, FloatingPointError):  # pragma: no cover - defensive
+        return float("nan"), float(f[k]), float("nan")
+    fd, g = float(res.x[1]), float(math.exp(res.x[2]))
+    f0 = math.hypot(fd, g)
+    return (g / f0 if f0 > 0 else float("nan")), fd, g
+
+
+# --------------------------------------------------------------------------- mode shapes
+def _wsum(a: NDArray, w: NDArray[np.float64] | None) -> NDArray:
+    """Sum over pixels ``(H, W)`` of ``(..., H, W, 2)`` with optional ``(H, W)`` weights."""
+    if w is None:
+        return a.sum(axis=(-3, -2, -1))
+    return np.einsum("...hwc,hw->...", a, w)
+
+
+def align_phase(
+    z: ArrayLike, weights: ArrayLike | None = None
+) -> tuple[NDArray[np.float64], float, float]:
+    """Real mode from a complex field by the energy-maximising phase rotation.
+
+    ``||Re(exp(-i theta) z)||**2 = (||z||**2 + Re(exp(-2 i theta) sum z**2)) / 2`` is maximal
+    for ``theta = angle(sum z**2) / 2`` (weighted sums if ``weights``).  The sign is then
+    fixed so that the largest-magnitude entry is positive.
+
+    Parameters
+    ----------
+    z : array_like
+        ``(H, W, 2)`` complex field (e.g. the FFT of the displacements at a peak bin).
+    weights : array_like, optional
+        ``(H, W)`` non-negative pixel weights.
+
+    Returns
+    -------
+    real : ndarray
+        ``(H, W, 2)`` float64 ``Re(exp(-i theta) z)`` (not normalised).
+    theta : float
+        Rotation (rad).
+    collinearity : float
+        ``|sum w z**2| / sum w |z|**2`` in ``[0, 1]``: 1 for a standing (real, synchronous)
+        mode, 0 for a travelling / circular one whose real part is ill defined.
+    """
+    zz = np.asarray(z, dtype=np.complex128)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    s2 = complex(_wsum(zz * zz, w))
+    e = float(_wsum(np.abs(zz) ** 2, w))
+    theta = 0.5 * math.atan2(s2.imag, s2.real)
+    real = (zz * np.exp(-1j * theta)).real
+    i = int(np.argmax(np.abs(real)))
+    if real.flat[i] < 0:
+        real = -real
+        theta += math.pi
+    return real, theta, (abs(s2) / e if e > 0 else 0.0)
+
+
+def mac(a: ArrayLike, b: ArrayLike, weights: ArrayLike | None = None) -> float:
+    """Modal assurance criterion ``|<a, b>|**2 / (<a, a> <b, b>)`` (complex-safe).
+
+    ``weights`` (``(H, W)``) apply to ``(H, W, 2)`` fields.
+    """
+    x = np.asarray(a)
+    y = np.asarray(b)
+    if x.shape != y.shape:
+        raise ValueError(f"shapes differ: {x.shape} vs {y.shape}")
+    if weights is not None:
+        s = np.sqrt(np.asarray(weights, dtype=np.float64))[..., None]
+        x, y = x * s, y * s
+    x, y = x.ravel(), y.ravel()
+    den = float(np.vdot(x, x).real * np.vdot(y, y).real)
+    return float(abs(np.vdot(x, y)) ** 2 / den) if den > 0 else 0.0
+
+
+def translation_mac(z: ArrayLike, weights: ArrayLike | None = None) -> float:
+    """MAC between a field ``(H, W, 2)`` and its best rigid translation.
+
+    The best (least-squares) translation is the weighted mean vector ``t``; the MAC reduces
+    to the fraction of the field's energy explained by it,
+    ``|sum w z|**2 / (sum w * sum w |z|**2)``.  Close to 1 for global camera shake.
+    """
+    zz = np.asarray(z)
+    if zz.ndim != 3 or zz.shape[-1] != 2:
+        raise ValueError(f"field must be (H, W, 2), got {zz.shape}")
+    w = np.ones(zz.shape[:2]) if weights is None else np.asarray(weights, dtype=np.float64)
+    sw = float(w.sum())
+    mean = np.einsum("hwc,hw->c", zz, w)
+    e = float(np.einsum("hwc,hw->", np.abs(zz) ** 2, w))
+    if sw <= 0 or e <= 0:
+        return 0.0
+    return float(np.sum(np.abs(mean) ** 2) / (sw * e))
+
+
+# --------------------------------------------------------------------------- merging
+@dataclass(frozen=True)
+class MergedModes:
+    """Result of :func:`merge_modes`, sorted by frequency.
+
+    Attributes
+    ----------
+    frequencies_hz, damping : ndarray
+        ``(k,)`` means over the merged duplicates (``nanmean`` for damping).
+    shapes : ndarray
+        ``(k, H, W, 2)`` sign-aligned, weight-averaged, unit-norm shapes.
+    n_sources : ndarray
+        ``(k,)`` number of input sets in which the mode was found.
+    members : list of list of tuple
+        ``(set index, mode index)`` of the merged inputs.
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    damping: NDArray[np.float64]
+    shapes: NDArray[np.float32]
+    n_sources: NDArray[np.int64]
+    members: list[list[tuple[int, int]]]
+
+
+def merge_modes(
+    frequencies: Sequence[ArrayLike],
+    shapes: Sequence[ArrayLike],
+    damping: Sequence[ArrayLike] | None = None,
+    weights: Sequence[ArrayLike] | None = None,
+    *,
+    freq_tol: float = 0.02,
+    min_mac: float = 0.8,
+) -> MergedModes:
+    """Merge modes identified in several videos of the same view.
+
+    Modes are visited by decreasing weight (e.g. amplitude); each joins the existing group
+    with the highest MAC among those within ``freq_tol`` (relative) in frequency, reaching
+    ``min_mac`` and holding no mode of the same set yet; otherwise it starts a new group.
+    Duplicates are averaged after aligning their sign with the group's first (strongest)
+    member.
+
+    Parameters
+    ----------
+    frequencies : sequence of array_like
+        Per set ``(k_s,)`` frequencies (Hz).
+    shapes : sequence of array_like
+        Per set ``(k_s, H, W, 2)`` real shapes; all sets must share ``(H, W)``.
+    damping : sequence of array_like, optional
+        Per set ``(k_s,)`` damping ratios.
+    weights : sequence of array_like, optional
+        Per set ``(k_s,)`` positive weights for ordering and averaging (default 1).
+    freq_tol : float, default 0.02
+        Relative frequency tolerance ``|f - f_group| <= freq_tol * f_group``.
+    min_mac : float, default 0.8
+        Minimal MAC for a match.
+
+    Returns
+    -------
+    MergedModes
+    """
+    n_sets = len(frequencies)
+    if n_sets == 0 or len(shapes) != n_sets:
+        raise ValueError("need the same, non-zero number of frequency and shape sets")
+    fs = [np.atleast_1d(np.asarray(f, dtype=np.float64)) for f in frequencies]
+    ss = [np.asarray(s, dtype=np.float64) for s in shapes]
+    ds = (
+        [np.full(f.shape, np.nan) for f in fs]
+        if damping is None
+        else [np.atleast_1d(np.asarray(d, dtype=np.float64)) for d in damping]
+    )
+    ws = (
+        [np.ones(f.shape) for f in fs]
+        if weights is None
+        else [np.atleast_1d(np.asarray(w, dtype=np.float64)) for w in weights]
+    )
+    hw = None
+    for i, (f, s, d, w) in enumerate(zip(fs, ss, ds, ws, strict=True)):
+        if s.ndim != 4 or s.shape[0] != f.size or s.shape[-1] != 2:
+            raise ValueError(f"set {i}: shapes must be (k, H, W, 2) with k = {f.size}, got {s.shape}")
+        if d.shape != f.shape or w.shape != f.shape:
+            raise ValueError(f"set {i}: damping/weights must have shape {f.shape}")
+        if hw is None:
+            hw = s.shape[1:3]
+        elif s.shape[1:3] != hw:
+            raise ValueError(f"set {i}: image size {s.shape[1:3]} differs from set 0's {hw}")
+    items = [(i, j) for i in range(n_sets) for j in range(fs[i].size)]
+    items.sort(key=lambda ij: (-ws[ij[0]][ij[1]], ij))
+    groups: list[dict] = []
+    for i, j in items:
+        f, s = fs[i][j], ss[i][j]
+        best, best_mac = None, min_mac
+        for g in groups:
+            if abs(f - g["f0"]) > freq_tol * g["f0"] or i in g["sets"]:
+                continue
+            m = mac(g["ref"], s)
+            if m >= best_mac:
+                best, best_mac = g, m
+        if best is None:
+            best = {"f0": f, "ref": s, "sets": set(), "members": [], "acc": np.zeros_like(s)}
+            groups.append(best)
+        sign = 1.0 if float(np.vdot(best["ref"], s)) >= 0 else -1.0
+        n = np.linalg.norm(s)
+        best["acc"] += ws[i][j] * sign * (s / n if n > 0 else s)
+        best["sets"].add(i)
+        best["members"].append((i, j))
+    groups.sort(key=lambda g: float(np.mean([fs[i][j] for i, j in g["members"]])))
+    freq = np.array([np.average([fs[i][j] for i, j in g["members"]]) for g in groups])
+    damp = []
+    for g in groups:
+        v = np.array([ds[i][j] for i, j in g["members"]])
+        damp.append(float(np.mean(v[np.isfinite(v)])) if np.isfinite(v).any() else np.nan)
+    shp = np.empty((len(groups), *ss[0].shape[1:]), np.float32)
+    for k, g in enumerate(groups):
+        n = np.linalg.norm(g["acc"])
+        shp[k] = g["acc"] / n if n > 0 else g["acc"]
+    return MergedModes(
+        frequencies_hz=freq,
+        damping=np.array(damp, dtype=np.float64),
+        shapes=shp,
+        n_sources=np.array([len(g["sets"]) for g in groups], dtype=np.int64),
+        members=[sorted(g["members"]) for g in groups],
+    )
