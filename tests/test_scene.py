@@ -138,3 +138,15 @@ def test_bunny_tetrahedralizes_and_vibrates():
     assert len(result.mesh.node_sets["bottom"]) >= 3
     assert np.all(result.frequencies_hz > 0.5)
     assert np.sum(result.fields.stiffness == 5e6) > 0
+
+
+def test_tetrahedralization_is_cached_so_meshes_repeat(tmp_path, monkeypatch):
+    from vvtbench.fem.mesh import load_surface, tet_mesh
+
+    monkeypatch.setenv("VVTBENCH_CACHE", str(tmp_path))
+    v, f = load_surface("bunny", "y", 0.08, 500)
+    first = tet_mesh(v, f, edge_length_fac=0.15, epsilon=0.02)
+    assert len(list((tmp_path / "meshes").glob("tetwild-*.npz"))) == 1
+    second = tet_mesh(v, f, edge_length_fac=0.15, epsilon=0.02)
+    np.testing.assert_array_equal(first.cells, second.cells)
+    np.testing.assert_array_equal(first.points, second.points)

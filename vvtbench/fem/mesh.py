@@ -11,7 +11,10 @@ rendering and for picking surface vertices). Meshes are plain data; functions bu
 
 from __future__ import annotations
 
+import hashlib
 import importlib.resources
+import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -326,24 +329,45 @@ def tet_mesh(
 ) -> Mesh:
     """Tetrahedralize a closed surface with pytetwild; tet4, or tet10 with ``order`` 2.
 
+    pytetwild's output differs from run to run (even single-threaded), so the result is cached
+    on disk, keyed by the surface and the settings (see :func:`mesh_cache_dir`): the same scene
+    always gets the same mesh on a machine, and a sample stores the mesh it used.
+
     Node sets: bottom (nodes within ``bottom_tol`` of the height above the lowest point), all.
     """
     import pytetwild
 
-    pts, tets = pytetwild.tetrahedralize(
-        np.asarray(vertices, dtype=np.float64),
-        np.asarray(faces, dtype=np.int32),
-        edge_length_fac=edge_length_fac,
-        epsilon=epsilon,
-        stop_energy=stop_energy,
-        coarsen=coarsen,
-        quiet=True,
-    )
-    tets = np.asarray(tets, dtype=np.int64)
-    used, tets = np.unique(tets, return_inverse=True)
-    tets = tets.reshape(-1, 4)
-    pts = np.asarray(pts, dtype=float)[used]
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int32)
+    settings = dict(edge_length_fac=edge_length_fac, epsilon=epsilon, stop_energy=stop_energy,
+                    coarsen=coarsen)
+    digest = hashlib.sha256(vertices.tobytes() + faces.tobytes())
+    digest.update(json.dumps(settings, sort_keys=True).encode())
+    digest.update(getattr(pytetwild, "__version__", "").encode())
+    cache = mesh_cache_dir() / f"tetwild-{digest.hexdigest()[:24]}.npz"
+    if cache.is_file():
+        with np.load(cache) as z:
+            pts, tets = z["points"], z["tets"]
+    else:
+        pts, tets = pytetwild.tetrahedralize(vertices, faces, quiet=True, **settings)
+        tets = np.asarray(tets, dtype=np.int64)
+        used, tets = np.unique(tets, return_inverse=True)
+        tets = tets.reshape(-1, 4)
+        pts = np.asarray(pts, dtype=float)[used]
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, points=pts, tets=tets)
+        os.replace(tmp, cache)
     return tets_to_mesh(pts, tets, order=order, bottom_tol=bottom_tol)
+
+
+def mesh_cache_dir() -> Path:
+    """Where tetrahedralizations are cached: $VVTBENCH_CACHE/meshes, else
+    ~/.cache/vvtbench/meshes."""
+    root = os.environ.get("VVTBENCH_CACHE") or os.path.join(
+        os.path.expanduser("~"), ".cache", "vvtbench"
+    )
+    return Path(root) / "meshes"
 
 
 def tets_to_mesh(
