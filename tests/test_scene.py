@@ -143,10 +143,12 @@ def test_bunny_tetrahedralizes_and_vibrates():
 def test_tetrahedralization_is_cached_so_meshes_repeat(tmp_path, monkeypatch):
     from vvtbench.fem.mesh import load_surface, tet_mesh
 
-    monkeypatch.setenv("VVTBENCH_CACHE", str(tmp_path))
+    monkeypatch.setenv("VVTBENCH_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
     v, f = load_surface("bunny", "y", 0.08, 500)
     first = tet_mesh(v, f, edge_length_fac=0.15, epsilon=0.02)
-    assert len(list((tmp_path / "meshes").glob("tetwild-*.npz"))) == 1
+    assert len(list((tmp_path / "cache" / "meshes").glob("tetwild-*.npz"))) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cache"]
     second = tet_mesh(v, f, edge_length_fac=0.15, epsilon=0.02)
     np.testing.assert_array_equal(first.cells, second.cells)
     np.testing.assert_array_equal(first.points, second.points)

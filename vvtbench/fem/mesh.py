@@ -11,10 +11,12 @@ rendering and for picking surface vertices). Meshes are plain data; functions bu
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.resources
 import json
 import os
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -349,7 +351,8 @@ def tet_mesh(
         with np.load(cache) as z:
             pts, tets = z["points"], z["tets"]
     else:
-        pts, tets = pytetwild.tetrahedralize(vertices, faces, quiet=True, **settings)
+        with _scratch_cwd():  # fTetWild writes __tracked_surface.stl into the working directory
+            pts, tets = pytetwild.tetrahedralize(vertices, faces, quiet=True, **settings)
         tets = np.asarray(tets, dtype=np.int64)
         used, tets = np.unique(tets, return_inverse=True)
         tets = tets.reshape(-1, 4)
@@ -359,6 +362,17 @@ def tet_mesh(
         np.savez(tmp, points=pts, tets=tets)
         os.replace(tmp, cache)
     return tets_to_mesh(pts, tets, order=order, bottom_tol=bottom_tol)
+
+
+@contextlib.contextmanager
+def _scratch_cwd():
+    old = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="vvtbench-tetwild-") as tmp:
+        os.chdir(tmp)
+        try:
+            yield
+        finally:
+            os.chdir(old)
 
 
 def mesh_cache_dir() -> Path:
