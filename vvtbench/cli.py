@@ -98,12 +98,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_simulate)
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=_scenes)
+    for name, (_, help_text) in DELEGATED.items():
+        sub.add_parser(name, help=help_text, add_help=False)
     return parser
+
+
+DELEGATED = {
+    "extract": ("vvtbench.modes.extract:main_extract",
+                "motion, spectrum and image-space modes of a video (see `extract --help`)"),
+}
+
+
+def _delegate(name: str, argv: list[str]) -> int:
+    import importlib
+
+    module, func = DELEGATED[name][0].split(":")
+    return int(getattr(importlib.import_module(module), func)(argv) or 0)
 
 
 def main(argv: list[str] | None = None) -> int:
     from .scene import SceneError
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in DELEGATED:
+        return _delegate(argv[0], argv[1:])
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

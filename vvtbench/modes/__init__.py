@@ -1,1 +1,54 @@
-"""Image-space mode identification: streamed spectra, peaks, sampling at mesh vertices."""
+"""Image-space mode identification: streamed spectra, peaks, sampling at mesh vertices.
+
+See ``docs/modes.md`` for the pipeline and the file format.
+"""
+
+from .extract import confidence_weights, extract_modes, main_extract, modes_from_displacements
+from .modeset import ModeSet, merge_modesets
+from .peaks import (
+    align_phase,
+    check_band,
+    damping_half_power,
+    damping_lorentzian,
+    mac,
+    merge_modes,
+    pick_peaks,
+    translation_mac,
+)
+from .sampling import (
+    camera_from_clicks,
+    estimate_camera,
+    load_clicks,
+    observation_operator,
+    sample_field,
+    sample_modes,
+)
+from .spectrum import DisplacementStore, bin_fields, motion_power_spectrum
+from .video import open_video
+
+__all__ = [
+    "DisplacementStore",
+    "ModeSet",
+    "align_phase",
+    "bin_fields",
+    "camera_from_clicks",
+    "check_band",
+    "confidence_weights",
+    "damping_half_power",
+    "damping_lorentzian",
+    "estimate_camera",
+    "extract_modes",
+    "load_clicks",
+    "mac",
+    "main_extract",
+    "merge_modes",
+    "merge_modesets",
+    "modes_from_displacements",
+    "motion_power_spectrum",
+    "observation_operator",
+    "open_video",
+    "pick_peaks",
+    "sample_field",
+    "sample_modes",
+    "translation_mac",
+]

@@ -107,6 +107,7 @@ def pick_peaks(
     prominence: float = 0.5,
     min_separation_hz: float | None = None,
     max_peaks: int | None = None,
+    min_power_ratio: float = 1e-6,
 ) -> Peaks:
     """Automatic peaks of the log power spectrum.
 
@@ -126,6 +127,10 @@ def pick_peaks(
         Minimal distance between peaks (Hz); default one bin.  The more prominent peak wins.
     max_peaks : int, optional
         Keep at most this many, the most prominent.
+    min_power_ratio : float, default 1e-6
+        Ignore peaks whose power is below this fraction of the strongest peak in the band
+        (60 dB; guards against round-off "peaks" in a noise-free spectrum).  The log spectrum
+        is also floored at ``1e-12`` times its maximum.
 
     Returns
     -------
@@ -140,20 +145,25 @@ def pick_peaks(
     f = np.asarray(freqs, dtype=np.float64)
     p = np.asarray(power, dtype=np.float64)
     if f.ndim != 1 or f.shape != p.shape or f.size < 3:
-        raise ValueError(f"freqs and power must be 1-D of equal length >= 3, got {f.shape}, {p.shape}")
+        raise ValueError(
+            f"freqs and power must be 1-D of equal length >= 3, got {f.shape}, {p.shape}"
+        )
     lo, hi = check_band(fps, fmin, fmax)
     if prominence < 0:
         raise ValueError(f"prominence must be >= 0, got {prominence}")
     if max_peaks is not None and max_peaks < 1:
         raise ValueError(f"max_peaks must be >= 1, got {max_peaks}")
     df = f[1] - f[0]
-    floor = np.max(p) * 1e-30 + np.finfo(float).tiny
+    floor = np.max(p) * 1e-12 + np.finfo(float).tiny
     logp = np.log10(np.maximum(p, floor))
     distance = 1 if not min_separation_hz else max(1, int(math.ceil(min_separation_hz / df - 1e-9)))
     idx, props = find_peaks(logp, prominence=prominence, distance=distance)
     prom = props["prominences"]
     keep = (idx > 0) & (f[idx] >= lo) & (f[idx] <= hi)
     idx, prom = idx[keep], prom[keep]
+    if idx.size:
+        keep = p[idx] >= min_power_ratio * np.max(p[idx])
+        idx, prom = idx[keep], prom[keep]
     if max_peaks is not None and idx.size > max_peaks:
         top = np.argsort(-prom, kind="stable")[:max_peaks]
         idx, prom = idx[top], prom[top]
@@ -237,7 +247,8 @@ def damping_lorentzian(
     Returns
     -------
     zeta : float
-        ``g / f0``; ``nan`` if the fit failed.
+        ``g / f0``; ``nan`` if the fit failed or fewer than 4 bins lie between the
+        neighbouring valleys (an unresolved, e.g. undamped on-bin, peak).
     f_d : float
         Fitted peak frequency (Hz).
     g : float
@@ -440,7 +451,9 @@ def merge_modes(
     hw = None
     for i, (f, s, d, w) in enumerate(zip(fs, ss, ds, ws, strict=True)):
         if s.ndim != 4 or s.shape[0] != f.size or s.shape[-1] != 2:
-            raise ValueError(f"set {i}: shapes must be (k, H, W, 2) with k = {f.size}, got {s.shape}")
+            raise ValueError(
+                f"set {i}: shapes must be (k, H, W, 2) with k = {f.size}, got {s.shape}"
+            )
         if d.shape != f.shape or w.shape != f.shape:
             raise ValueError(f"set {i}: damping/weights must have shape {f.shape}")
         if hw is None:

@@ -86,7 +86,8 @@ def sample_field(field: ArrayLike, uv: ArrayLike) -> NDArray[np.float64]:
     if bad.any():
         i = np.flatnonzero(bad)
         raise ValueError(
-            f"{i.size} position(s) outside the {W}x{H} frame, e.g. index {i[0]} at {p[i[0]].tolist()}"
+            f"{i.size} position(s) outside the {W}x{H} frame, "
+            f"e.g. index {i[0]} at {p[i[0]].tolist()}"
         )
     u = np.clip(u, 0.0, W - 1.0)
     v = np.clip(v, 0.0, H - 1.0)
@@ -358,7 +359,9 @@ def load_clicks(path: str | Path) -> tuple[NDArray[np.intp], NDArray[np.float64]
             try:
                 x = float(val)
             except (TypeError, ValueError):
-                raise ValueError(f"{path}: {where}: '{key}' must be a number, got {val!r}") from None
+                raise ValueError(
+                    f"{path}: {where}: '{key}' must be a number, got {val!r}"
+                ) from None
             if not math.isfinite(x):
                 raise ValueError(f"{path}: {where}: '{key}' must be finite, got {val!r}")
             pair.append(x)

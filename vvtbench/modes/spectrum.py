@@ -3,9 +3,10 @@
 Displacement batches ``(B, H, W, 2)`` (e.g. from :meth:`PhaseMotion.iter_displacements`) are
 appended to a :class:`DisplacementStore`, which keeps them in RAM while they fit in a memory
 budget and otherwise spills them to a raw float32 file in a temporary directory (batch by
-batch, each batch cut into column tiles so that pixel blocks read back cheaply).  Spectra are then computed by *pixel blocks*: for a
-block of ``P`` columns of the ``(T, H*W*2)`` matrix an ``rfft`` over time of the ``(T, P)``
-slice, so peak RAM is ``O(T * P)`` whatever the video length.
+batch, each batch cut into column tiles so that pixel blocks read back cheaply).  Spectra
+are then computed by *pixel blocks*: for a block of ``P`` columns of the ``(T, H*W*2)``
+matrix an ``rfft`` over time of the ``(T, P)`` slice, so peak RAM is ``O(T * P)`` whatever
+the video length.
 
 Conventions
 -----------

@@ -203,7 +203,9 @@ def open_video(
     if max_frames is not None and n is not None:
         n = min(n, max_frames)
     gray = (to_gray(f) for f in _crop(_limit(frames, max_frames), roi))
-    return VideoStream(frames=gray, shape=(int(shape[0]), int(shape[1])), fps=fps, n_frames=n, meta=meta)
+    return VideoStream(
+        frames=gray, shape=(int(shape[0]), int(shape[1])), fps=fps, n_frames=n, meta=meta
+    )
 
 
 def _chain(first: NDArray, rest: Iterator) -> Iterator:

@@ -1,0 +1,394 @@
+"""Tests of mode identification (spectrum, peaks, damping, shake, merge, sampling, camera).
+
+Synthetic videos are made here, not by the renderer: a seeded band-limited periodic speckle
+image warped by known per-pixel sub-pixel displacement fields (third-order Taylor expansion
+with exact spectral derivatives; error ~|u|**4, negligible at the amplitudes used).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from vvtbench.modes import (
+    DisplacementStore,
+    ModeSet,
+    check_band,
+    damping_half_power,
+    damping_lorentzian,
+    estimate_camera,
+    extract_modes,
+    load_clicks,
+    mac,
+    main_extract,
+    merge_modesets,
+    modes_from_displacements,
+    motion_power_spectrum,
+    observation_operator,
+    open_video,
+    pick_peaks,
+    sample_field,
+    sample_modes,
+)
+from vvtbench.modes.peaks import align_phase
+from vvtbench.render.camera import Camera
+
+BORDER = 10
+
+
+class Speckle:
+    """Band-limited periodic random image, warped by a Taylor expansion of exact derivatives."""
+
+    def __init__(self, n: int, seed: int = 0, sigma: float = 1.0) -> None:
+        rng = np.random.default_rng(seed)
+        wy = 2 * np.pi * np.fft.fftfreq(n)[:, None]
+        wx = 2 * np.pi * np.fft.fftfreq(n)[None, :]
+        F = np.fft.fft2(rng.standard_normal((n, n)))
+        F *= np.exp(-0.5 * (np.hypot(wx, wy) * sigma) ** 2)
+        F[n // 2, :] = 0.0
+        F[:, n // 2] = 0.0
+        self.n = n
+        self.der = {
+            (i, j): np.fft.ifft2(F * (1j * wx) ** i * (1j * wy) ** j).real
+            for i in range(4)
+            for j in range(4 - i)
+        }
+        self.ref = self.der[(0, 0)]
+
+    def warp(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``I(x - u, y - v)``: content displaced by ``(u, v)`` (right, down)."""
+        out = self.ref.copy()
+        for (i, j), d in self.der.items():
+            if i + j:
+                out += (-1) ** (i + j) / (math.factorial(i) * math.factorial(j)) * u**i * v**j * d
+        return out
+
+
+def pattern(n: int, which: str) -> np.ndarray:
+    """Smooth periodic ``(n, n, 2)`` displacement patterns with max |component| = 1."""
+    x = np.arange(n)[None, :] * np.ones((n, 1))
+    y = np.arange(n)[:, None] * np.ones((1, n))
+    cx, sy = np.cos(2 * np.pi * x / n), np.sin(2 * np.pi * y / n)
+    if which == "a":
+        return np.stack([cx, 0.5 * sy], axis=-1)
+    return np.stack([sy, cx], axis=-1)
+
+
+def video(sp: Speckle, modes: list[tuple[np.ndarray, float, float]], T: int, fps: float):
+    """Frames of the speckle displaced by ``sum_m amp_m * pattern_m * cos(2 pi f_m t)``."""
+    t = np.arange(T) / fps
+    out = np.empty((T, sp.n, sp.n), np.float32)
+    for k in range(T):
+        d = sum(a * p * np.cos(2 * np.pi * f * t[k]) for p, a, f in modes)
+        out[k] = sp.warp(d[..., 0], d[..., 1])
+    return out
+
+
+def interior(ms: ModeSet) -> np.ndarray:
+    n = ms.image_shape[0]
+    m = np.zeros((n, n), bool)
+    m[BORDER:-BORDER, BORDER:-BORDER] = True
+    return m & (ms.confidence > 0.1 * np.median(ms.confidence))
+
+
+def nearest(ms: ModeSet, f: float) -> int:
+    return int(np.argmin(np.abs(ms.frequencies_hz - f)))
+
+
+@pytest.fixture(scope="module")
+def sp128() -> Speckle:
+    return Speckle(128)
+
+
+# --------------------------------------------------------------------------- accuracy on video
+def test_amplitude_and_frequency_at_0p01_px(sp128: Speckle) -> None:
+    T, fps = 128, 100.0
+    df = fps / T
+    f0 = 20 * df
+    true = pattern(128, "a")
+    ms = extract_modes(video(sp128, [(true, 0.01, f0)], T, fps), fps, batch=32)
+    assert len(ms) == 1  # no spurious peaks in a noise-free video
+    i = nearest(ms, f0)
+    assert abs(ms.frequencies_hz[i] - f0) <= df
+    assert ms.peak_bins[i] == 20
+    rec = ms.amplitudes_px[i] * ms.shapes[i]
+    m = interior(ms)
+    ratio = np.sum(rec[m] * true[m]) / np.sum(true[m] * true[m]) / 0.01
+    assert abs(abs(ratio) - 1.0) < 0.05, ratio
+    assert mac(rec[m], true[m]) > 0.98
+    assert not ms.camera_shake.any()
+
+
+def test_two_superposed_modes_are_separated(sp128: Speckle) -> None:
+    T, fps = 128, 100.0
+    df = fps / T
+    pa, pb = pattern(128, "a"), pattern(128, "b")
+    frames = video(sp128, [(pa, 0.02, 20 * df), (pb, 0.015, 33 * df)], T, fps)
+    ms = extract_modes(frames, fps, max_modes=5)
+    assert len(ms) == 2
+    m = interior(ms)
+    for p, f in ((pa, 20 * df), (pb, 33 * df)):
+        i = nearest(ms, f)
+        assert abs(ms.frequencies_hz[i] - f) <= df
+        assert mac(ms.shapes[i][m], p[m]) >= 0.95
+
+
+# --------------------------------------------------------------------------- spectra and peaks
+def _decay(zeta: float, f0: float, T: int, fps: float, seed: int = 1) -> np.ndarray:
+    t = np.arange(T) / fps
+    w0 = 2 * np.pi * f0
+    x = np.exp(-zeta * w0 * t) * np.cos(w0 * math.sqrt(1 - zeta**2) * t + 0.3)
+    rng = np.random.default_rng(seed)
+    d = np.zeros((T, 3, 3, 2))
+    d[..., 0] = x[:, None, None] * rng.standard_normal((3, 3))
+    return d + 1e-5 * rng.standard_normal(d.shape)
+
+
+@pytest.mark.parametrize("zeta", [0.01, 0.02, 0.04])
+def test_damping_of_decaying_sinusoid(zeta: float) -> None:
+    fps, T = 200.0, 1000
+    f, P = motion_power_spectrum(_decay(zeta, 20.0, T, fps), fps)
+    pk = pick_peaks(f, P, fps, max_peaks=1)
+    k = int(pk.bins[0])
+    z_l, fd, _ = damping_lorentzian(f, P, k)
+    assert abs(z_l / zeta - 1) < 0.10
+    assert abs(fd - 20.0) < fps / T
+    assert abs(damping_half_power(f, P, k) / zeta - 1) < 0.10
+
+
+def test_power_spectrum_streamed_from_disk_matches_ram() -> None:
+    rng = np.random.default_rng(0)
+    d = rng.standard_normal((101, 17, 13, 2)).astype(np.float32)
+    d64 = d.astype(np.float64)
+    X = np.fft.rfft(d64 - d64.mean(0), axis=0)
+    w = rng.uniform(0, 1, (17, 13))
+    ref = np.einsum("fhwc,hw->f", np.abs(X) ** 2, w)
+    with DisplacementStore(memory_budget=20_000, tile_columns=50) as st:
+        for i in range(0, 101, 7):
+            st.append(d[i : i + 7])
+        assert st.on_disk
+        f, P = motion_power_spectrum(st, 50.0, weights=w, block_bytes=1)
+        np.testing.assert_allclose(P, ref, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(f[1], 50.0 / 101)
+        np.testing.assert_array_equal(st.array(), d)
+    assert st.path is not None and not __import__("os").path.exists(st.path)
+
+
+def test_nyquist_error() -> None:
+    f = np.fft.rfftfreq(100, 1 / 100.0)
+    with pytest.raises(ValueError, match="Nyquist"):
+        pick_peaks(f, np.ones_like(f), 100.0, fmax=60.0)
+    with pytest.raises(ValueError, match="Nyquist"):
+        check_band(100.0, None, 50.1)
+    frames = np.zeros((4, 16, 16), np.float32)
+    with pytest.raises(ValueError, match="fps/2 = 25"):
+        extract_modes(frames, 100.0, fmax=30.0, average=2)
+
+
+def test_phase_alignment_not_blind_real_part() -> None:
+    rng = np.random.default_rng(3)
+    shape = rng.standard_normal((8, 8, 2))
+    z = shape * np.exp(1j * 1.3)  # Re() alone would lose most of the energy (cos 1.3 = 0.27)
+    real, _, coll = align_phase(z)
+    assert mac(real, shape) > 1 - 1e-12
+    assert coll == pytest.approx(1.0)
+    assert np.linalg.norm(real) == pytest.approx(np.linalg.norm(shape))
+
+
+def test_camera_shake_flagged_and_excluded() -> None:
+    fps, T, n = 100.0, 256, 32
+    t = np.arange(T) / fps
+    rng = np.random.default_rng(0)
+    local = pattern(n, "a")
+    d = 0.05 * np.cos(2 * np.pi * 12.5 * t)[:, None, None, None] * np.array([0.8, 0.6])
+    d = d + 0.02 * np.cos(2 * np.pi * 25.0 * t)[:, None, None, None] * local
+    d = d + 1e-3 * rng.standard_normal((T, n, n, 2))
+    ms = modes_from_displacements(d, fps)
+    assert len(ms) == 1 and abs(ms.frequencies_hz[0] - 25.0) < fps / T
+    assert [round(r["frequency_hz"], 1) for r in ms.metadata["rejected"]] == [12.5]
+    allm = modes_from_displacements(d, fps, keep_camera_shake=True)
+    assert len(allm) == 2
+    i = nearest(allm, 12.5)
+    assert allm.camera_shake[i] and allm.shake_mac[i] > 0.9
+    assert not allm.camera_shake[1 - i] and allm.shake_mac[1 - i] < 0.5
+
+
+def _modeset(freqs: list[float], shapes: np.ndarray, source: str) -> ModeSet:
+    k = len(freqs)
+    return ModeSet(
+        frequencies_hz=np.array(freqs),
+        damping=np.full(k, 0.01),
+        damping_half_power=np.full(k, 0.01),
+        shapes=shapes,
+        amplitudes_px=np.ones(k),
+        peak_bins=np.arange(k),
+        prominences=np.ones(k),
+        collinearity=np.ones(k),
+        shake_mac=np.zeros(k),
+        camera_shake=np.zeros(k, bool),
+        freqs_hz=np.zeros(0),
+        power=np.zeros(0),
+        fps=100.0,
+        n_frames=100,
+        metadata={"source": source},
+    )
+
+
+def test_merge_two_mode_sets() -> None:
+    rng = np.random.default_rng(0)
+    a, b, c = (rng.standard_normal((16, 16, 2)) for _ in range(3))
+    a, b, c = (x / np.linalg.norm(x) for x in (a, b, c))
+    noisy_a = -(a + 0.05 * rng.standard_normal(a.shape) / 32)  # sign flipped duplicate
+    s1 = _modeset([10.0, 20.0], np.stack([a, b]), "v1")
+    s2 = _modeset([10.1, 30.0], np.stack([noisy_a, c]), "v2")
+    m = merge_modesets([s1, s2])
+    np.testing.assert_allclose(m.frequencies_hz, [10.05, 20.0, 30.0])
+    assert m.metadata["n_sources"] == [2, 1, 1]
+    assert float(np.sum(m.shapes[0] * a)) > 0.99  # sign aligned, averaged, unit norm
+    assert np.linalg.norm(m.shapes[0]) == pytest.approx(1.0, rel=1e-6)
+    # a different frequency or a dissimilar shape is not merged
+    assert len(merge_modesets([s1, _modeset([10.0], c[None], "v3")])) == 3
+    assert len(merge_modesets([s1, _modeset([15.0], a[None], "v3")])) == 3
+
+
+# --------------------------------------------------------------------------- sampling and camera
+def test_bilinear_sampling_exact_on_linear_field() -> None:
+    H, W = 20, 30
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    shapes = np.stack(
+        [np.stack([1 + 2 * u - 3 * v, 0.5 * u + v], -1), np.stack([u * 0 + 4, -u], -1)]
+    )
+    rng = np.random.default_rng(0)
+    uv = np.c_[rng.uniform(-0.5, W - 1, 50), rng.uniform(-0.5, H - 1, 50)]
+    uv[0] = [W - 1, H - 1]
+    g = sample_modes(shapes, uv)
+    assert g.shape == (2, 100)
+    uc, vc = np.clip(uv[:, 0], 0, None), np.clip(uv[:, 1], 0, None)
+    np.testing.assert_allclose(g[0, 0::2], 1 + 2 * uc - 3 * vc, atol=1e-12)
+    np.testing.assert_allclose(g[0, 1::2], 0.5 * uc + vc, atol=1e-12)
+    np.testing.assert_allclose(g[1, 0::2], 4.0)
+    np.testing.assert_allclose(g[1, 1::2], -uc, atol=1e-12)
+    with pytest.raises(ValueError, match="outside"):
+        sample_field(shapes[0], [[W + 1.0, 0.0]])
+
+
+def _camera() -> Camera:
+    cam = Camera.look_at((2.0, -3.0, 1.5), (0, 0, 0), fx=400.0, width=320, height=240)
+    K = cam.K.copy()
+    K[0, 0], K[1, 2] = 410.0, 125.0
+    return Camera(K=K, R=cam.R, t=cam.t, width=320, height=240)
+
+
+def test_observation_operator_matches_finite_differences() -> None:
+    cam = _camera()
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-0.5, 0.5, (12, 3))
+    vis = np.array([3, 1, 7, 11])
+    P = observation_operator(cam, X, vis)
+    assert P.shape == (8, 36)
+    h = 1e-6
+    for j in range(36):
+        e = np.zeros(36)
+        e[j] = h
+        dX = e.reshape(12, 3)
+        fd = (cam.project(X + dX) - cam.project(X - dX))[vis].ravel() / (2 * h)
+        np.testing.assert_allclose(P[:, j].toarray().ravel(), fd, atol=1e-6)
+    mask = np.zeros(12, bool)
+    mask[[1, 3]] = True
+    assert observation_operator(cam, X, mask).shape == (4, 36)
+
+
+def test_dlt_camera_recovery() -> None:
+    cam = _camera()
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-0.5, 0.5, (10, 3))
+    est, rms = estimate_camera(X, cam.project(X), 320, 240)
+    assert rms < 1e-6
+    np.testing.assert_allclose(est.K, cam.K, atol=1e-6)
+    np.testing.assert_allclose(est.R, cam.R, atol=1e-9)
+    # noisy clicks: residual at the noise level, held-out points predicted to ~noise
+    X = rng.uniform(-0.5, 0.5, (30, 3))
+    sigma = 0.3
+    est, rms = estimate_camera(X, cam.project(X) + rng.normal(0, sigma, (30, 2)), 320, 240)
+    assert 0.5 * sigma < rms < 1.6 * sigma
+    Y = rng.uniform(-0.5, 0.5, (200, 3))
+    err = np.linalg.norm(est.project(Y) - cam.project(Y), axis=1)
+    assert np.sqrt(np.mean(err**2)) < 1.5 * sigma
+    with pytest.raises(ValueError, match=">= 6"):
+        estimate_camera(X[:5], cam.project(X[:5]), 320, 240)
+    flat = X.copy()
+    flat[:, 2] = 0.0
+    with pytest.raises(ValueError, match="coplanar"):
+        estimate_camera(flat, cam.project(flat), 320, 240)
+
+
+def test_clicks_files(tmp_path) -> None:
+    pts = [{"vertex": 4, "u": 10.5, "v": 20.25}, {"vertex": 7, "u": 1, "v": 2}]
+    pj = tmp_path / "clicks.json"
+    pj.write_text(json.dumps({"points": pts}))
+    idx, uv = load_clicks(pj)
+    assert idx.tolist() == [4, 7] and uv.tolist() == [[10.5, 20.25], [1.0, 2.0]]
+    pc = tmp_path / "clicks.csv"
+    pc.write_text("# clicks\nu,v,vertex\n10.5,20.25,4\n1,2,7\n")
+    idx2, uv2 = load_clicks(pc)
+    assert idx2.tolist() == [4, 7] and np.array_equal(uv, uv2)
+    pj.write_text(json.dumps({"points": [{"vertex": 4, "v": 1.0}]}))
+    with pytest.raises(ValueError, match=r"clicks\.json: points\[0\] is missing key 'u'"):
+        load_clicks(pj)
+    pc.write_text("vertex,u\n1,2\n")
+    with pytest.raises(ValueError, match=r"clicks\.csv: CSV header lacks column 'v'"):
+        load_clicks(pc)
+    pc.write_text("vertex,u,v\n1,abc,2\n")
+    with pytest.raises(ValueError, match=r"clicks\.csv: data line 1: 'u' must be a number"):
+        load_clicks(pc)
+
+
+# --------------------------------------------------------------------------- video files, CLI
+def test_ffv1_gray16_roundtrip_through_extract(tmp_path) -> None:
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    n, T, fps = 64, 64, 64.0
+    sp = Speckle(n, seed=2)
+    true = pattern(n, "a")
+    frames = video(sp, [(true, 0.05, 8.0)], T, fps)
+    lo, hi = frames.min(), frames.max()
+    q = np.round((frames - lo) / (hi - lo) * 60000 + 2000).astype("<u2")
+    path = tmp_path / "speckle.mkv"
+    w = imageio_ffmpeg.write_frames(
+        str(path),
+        (n, n),
+        pix_fmt_in="gray16le",
+        pix_fmt_out="gray16le",
+        codec="ffv1",
+        quality=None,
+        fps=fps,
+        macro_block_size=1,
+    )
+    w.send(None)
+    for f in q:
+        w.send(f.tobytes())
+    w.close()
+    vs = open_video(path)
+    back = np.stack(list(vs.frames))
+    assert vs.meta["bits"] == 16 and vs.fps == fps
+    np.testing.assert_array_equal(np.round(back * 65535).astype(np.uint16), q)  # bit exact
+    ms = extract_modes(path)  # fps from the container
+    i = nearest(ms, 8.0)
+    assert abs(ms.frequencies_hz[i] - 8.0) <= fps / T
+    m = np.zeros((n, n), bool)
+    m[BORDER:-BORDER, BORDER:-BORDER] = True
+    assert mac(ms.shapes[i][m], true[m]) > 0.95
+    assert ms.metadata["decoded_pix_fmt"] == "gray16le"
+    # CLI: files, plots and a faithful round trip of the saved set
+    out = tmp_path / "modes"
+    assert main_extract([str(path), "--fps", "64", "-o", str(out), "--quiet"]) == 0
+    for name in ("modes.npz", "modes.json", "spectrum.png", "mode_00.png"):
+        assert (out / name).is_file()
+    loaded = ModeSet.load(out)
+    assert len(loaded) == len(ms)
+    np.testing.assert_array_equal(loaded.shapes, ms.shapes)
+    np.testing.assert_array_equal(loaded.frequencies_hz, ms.frequencies_hz)
+    np.testing.assert_array_equal(loaded.power, ms.power)
+    assert loaded.metadata["motion"]["n_scales"] == 3

@@ -1,0 +1,259 @@
+"""The :class:`ModeSet` container of identified image-space modes, its file format and merging.
+
+The file format is described in ``docs/modes.md``: a directory with ``modes.npz`` (arrays)
+and ``modes.json`` (scalars, per-mode summary and metadata).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .peaks import merge_modes
+
+__all__ = ["FORMAT_VERSION", "ModeSet", "merge_modesets"]
+
+FORMAT_VERSION = 1
+
+_PER_MODE = (
+    "frequencies_hz",
+    "damping",
+    "damping_half_power",
+    "amplitudes_px",
+    "peak_bins",
+    "prominences",
+    "collinearity",
+    "shake_mac",
+    "camera_shake",
+)
+
+
+@dataclass
+class ModeSet:
+    """Image-space modes identified in one (or several merged) videos.
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray
+        ``(k,)`` float64 peak frequencies (Hz), sub-bin refined (parabola on log power).
+    damping : ndarray
+        ``(k,)`` float64 damping ratios from the Lorentzian fit (``nan`` if it failed).
+    damping_half_power : ndarray
+        ``(k,)`` float64 damping ratios from the half-power bandwidth.
+    shapes : ndarray
+        ``(k, H, W, 2)`` float32 real modes (``[..., 0] = dx`` right, ``[..., 1] = dy`` down),
+        phase aligned, unit L2 norm over all pixels and both components.
+    amplitudes_px : ndarray
+        ``(k,)`` float64: ``amplitudes_px[i] * shapes[i]`` is the peak displacement field (px)
+        of the mode for a stationary sinusoid on a bin (``2 |X| / T``; less with leakage).
+    peak_bins : ndarray
+        ``(k,)`` int64 DFT bin of each peak (``-1`` after merging).
+    prominences : ndarray
+        ``(k,)`` float64 peak prominence in decades of power.
+    collinearity : ndarray
+        ``(k,)`` float64 in ``[0, 1]``, 1 for a standing (synchronous) mode.
+    shake_mac : ndarray
+        ``(k,)`` float64 MAC of the complex mode with the best rigid translation.
+    camera_shake : ndarray
+        ``(k,)`` bool, ``shake_mac > threshold``.
+    freqs_hz, power : ndarray
+        ``(F,)`` float64 frequency axis and motion power spectrum (empty after merging).
+    fps : float
+        Frame rate (Hz) after frame averaging.
+    n_frames : int
+        Frames in the spectrum (``T``).
+    confidence : ndarray or None
+        ``(H, W)`` float32 motion confidence of the reference frame.
+    metadata : dict
+        JSON-serialisable provenance (source, parameters, rejected peaks, ...).
+    """
+
+    frequencies_hz: NDArray[np.float64]
+    damping: NDArray[np.float64]
+    damping_half_power: NDArray[np.float64]
+    shapes: NDArray[np.float32]
+    amplitudes_px: NDArray[np.float64]
+    peak_bins: NDArray[np.int64]
+    prominences: NDArray[np.float64]
+    collinearity: NDArray[np.float64]
+    shake_mac: NDArray[np.float64]
+    camera_shake: NDArray[np.bool_]
+    freqs_hz: NDArray[np.float64]
+    power: NDArray[np.float64]
+    fps: float
+    n_frames: int
+    confidence: NDArray[np.float32] | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.shapes = np.asarray(self.shapes, dtype=np.float32)
+        if self.shapes.ndim != 4 or self.shapes.shape[-1] != 2:
+            raise ValueError(f"shapes must be (k, H, W, 2), got {self.shapes.shape}")
+        k = self.shapes.shape[0]
+        for name in _PER_MODE:
+            dtype = {"peak_bins": np.int64, "camera_shake": np.bool_}.get(name, np.float64)
+            a = np.atleast_1d(np.asarray(getattr(self, name), dtype=dtype))
+            if a.shape != (k,):
+                raise ValueError(f"{name} must have shape ({k},), got {a.shape}")
+            setattr(self, name, a)
+        self.freqs_hz = np.asarray(self.freqs_hz, dtype=np.float64)
+        self.power = np.asarray(self.power, dtype=np.float64)
+        if self.freqs_hz.shape != self.power.shape:
+            raise ValueError("freqs_hz and power must have the same shape")
+        if self.confidence is not None:
+            self.confidence = np.asarray(self.confidence, dtype=np.float32)
+
+    def __len__(self) -> int:
+        return int(self.shapes.shape[0])
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """``(H, W)``."""
+        return int(self.shapes.shape[1]), int(self.shapes.shape[2])
+
+    @property
+    def omegas(self) -> NDArray[np.float64]:
+        """Angular frequencies ``2 pi f`` (rad/s); ``lambda = omega**2``."""
+        return 2.0 * np.pi * self.frequencies_hz
+
+    def select(self, index: Any) -> ModeSet:
+        """Subset of modes (boolean mask or indices); spectrum and metadata are kept."""
+        idx = np.arange(len(self))[index]
+        kw = {f.name: getattr(self, f.name) for f in fields(self)}
+        for name in (*_PER_MODE, "shapes"):
+            kw[name] = kw[name][idx]
+        kw["metadata"] = dict(self.metadata)
+        return ModeSet(**kw)
+
+    def summary(self) -> list[dict[str, Any]]:
+        """Per-mode scalars as a list of dicts (JSON-ready)."""
+        out = []
+        for i in range(len(self)):
+            d: dict[str, Any] = {"index": i}
+            for name in _PER_MODE:
+                v = getattr(self, name)[i].item()
+                d[name] = None if isinstance(v, float) and not np.isfinite(v) else v
+            out.append(d)
+        return out
+
+    # ---------------------------------------------------------------- persistence
+    def save(self, directory: str | Path) -> Path:
+        """Write ``modes.npz`` and ``modes.json`` into ``directory`` (created if needed)."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        arrays = {name: getattr(self, name) for name in (*_PER_MODE, "shapes", "freqs_hz", "power")}
+        if self.confidence is not None:
+            arrays["confidence"] = self.confidence
+        np.savez(d / "modes.npz", **arrays)
+        doc = {
+            "format": "vvtbench.modes",
+            "version": FORMAT_VERSION,
+            "n_modes": len(self),
+            "image_shape": list(self.image_shape),
+            "fps": float(self.fps),
+            "n_frames": int(self.n_frames),
+            "modes": self.summary(),
+            "metadata": self.metadata,
+        }
+        (d / "modes.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
+        return d
+
+    @classmethod
+    def load(cls, directory: str | Path) -> ModeSet:
+        """Read a directory written by :meth:`save`."""
+        d = Path(directory)
+        jpath, npath = d / "modes.json", d / "modes.npz"
+        for p in (jpath, npath):
+            if not p.is_file():
+                raise FileNotFoundError(f"missing {p} (not a mode directory?)")
+        doc = json.loads(jpath.read_text())
+        if doc.get("format") != "vvtbench.modes":
+            raise ValueError(f"{jpath}: key 'format' must be 'vvtbench.modes'")
+        if int(doc.get("version", -1)) > FORMAT_VERSION:
+            raise ValueError(
+                f"{jpath}: format version {doc.get('version')} is newer than supported"
+            )
+        with np.load(npath) as z:
+            arrays = {k: z[k] for k in z.files}
+        missing = [k for k in (*_PER_MODE, "shapes", "freqs_hz", "power") if k not in arrays]
+        if missing:
+            raise ValueError(f"{npath}: missing arrays {missing}")
+        try:
+            fps, n_frames = float(doc["fps"]), int(doc["n_frames"])
+        except KeyError as e:
+            raise ValueError(f"{jpath}: missing key {e}") from None
+        return cls(
+            **arrays,
+            fps=fps,
+            n_frames=n_frames,
+            metadata=doc.get("metadata", {}),
+        )
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def merge_modesets(sets: list[ModeSet], *, freq_tol: float = 0.02, min_mac: float = 0.8) -> ModeSet:
+    """Merge the modes of several videos of the same view (see :func:`peaks.merge_modes`).
+
+    Duplicates (frequency within ``freq_tol`` relative, MAC >= ``min_mac``) are averaged
+    with amplitude weights after sign alignment; ``metadata["n_sources"]`` gives, per merged
+    mode, the number of sets it was found in and ``metadata["members"]`` the
+    ``(set, mode)`` pairs.  Camera-shake modes are dropped.  The merged set has no spectrum.
+    """
+    if not sets:
+        raise ValueError("nothing to merge")
+    kept = [s.select(~s.camera_shake) for s in sets]
+    m = merge_modes(
+        [s.frequencies_hz for s in kept],
+        [s.shapes for s in kept],
+        damping=[s.damping for s in kept],
+        weights=[s.amplitudes_px for s in kept],
+        freq_tol=freq_tol,
+        min_mac=min_mac,
+    )
+
+    def avg(name: str) -> NDArray[np.float64]:
+        vals = []
+        for members in m.members:
+            v = np.array([getattr(kept[i], name)[j] for i, j in members], dtype=np.float64)
+            vals.append(np.nanmean(v) if np.isfinite(v).any() else np.nan)
+        return np.array(vals)
+
+    k = len(m.frequencies_hz)
+    return ModeSet(
+        frequencies_hz=m.frequencies_hz,
+        damping=m.damping,
+        damping_half_power=avg("damping_half_power"),
+        shapes=m.shapes,
+        amplitudes_px=avg("amplitudes_px"),
+        peak_bins=np.full(k, -1),
+        prominences=avg("prominences"),
+        collinearity=avg("collinearity"),
+        shake_mac=avg("shake_mac"),
+        camera_shake=np.zeros(k, bool),
+        freqs_hz=np.zeros(0),
+        power=np.zeros(0),
+        fps=float(min(s.fps for s in sets)),
+        n_frames=int(sum(s.n_frames for s in sets)),
+        confidence=sets[0].confidence,
+        metadata={
+            "merged_from": [s.metadata.get("source") for s in sets],
+            "freq_tol": freq_tol,
+            "min_mac": min_mac,
+            "n_sources": m.n_sources.tolist(),
+            "members": [[list(p) for p in g] for g in m.members],
+        },
+    )
