@@ -1,3 +1,11 @@
 """vvtbench: an open benchmark and dataset generator for visual vibration tomography."""
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    if name == "open_sample":
+        from .dataset import open_sample
+
+        return open_sample
+    raise AttributeError(f"module 'vvtbench' has no attribute {name!r}")

@@ -301,6 +301,8 @@ class RenderSpec(_Strict):
     read_noise_dn: NonNegative = 0.0
     shot_noise: bool = False
     frame_average: Annotated[int, Field(ge=1)] = 1
+    full_well_electrons: Positive = 1e4
+    consumer_crf: Annotated[int, Field(ge=0, le=51)] | None = None
 
 
 class Scene(_Strict):

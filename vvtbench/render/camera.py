@@ -192,6 +192,20 @@ class Camera:
         R = np.stack([x, y, z])
         return cls.from_intrinsics(fx, width=width, height=height, R=R, t=-R @ pos)
 
+    @classmethod
+    def from_spec(cls, spec: Any) -> Camera:
+        """Camera of a scene's ``[camera]`` table (a :class:`vvtbench.scene.CameraSpec`).
+
+        ``resolution`` is ``[height, width]``; the focal length is ``fx`` (pixels) when
+        given, else it follows from ``fov_y_deg``.
+        """
+        height, width = (int(n) for n in spec.resolution)
+        fx = getattr(spec, "fx", None)
+        fov = None if fx is not None else spec.fov_y_deg
+        return cls.look_at(
+            spec.position, spec.look_at, spec.up, fov_y_deg=fov, fx=fx, width=width, height=height
+        )
+
     # ------------------------------------------------------------------ properties
     @property
     def fx(self) -> float:

@@ -1,0 +1,382 @@
+"""Tests for the dataset generator and loader (vvtbench.dataset).
+
+Rendering needs headless EGL (Mesa llvmpipe is fine); see tests/test_render.py.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vvtbench import dataset as ds
+from vvtbench.render.camera import Camera
+from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
+
+TINY = {
+    "name": "tiny",
+    "seed": 7,
+    "geometry": {"kind": "box", "cells": [3, 3, 3]},
+    "excitation": {"kind": "pluck", "at": [0.05, 0.0, 0.05], "displacement": 0.002},
+    "simulation": {"n_modes": 8, "duration": 0.05, "fps": 2000.0},
+    "camera": {"resolution": [64, 64], "position": [0.16, -0.13, 0.13],
+               "look_at": [0.025, 0.025, 0.022], "fov_y_deg": 30.0},
+    "render": {"supersample": 2},
+}
+SEGMENT = 40  # 100 frames -> 3 segments
+
+
+def tiny_scene(**render) -> object:
+    data = json.loads(json.dumps(TINY))
+    data["render"].update(render)
+    return parse_scene(data, "tiny")
+
+
+def _tree(path: Path) -> dict[str, bytes]:
+    return {p.relative_to(path).as_posix(): p.read_bytes()
+            for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    return ds.generate(tiny_scene(), tmp_path_factory.mktemp("a"), progress=False,
+                       segment_frames=SEGMENT)
+
+
+@pytest.fixture(scope="module")
+def sample(tiny):
+    return ds.open_sample(tiny)
+
+
+def test_sample_folder_and_manifest(tiny, sample):
+    names = {p.name for p in tiny.iterdir()}
+    assert names == {"scene.toml", "camera.json", "truth.json", "truth.zarr", "video.mkv",
+                     "rest.png", "depth.png", "preview.mp4", "manifest.json"}
+    assert not list(tiny.parent.glob(".*"))  # no partial or temporary folder left behind
+    assert sample.verify() == []
+    files = sample.manifest["files"]
+    assert all(len(e["sha256"]) == 64 and e["description"] for e in files.values())
+    # a changed byte is caught
+    png = tiny / "rest.png"
+    original = png.read_bytes()
+    try:
+        png.write_bytes(original[:-1] + bytes([original[-1] ^ 1]))
+        assert sample.verify() == ["rest.png: sha256 mismatch"]
+    finally:
+        png.write_bytes(original)
+    # the resolved scene loads as a scene and names the generator version
+    text = (tiny / "scene.toml").read_text()
+    assert text.startswith("# Resolved scene written by vvtbench")
+    assert load_scene(tiny / "scene.toml").to_toml_dict() == tiny_scene().to_toml_dict()
+
+
+def test_open_sample_shapes(sample):
+    S = sample.info["mesh"]["n_surface_nodes"]
+    V = sample.info["mesh"]["n_visible"]
+    m = 8
+    H, W = 64, 64
+    assert sample.n_frames == 100 and sample.fps == 2000.0 and sample.shape == (H, W)
+    assert isinstance(sample.camera, Camera) and sample.camera.width == W
+    np.testing.assert_allclose(json.loads((sample.path / "camera.json").read_text())["P"],
+                               sample.camera.P)
+    expect = {
+        "mesh/points": ((64, 3), np.float64),
+        "mesh/cells": ((27, 8), np.int64),
+        "mesh/surface_nodes": ((S,), np.int64),
+        "material/stiffness": ((27,), np.float64),
+        "voxels/stiffness": ((8, 8, 8), np.float64),
+        "voxels/density": ((8, 8, 8), np.float64),
+        "modes/frequencies_hz": ((m,), np.float64),
+        "modes/damping_ratios": ((m,), np.float64),
+        "modes/surface": ((m, S, 3), np.float64),
+        "observation/rest_uv": ((S, 2), np.float64),
+        "observation/visible": ((S,), np.bool_),
+        "observation/visible_index": ((V,), np.int64),
+        "observation/jacobian": ((V, 2, 3), np.float64),
+        "observation/image_modes": ((m, V, 2), np.float64),
+        "image/rest": ((H, W), np.float32),
+        "image/depth": ((H, W), np.float32),
+        "image/triangle": ((H, W), np.int32),
+        "image/barycentric": ((H, W, 3), np.float32),
+        "image/modes": ((m, H, W, 2), np.float32),
+        "transient/displacements": ((100, S, 3), np.float32),
+        "transient/times": ((100,), np.float64),
+    }
+    for name, (shape, dtype) in expect.items():
+        a = sample[name]
+        assert a.shape == shape and a.dtype == dtype, (name, a.shape, a.dtype)
+    # 3 x 3 x 3 cells in an 8^3 grid: 27 active voxels, the rest NaN
+    assert np.isfinite(sample["voxels/stiffness"]).sum() == 27
+    np.testing.assert_allclose(sample["voxels/stiffness"][np.isfinite(sample["voxels/stiffness"])],
+                               9000.0)
+    assert 0 < V < S
+    frames = sample.read_frames(5, 8)
+    assert frames.shape == (3, H, W) and frames.dtype == np.uint16
+    np.testing.assert_array_equal(frames, sample.read_frames()[5:8])
+    norm = next(sample.frames(5, 6, normalize=True))
+    np.testing.assert_allclose(norm, frames[0] / 65535.0, rtol=1e-6)
+    np.testing.assert_allclose(sample.times, np.arange(100) / 2000.0)
+    np.testing.assert_allclose(sample.frequencies_hz, sample.info["modes"]["frequencies_hz"])
+
+
+def test_ffv1_roundtrip_is_bit_exact(tmp_path):
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 65536, size=(30, 24, 40), dtype=np.uint16)
+    frames[3] = 0
+    frames[4] = 65535
+    segs = []
+    for i, part in enumerate((frames[:13], frames[13:])):
+        w = ds._VideoWriter(tmp_path / f"s{i}.mkv", 24, 40, 2000.0)
+        for f in part:
+            w.write(f)
+        w.close()
+        segs.append(tmp_path / f"s{i}.mkv")
+    ds._concat(segs, tmp_path / "v.mkv", tmp_path, None, 2000.0)
+    back = np.stack(list(ds.read_video(tmp_path / "v.mkv", 24, 40)))
+    np.testing.assert_array_equal(back, frames)
+    np.testing.assert_array_equal(np.stack(list(ds.read_video(tmp_path / "v.mkv", 24, 40,
+                                                              start=11, stop=17))), frames[11:17])
+
+
+def test_video_frames_are_the_rendered_frames(sample):
+    """Decoded DN == 16-bit quantization of a fresh render of the stored displacements."""
+    from vvtbench.simulate import build_mesh
+
+    mesh = build_mesh(sample.scene)
+    nodes, rest, tris = ds._surface_geometry(mesh)
+    np.testing.assert_array_equal(nodes, sample["mesh/surface_nodes"])
+    disp = sample.array("transient/displacements")
+    frames = sample.read_frames()
+    with ds.scene_renderer(sample.scene, rest, tris) as r:
+        np.testing.assert_array_equal(r.render(), sample["image/rest"])
+        for k in (0, 37, 99):
+            img = r.render(disp[k])
+            want = ds.sensor_dn(img[None], 16, 0.0, False, 1e4, None)
+            np.testing.assert_array_equal(frames[k], want)
+    assert np.abs(frames[0].astype(int) - frames[99]).max() > 0  # it moves
+
+
+def test_image_modes_are_jacobian_times_3d_modes(sample):
+    cam = sample.camera
+    vis = sample["observation/visible_index"]
+    X = sample["mesh/points"][sample["mesh/surface_nodes"][vis]]
+    phi = sample["modes/surface"][:, vis]  # (m, V, 3)
+    gam = sample["observation/image_modes"]
+    J = sample["observation/jacobian"]
+    np.testing.assert_allclose(gam, np.einsum("vij,mvj->mvi", J, phi), rtol=1e-12)
+    h = 1e-7 / np.abs(phi).max()
+    fd = (cam.project((X + h * phi).reshape(-1, 3)) - cam.project((X - h * phi).reshape(-1, 3)))
+    fd = fd.reshape(gam.shape) / (2 * h)
+    np.testing.assert_allclose(gam, fd, rtol=1e-5, atol=1e-6 * np.abs(gam).max())
+
+
+def test_dense_mode_fields_interpolate_vertex_modes(sample):
+    tri = sample["image/triangle"]
+    bary = sample["image/barycentric"].astype(np.float64)
+    dense = sample["image/modes"]
+    mask = tri >= 0
+    assert np.isnan(dense[:, ~mask]).all() and np.isfinite(dense[:, mask]).all()
+    # triangles index the surface nodes; interpolate the surface image modes independently
+    surf = sample["mesh/surface"]
+    lut = {n: i for i, n in enumerate(sample["mesh/surface_nodes"])}
+    local = np.vectorize(lut.get)(surf)
+    g = sample["observation/image_modes_surface"]  # (m, S, 2)
+    corners = local[tri[mask]]
+    ref = np.einsum("pk,mpkc->mpc", bary[mask], g[:, corners])
+    np.testing.assert_allclose(dense[:, mask], ref, rtol=1e-4, atol=1e-5 * np.abs(g).max())
+    # the render-free raster agrees with the renderer's depth buffer inside the object
+    d_r = sample["image/depth"]
+    both = mask & np.isfinite(d_r)
+    assert both.sum() > 0.9 * mask.sum()
+    assert np.median(np.abs(d_r[both] - _raster_depth(sample)[both]) / d_r[both]) < 1e-3
+
+
+def _raster_depth(sample):
+    from vvtbench.render.raster import rasterize
+
+    nodes = sample["mesh/surface_nodes"]
+    lut = np.full(len(sample["mesh/points"]), -1)
+    lut[nodes] = np.arange(len(nodes))
+    return rasterize(sample.camera, sample["mesh/points"][nodes], lut[sample["mesh/surface"]]).depth
+
+
+def test_rerun_is_byte_identical(tiny, tmp_path):
+    again = ds.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT)
+    assert _tree(again) == _tree(tiny)
+
+
+def test_interrupted_run_resumes(tiny, tmp_path):
+    class Stop(Exception):
+        pass
+
+    def interrupt(stage, done, total):
+        if stage == "render video" and done == SEGMENT + 5:
+            raise Stop
+
+    with pytest.raises(Stop):
+        ds.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT,
+                    callback=interrupt)
+    partial = tmp_path / ".tiny.partial"
+    assert not (tmp_path / "tiny").exists()
+    assert json.loads((partial / "checkpoint.json").read_text())["segments_done"] == 1
+    starts = []
+
+    def record(stage, done, total):
+        if stage == "render video" and not starts:
+            starts.append(done)
+
+    out = ds.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT,
+                      callback=record)
+    assert starts == [SEGMENT]  # resumed after the finished segment
+    assert not partial.exists()
+    assert _tree(out) == _tree(tiny)
+
+
+def test_camera_noise_bit_depth_and_frame_average(tmp_path):
+    scene = tiny_scene(bit_depth=12, read_noise_dn=2.0, shot_noise=True, frame_average=2)
+    s = ds.open_sample(ds.generate(scene, tmp_path, progress=False))
+    assert s.bit_depth == 12 and s.info["video"]["subframe_fps"] == 4000.0
+    frames = s.read_frames()
+    assert frames.max() <= 4095 and frames.max() > 3000
+    # times are the exposure centres of the averaged sub-frame pairs
+    np.testing.assert_allclose(s.times, (np.arange(100) + 0.25) / 2000.0)
+    # the noise-free, quantized rest image differs from the video by sensor noise only
+    from vvtbench.simulate import build_mesh
+
+    _, rest, tris = ds._surface_geometry(build_mesh(s.scene))
+    disp = s["transient/displacements"]
+    with ds.scene_renderer(s.scene, rest, tris) as r:
+        clean = r.render(disp[50]) * 4095.0
+    diff = frames[50] - clean
+    bg = s["image/triangle"] == -1
+    # background (I = 0): read noise only, averaged over 2 sub-frames, clipped at 0
+    assert 0.3 < np.sqrt(np.mean(np.clip(diff[bg], 0, None) ** 2) * 2) < 2.5
+    bright = (clean > 3000) & ~bg
+    # bright pixels: shot noise dominates; var ~ (I*4095^2/full_well + 4) / 2
+    var = np.var(diff[bright])
+    expect = np.mean(clean[bright] * 4095.0 / 1e4 + 4.0) / 2
+    assert 0.5 * expect < var < 2.0 * expect
+
+
+def test_consumer_camera_variant(tiny, tmp_path):
+    s = ds.open_sample(ds.generate(tiny_scene(), tmp_path, progress=False, consumer_crf=18))
+    assert (s.path / "video.mp4").is_file() and not (s.path / "video.mkv").exists()
+    assert s.bit_depth == 8 and s.info["video"]["lossless"] is False
+    lossy = s.read_frames(normalize=True)
+    ref = ds.open_sample(tiny).read_frames(normalize=True)
+    assert lossy.shape == ref.shape and lossy.dtype == np.float32
+    err = np.abs(lossy - ref)
+    assert 0 < err.mean() < 0.02
+
+
+def test_cli_suite_with_overrides(tmp_path, capsys):
+    scene_file = tmp_path / "tiny.toml"
+    import tomli_w
+
+    scene_file.write_text(tomli_w.dumps(tiny_scene().to_toml_dict()))
+    suite = tmp_path / "suite.toml"
+    suite.write_text('scenes = ["tiny.toml"]\n')
+    out = tmp_path / "out"
+    code = ds.main_generate([str(suite), "-o", str(out), "--frames", "6",
+                             "--resolution", "32x48", "--no-progress"])
+    assert code == 0
+    s = ds.open_sample(out / "tiny")
+    assert s.n_frames == 6 and s.shape == (32, 48)
+    assert ds.main_generate([str(suite), "-o", str(out), "--frames", "6", "--no-progress"]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert ds.main_generate([str(scene_file), "-o", str(out), "--frames", "6", "--overwrite",
+                             "--no-progress"]) == 0
+
+
+def test_bad_input_gives_clear_errors(tmp_path, capsys):
+    with pytest.raises(SceneError, match="no such scene file"):
+        ds.resolve_scenes("no_such_scene_xyz")
+    assert ds.main_generate(["no_such_scene_xyz", "-o", str(tmp_path), "--no-progress"]) == 2
+    assert "no such scene file" in capsys.readouterr().err
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(ds.DatasetError, match="cannot write to output folder"):
+        ds.generate(tiny_scene(), blocker / "sub", progress=False)
+    bad_suite = tmp_path / "suite.toml"
+    bad_suite.write_text("scenes = [1, 2]\n")
+    with pytest.raises(SceneError, match="list of scene names"):
+        ds.resolve_scenes(bad_suite)
+
+
+# --------------------------------------------------------------------------- shipped scenes
+def _deriv(I: np.ndarray, axis: int) -> np.ndarray:
+    """Eighth-order central difference. (The fourth-order one of tests/test_render.py
+    attenuates the gradient of the default speckles -- sigma ~1.5 px, finer on foreshortened
+    faces -- by up to 8 %, which would be the estimator's bias, not the renderer's.)"""
+    out = np.zeros_like(I)
+    for k, c in enumerate((4 / 5, -1 / 5, 4 / 105, -1 / 280), 1):
+        out += c * (np.roll(I, -k, axis=axis) - np.roll(I, k, axis=axis))
+    return out
+
+
+def _erode(mask: np.ndarray, r: int) -> np.ndarray:
+    out = mask.copy()
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            out &= np.roll(np.roll(mask, dy, 0), dx, 1)
+    return out
+
+
+def _shipped_views():
+    """One shipped scene per distinct (surface geometry, camera, render settings)."""
+    seen, out = set(), []
+    for path in sorted(SCENES_DIR.glob("*.toml")):
+        s = load_scene(path)
+        g = s.geometry.model_dump()
+        g.pop("order", None)
+        key = json.dumps([g, s.camera.model_dump(), s.render.model_dump()], sort_keys=True)
+        if key not in seen:
+            seen.add(key)
+            out.append(path.stem)
+    return out
+
+
+def _rest_surface(scene):
+    from vvtbench.fem.mesh import load_surface
+    from vvtbench.simulate import build_mesh
+
+    g = scene.geometry
+    if g.kind == "mesh":  # the tetrahedralization's boundary is close to the input surface
+        return load_surface(g.path, g.up_axis, g.scale_to, g.target_faces)
+    return ds._surface_geometry(build_mesh(scene))[1:]
+
+
+@pytest.mark.parametrize("name", _shipped_views())
+def test_rigid_subpixel_shift_with_shipped_scene_defaults(name):
+    """A rigid 0.01 px shift is reproduced within 5 % with each shipped scene's camera,
+    texture, supersampling and lighting. The expected (perspective, non-uniform) image motion
+    comes from the render-free raster; the linearized image difference fits its scale."""
+    from vvtbench.render.raster import interpolate, rasterize
+
+    scene = load_scene(name)
+    V, F = _rest_surface(scene)
+    cam = Camera.from_spec(scene.camera)
+    uv = cam.project(V)
+    assert np.all((uv > 0.05 * np.array([cam.width, cam.height]))
+                  & (uv < 0.95 * np.array([cam.width, cam.height]))), "object leaves the frame"
+    raster = rasterize(cam, V, F)
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    axis = np.where(raster.mask, np.argmax(np.abs(n), axis=1)[raster.triangle], -1)
+    smooth = np.zeros_like(raster.mask)
+    for a in range(3):  # away from silhouettes and triplanar texture seams
+        smooth |= _erode(axis == a, 4)
+    mask = _erode(raster.mask, 4) & smooth
+    assert mask.sum() > 2000
+    Jc = cam.jacobian(np.asarray(scene.camera.look_at))
+    with ds.scene_renderer(scene, V, F) as r:
+        I0 = r.render().astype(np.float64)
+        for direction in (cam.R[0], cam.R[1]):  # image right, image down
+            d = direction * 0.01 / np.linalg.norm(Jc @ direction)  # 0.01 px at the look-at
+            pred = interpolate(raster, F, np.einsum("nij,j->ni", cam.jacobian(V), d))
+            I1 = r.render(np.tile(d, (len(V), 1))).astype(np.float64)
+            Im = 0.5 * (I0 + I1)
+            g = _deriv(Im, 1) * pred[..., 0] + _deriv(Im, 0) * pred[..., 1]
+            scale = np.sum(-g[mask] * (I1 - I0)[mask]) / np.sum(g[mask] ** 2)
+            assert abs(scale - 1.0) < 0.05, (direction, scale)
