@@ -11,6 +11,7 @@ mode is a near-uniform translation are flagged as camera shake and dropped unles
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Iterable
@@ -357,7 +358,23 @@ def _parse_roi(s: str) -> tuple[int, int, int, int]:
     return parts  # type: ignore[return-value]
 
 
+def _sample_fps(path: Path) -> float | None:
+    """The capture frame rate recorded in a vvtbench sample folder (its container says less:
+    Matroska timestamps cannot hold 2000 fps), or None."""
+    truth = path / "truth.json" if path.is_dir() else path.parent / "truth.json"
+    if not truth.is_file():
+        return None
+    try:
+        return float(json.loads(truth.read_text())["video"]["fps"])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def _resolve_source(path: Path) -> Path:
+    if path.is_dir() and (path / "manifest.json").is_file():
+        for name in ("video.mkv", "video.mp4"):
+            if (path / name).is_file():
+                return path / name
     if path.is_dir():
         found = sorted(p for p in path.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
         if len(found) != 1:
@@ -410,10 +427,11 @@ def main_extract(argv: list[str] | None = None) -> int:
     """``vvtbench extract VIDEO --fps F -o DIR [...]``; returns the exit status."""
     args = build_parser().parse_args(argv)
     src = _resolve_source(args.video)
+    fps = args.fps if args.fps is not None else _sample_fps(args.video)
     try:
         ms = extract_modes(
             src,
-            args.fps,
+            fps,
             fmin=args.fmin,
             fmax=args.fmax,
             prominence=args.prominence,
