@@ -111,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
 DELEGATED = {
     "extract": ("vvtbench.modes.extract:main_extract",
                 "motion, spectrum and image-space modes of a video (see `extract --help`)"),
+    "solvers": ("vvtbench.plugins:main_solvers", "list the installed inverse solvers"),
+    "solve": ("vvtbench.plugins:main_solve",
+              "run an inverse solver on a scene (see `solve --help`)"),
 }
 
 

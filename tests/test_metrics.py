@@ -1,0 +1,62 @@
+"""Metrics on hand-made fields: exact values the definitions imply (docs/metrics.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vvtbench.metrics import (
+    gaussian_blur,
+    intrinsic_resolution,
+    mac_matrix,
+    normalized_correlation,
+)
+
+
+@pytest.fixture
+def field():
+    rng = np.random.default_rng(0)
+    x = np.full((8, 8, 8), 9000.0)
+    x[4:6, 2:5, 5:7] = 5e4
+    return x + rng.normal(0, 50, x.shape)
+
+
+def test_nc_identities(field):
+    assert normalized_correlation(field, field) == pytest.approx(1.0)
+    assert normalized_correlation(-field, field) == pytest.approx(-1.0)
+    assert normalized_correlation(3 * field + 7, field) == pytest.approx(1.0)  # affine-invariant
+    assert normalized_correlation(np.full_like(field, 4.0), field) == 0.0
+    assert normalized_correlation(field, field, centered=False) == pytest.approx(1.0)
+    assert normalized_correlation(-field, field, centered=False) == pytest.approx(-1.0)
+    # uncentered is not offset-invariant
+    assert normalized_correlation(field - 9000, field, centered=False) < 0.99
+
+
+def test_nc_ignores_empty_voxels(field):
+    a, b = field.copy(), field.copy()
+    a[0] = np.nan
+    b[0] = 1e9  # ignored where the estimate is NaN
+    assert normalized_correlation(a, b) == pytest.approx(1.0)
+
+
+def test_blur_is_nan_aware_and_mean_preserving():
+    g = np.full((6, 6, 6), 2.0)
+    g[0, 0, 0] = np.nan
+    b = gaussian_blur(g, 1.5)
+    assert np.isnan(b[0, 0, 0])
+    assert np.allclose(b[np.isfinite(b)], 2.0)  # constants stay constant, also at the borders
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.8, 1.4, 2.0])
+def test_sigma_star_of_a_blurred_field_is_its_blur(field, sigma):
+    estimate = gaussian_blur(field, sigma)
+    ir = intrinsic_resolution(estimate, field)
+    assert ir["sigma_star"] == pytest.approx(sigma, abs=0.1)
+    assert ir["nc_at_sigma_star"] > 0.999
+
+
+def test_mac():
+    a = np.array([[1.0, 0, 0], [0, 1, 1]])
+    m = mac_matrix(a, np.array([[2.0, 0, 0], [0, -1, -1], [1, 1, 0]]))
+    assert m[0, 0] == pytest.approx(1) and m[1, 1] == pytest.approx(1)
+    assert m[0, 1] == 0 and m[1, 2] == pytest.approx(0.25)

@@ -1,0 +1,247 @@
+"""Inverse problem construction, the shipped solvers and the plug-in interface.
+
+Small cubes keep the whole file fast: simulate 6^3 (or 8^3) hex8, infer on 6^3 voxels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import textwrap
+
+import numpy as np
+import pytest
+
+from vvtbench.fem.mesh import box_mesh
+from vvtbench.metrics import mode_match, normalized_correlation
+from vvtbench.plugins import (
+    PluginError,
+    list_solvers,
+    load_solver,
+    main_solve,
+    parse_overrides,
+)
+from vvtbench.problem import Estimate, InverseProblem, interpolate_nodal
+from vvtbench.scene import load_scene
+from vvtbench.simulate import simulate
+
+
+def _scene(name: str, cells, n_modes: int = 30):
+    s = load_scene(name)
+    return s.model_copy(update={
+        "geometry": s.geometry.model_copy(update={"cells": tuple(cells)}),
+        "simulation": s.simulation.model_copy(update={"n_modes": n_modes}),
+    })
+
+
+@pytest.fixture(scope="module")
+def defect6():
+    return simulate(_scene("jello_cube_defect_top", (6, 6, 6)), transient=False)
+
+
+@pytest.fixture(scope="module")
+def defect8():
+    return simulate(_scene("jello_cube_defect_top", (8, 8, 8)), transient=False)
+
+
+@pytest.fixture(scope="module")
+def homog8():
+    return simulate(_scene("jello_cube_homogeneous", (8, 8, 8)), transient=False)
+
+
+@pytest.fixture(scope="module")
+def problem6(defect6):
+    return InverseProblem.from_simulation(defect6, inference_shape=(6, 6, 6), n_modes=12)
+
+
+# ----------------------------------------------------------------------------- problem
+
+
+def test_interpolation_reproduces_trilinear_and_quadratic_fields():
+    rng = np.random.default_rng(1)
+    q = rng.uniform(0, 1, (200, 3)) * [1.0, 2.0, 3.0]
+
+    def trilinear(p):
+        return 1 + 2 * p[:, 0] - p[:, 1] + 0.5 * p[:, 2] + p[:, 0] * p[:, 1] * p[:, 2]
+
+    m = box_mesh((3, 4, 5), (1.0, 2.0, 3.0))
+    assert np.allclose(interpolate_nodal(m, trilinear(m.points), q), trilinear(q))
+    m2 = box_mesh((2, 2, 2), (1.0, 2.0, 3.0), order=2)
+    quad = lambda p: p[:, 0] ** 2 - p[:, 1] * p[:, 2] + p[:, 2] ** 2  # noqa: E731
+    assert np.allclose(interpolate_nodal(m2, quad(m2.points), q), quad(q))
+
+
+def test_interpolation_on_tets():
+    from scipy.spatial import Delaunay
+
+    from vvtbench.fem.mesh import tets_to_mesh
+
+    rng = np.random.default_rng(3)
+    corners = np.stack(np.meshgrid(*[[0.0, 1.0]] * 3, indexing="ij"), -1).reshape(-1, 3)
+    g = np.vstack([corners, rng.uniform(0.05, 0.95, (60, 3))])
+    tets = Delaunay(g).simplices
+    lin = lambda p: 3 * p[:, 0] - p[:, 1] + 2 * p[:, 2] + 1  # noqa: E731
+    q = np.random.default_rng(2).uniform(0.01, 0.99, (100, 3))
+    for order in (1, 2):
+        mesh = tets_to_mesh(g, tets, order=order)
+        assert np.allclose(interpolate_nodal(mesh, lin(mesh.points), q), lin(q))
+
+
+def test_problem_from_simulation(defect8):
+    pb = InverseProblem.from_simulation(defect8, inference_shape=(6, 6, 6), n_modes=10)
+    k, nv = pb.n_modes, len(pb.visible_nodes)
+    assert pb.gamma.shape == (k, 2 * nv) and pb.P.shape == (2 * nv, pb.model.n_free)
+    assert np.allclose(np.linalg.norm(pb.gamma, axis=1), 1.0)
+    assert np.allclose((pb.P @ pb.modes_3d).T, pb.gamma, atol=1e-12)
+    # visible: front (y=0), right (x=max) and top faces, bottom (fixed) excluded
+    pts = pb.mesh.points[pb.visible_nodes]
+    on = (pts[:, 1] < 1e-9) | (pts[:, 0] > 0.05 - 1e-9) | (pts[:, 2] > 0.05 - 1e-9)
+    assert on.all() and (pts[:, 2] > 1e-9).all()
+    # truth: volume-weighted average lies between the two materials, both present
+    assert pb.w_true.min() == pytest.approx(9000.0) and pb.w_true.max() > 1e5
+    assert pb.n_params == 216
+
+
+def test_geometry_scale_keeps_pixels(defect8):
+    pb1 = InverseProblem.from_simulation(defect8, inference_shape=(6, 6, 6), n_modes=5)
+    pb2 = InverseProblem.from_simulation(defect8, inference_shape=(6, 6, 6), n_modes=5,
+                                         geometry_scale=1.3)
+    assert pb2.mesh.points[:, 0].max() == pytest.approx(0.065)
+    np.testing.assert_allclose(pb2.gamma, pb1.gamma, atol=1e-10)  # same observation
+
+
+# ----------------------------------------------------------------------------- solvers
+
+
+def test_oracle_recovers_defect_from_full_field_modes(problem6):
+    est = load_solver("oracle")().solve(problem6)
+    assert normalized_correlation(est.w, problem6.w_true) >= 0.99
+    assert normalized_correlation(est.v, problem6.v_true) >= 0.99
+
+
+def test_homogeneous_exact_on_homogeneous(homog8):
+    pb = InverseProblem.from_simulation(homog8, inference_shape=(8, 8, 8), n_modes=8)
+    est = load_solver("homogeneous")().solve(pb)
+    assert est.v == pytest.approx(1270.0, rel=1e-6)
+
+
+def test_vvt_keeps_homogeneous_cube_homogeneous():
+    # the paper's setting: simulated on 10^3 hex8, inferred on 8^3 voxels (mesh mismatch)
+    sim = simulate(_scene("jello_cube_homogeneous", (10, 10, 10), 12), transient=False)
+    pb = InverseProblem.from_simulation(sim, inference_shape=(8, 8, 8), n_modes=10)
+    cls = load_solver("vvt")
+    est = cls(cls.Config(max_iter=10)).solve(pb)
+    assert est.w.std() / est.w.mean() < 0.01
+    assert est.v.std() / est.v.mean() < 0.01
+    assert est.v.mean() == pytest.approx(1270.0, rel=0.03)
+
+
+def test_vvt_homogeneous_from_a_scaled_start(homog8):
+    pb = InverseProblem.from_simulation(homog8, inference_shape=(8, 8, 8), n_modes=10)
+    cls = load_solver("vvt")
+    est = cls(cls.Config(max_iter=10, w0=1.3 * 9000, v0=1.3 * 1270)).solve(pb)
+    assert est.w.std() / est.w.mean() < 0.01 and est.v.std() / est.v.mean() < 0.01
+    assert est.w.mean() == pytest.approx(9000.0, rel=1e-6)  # the mean anchor
+    assert est.v.mean() == pytest.approx(1270.0, rel=1e-3)
+
+
+def test_vvt_improves_with_more_modes(defect8):
+    cls = load_solver("vvt")
+    ncs = {}
+    for k in (8, 20):
+        pb = InverseProblem.from_simulation(defect8, inference_shape=(6, 6, 6), n_modes=k)
+        est = cls(cls.Config(max_iter=12)).solve(pb)
+        ncs[k] = (normalized_correlation(est.w, pb.w_true), est.history[-1]["nc_w"])
+        assert ncs[k][0] == pytest.approx(ncs[k][1])
+    assert ncs[20][0] > ncs[8][0] + 0.05
+    assert ncs[20][0] > 0.3
+
+
+@pytest.mark.parametrize("name", sorted(list_solvers()))
+def test_solver_contract(name, problem6):
+    cls = load_solver(name)
+    assert isinstance(cls.name, str) and cls.name == name
+    assert cls.version and cls.description
+    assert dataclasses.is_dataclass(cls.Config)
+    for f in dataclasses.fields(cls.Config):
+        assert f.metadata.get("help"), f"{name}.Config.{f.name} has no help"
+    cfg = cls.Config(max_iter=3) if "max_iter" in {f.name for f in
+                                                   dataclasses.fields(cls.Config)} else None
+    est = cls(cfg).solve(problem6)
+    assert isinstance(est, Estimate)
+    assert est.w.shape == est.v.shape == (problem6.n_params,)
+    assert np.all(np.isfinite(est.w)) and np.all(np.isfinite(est.v))
+    assert np.all(est.w > 0) and np.all(est.v > 0)
+    assert est.runtime_s > 0 and est.solver == name and isinstance(est.config, dict)
+
+
+def test_mode_match_of_the_truth(problem6):
+    mm = mode_match(problem6, problem6.w_true, problem6.v_true)
+    assert mm["mean_mac"] > 0.999
+    assert mm["freq_rel_error"] < 1e-6
+    mm2 = mode_match(problem6, 4 * problem6.w_true, problem6.v_true)  # w/v scale: f x 2
+    assert mm2["freq_rel_error"] == pytest.approx(1.0, rel=1e-5)
+    assert mm2["freq_rel_error_scaled"] < 1e-6 and mm2["material_scale"] == pytest.approx(0.25)
+
+
+# ----------------------------------------------------------------------------- plug-ins
+
+PLUGIN = textwrap.dedent('''
+    from dataclasses import dataclass, field
+    import numpy as np
+    from vvtbench.problem import Estimate
+
+    @dataclass
+    class Config:
+        value: float = field(default=2.0, metadata={"help": "the constant"})
+        scale_v: bool = field(default=False, metadata={"help": "also scale v"})
+
+    class ConstantSolver:
+        name = "constant"
+        version = "0.1"
+        description = "a constant field"
+        Config = Config
+
+        def __init__(self, config=None):
+            self.config = config or Config()
+
+        def solve(self, problem):
+            m = problem.n_params
+            return Estimate(w=np.full(m, self.config.value), v=np.ones(m), runtime_s=1e-6,
+                            solver=self.name, version=self.version)
+''')
+
+
+def test_plugin_from_file_and_overrides(tmp_path, problem6):
+    path = tmp_path / "my_solver.py"
+    path.write_text(PLUGIN)
+    cls = load_solver(f"{path}:ConstantSolver")
+    cfg = parse_overrides(["value=3.5", "scale_v=true"], cls.Config)
+    assert cfg.value == 3.5 and cfg.scale_v is True
+    assert cls(cfg).solve(problem6).w[0] == 3.5
+    with pytest.raises(PluginError, match=r"unknown key.*allowed keys: value, scale_v"):
+        parse_overrides(["vaule=1"], cls.Config)
+    with pytest.raises(PluginError, match="cannot read 'abc' as float"):
+        parse_overrides(["value=abc"], cls.Config)
+    with pytest.raises(PluginError, match="expected key=value"):
+        parse_overrides(["value"], cls.Config)
+    with pytest.raises(PluginError, match="no attribute 'Nope'.*ConstantSolver"):
+        load_solver(f"{path}:Nope")
+    with pytest.raises(PluginError, match="unknown solver 'nope'; registered: .*vvt"):
+        load_solver("nope")
+
+
+def test_vvt_overrides_parse():
+    cls = load_solver("vvt")
+    cfg = parse_overrides(["alpha_u=none", "max_iter=7", "preset=real"], cls.Config)
+    assert cfg.alpha_u is None and cfg.max_iter == 7
+    assert cfg.resolved(20).alpha_u == 0.1 and cfg.resolved(20).tol == 5e-3
+
+
+def test_cli_solve_writes_outputs(tmp_path, capsys):
+    rc = main_solve(["homogeneous", "jello_cube_defect_top", "--modes", "6", "--grid", "4", "4",
+                     "4", "-o", str(tmp_path), "--no-mode-match"])
+    assert rc == 0
+    for f in ("estimate.npz", "estimate.json", "slices.png"):
+        assert (tmp_path / f).is_file()
+    rc = main_solve(["vvt", "jello_cube_defect_top", "--set", "bogus=1", "-o", str(tmp_path)])
+    assert rc == 2 and "allowed keys" in capsys.readouterr().err

@@ -1,0 +1,321 @@
+"""Solver plug-ins: discovery, configuration and the ``vvtbench solvers`` / ``solve`` commands.
+
+A solver is a class with::
+
+    name: str                  # unique, lower-case
+    version: str
+    description: str           # one line, shown by `vvtbench solvers`
+    Config: type               # a dataclass: every field has a default and
+                               #   field(metadata={"help": "..."})
+    def __init__(self, config: Config | None = None): ...
+    def solve(self, problem: InverseProblem) -> Estimate: ...
+
+Solvers are found in the ``vvtbench.solvers`` entry-point group, and a file can be named
+directly as ``path/to/file.py:ClassName``. See docs/solvers.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import importlib.util
+import json
+import sys
+import time
+import types
+import typing
+from importlib.metadata import entry_points
+from pathlib import Path
+
+import numpy as np
+
+ENTRY_POINT_GROUP = "vvtbench.solvers"
+# Shipped solvers, known by name even before the package metadata lists their entry points.
+BUILTIN = {
+    "vvt": "solvers.vvt:VVTSolver",
+    "oracle": "solvers.oracle:OracleSolver",
+    "homogeneous": "solvers.homogeneous:HomogeneousSolver",
+}
+REQUIRED = ("name", "version", "description", "Config", "solve")
+
+
+class PluginError(ValueError):
+    """A solver cannot be found, loaded or configured; the message says what is allowed."""
+
+
+def _import(target: str):
+    module, _, attr = target.partition(":")
+    if not attr:
+        raise PluginError(f"{target!r}: expected 'module:Class' or 'path/to/file.py:Class'")
+    if module.endswith(".py") or "/" in module or "\\" in module:
+        path = Path(module)
+        if not path.is_file():
+            raise PluginError(f"{path}: solver file not found")
+        mod_name = f"vvtbench_plugin_{path.stem}_{abs(hash(str(path.resolve()))) % 10**8}"
+        spec = importlib.util.spec_from_file_location(mod_name, path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[mod_name] = mod
+        try:
+            spec.loader.exec_module(mod)
+        except Exception as error:
+            raise PluginError(f"{path}: error while importing: {error}") from error
+    else:
+        try:
+            mod = importlib.import_module(module)
+        except ImportError as error:
+            raise PluginError(f"{module}: cannot import: {error}") from error
+    if not hasattr(mod, attr):
+        classes = [k for k, v in vars(mod).items() if isinstance(v, type) and hasattr(v, "solve")]
+        raise PluginError(f"{module} has no attribute {attr!r}; solver classes there: "
+                          f"{', '.join(classes) or 'none'}")
+    return validate_solver_class(getattr(mod, attr), target)
+
+
+def validate_solver_class(cls, where: str = ""):
+    """Check the plug-in contract; return the class."""
+    missing = [a for a in REQUIRED if not hasattr(cls, a)]
+    if missing:
+        raise PluginError(f"{where or cls}: not a solver: missing {', '.join(missing)} "
+                          f"(a solver needs {', '.join(REQUIRED)})")
+    if not dataclasses.is_dataclass(cls.Config):
+        raise PluginError(f"{where or cls}: Config must be a dataclass")
+    for f in dataclasses.fields(cls.Config):
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise PluginError(f"{where or cls}: Config field {f.name!r} has no default")
+    return cls
+
+
+def _registry() -> dict[str, str]:
+    found = dict(BUILTIN)
+    try:
+        for ep in entry_points(group=ENTRY_POINT_GROUP):
+            found[ep.name] = ep.value
+    except Exception:  # broken metadata must not hide the built-ins
+        pass
+    return found
+
+
+def list_solvers() -> dict[str, type]:
+    """name -> solver class, for every registered solver that imports cleanly."""
+    out = {}
+    for name, target in sorted(_registry().items()):
+        try:
+            out[name] = _import(target)
+        except PluginError:
+            continue
+    return out
+
+
+def load_solver(name_or_path: str):
+    """A solver class by registered name, ``module:Class`` or ``path/to/file.py:Class``."""
+    reg = _registry()
+    if name_or_path in reg:
+        return _import(reg[name_or_path])
+    if ":" in name_or_path:
+        return _import(name_or_path)
+    raise PluginError(f"unknown solver {name_or_path!r}; registered: {', '.join(sorted(reg))}"
+                      "; or give path/to/file.py:ClassName")
+
+
+def _base_types(tp) -> list[type]:
+    if isinstance(tp, str):
+        tp = {"float": float, "int": int, "bool": bool, "str": str}.get(tp.split("|")[0].strip(),
+                                                                          str)
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        return [t for t in typing.get_args(tp) if t is not type(None)]
+    return [tp]
+
+
+def _convert(text: str, tp, key: str):
+    allows_none = False
+    hints = tp
+    if isinstance(tp, str):
+        allows_none = "None" in tp
+    elif typing.get_origin(tp) in (typing.Union, types.UnionType):
+        allows_none = type(None) in typing.get_args(tp)
+    if allows_none and text.lower() in ("none", "null"):
+        return None
+    for t in _base_types(hints):
+        try:
+            if t is bool:
+                low = text.lower()
+                if low in ("1", "true", "yes", "on"):
+                    return True
+                if low in ("0", "false", "no", "off"):
+                    return False
+                raise ValueError
+            if t in (int, float, str):
+                return t(text)
+            return json.loads(text)
+        except (ValueError, TypeError, json.JSONDecodeError):
+            continue
+    names = "/".join(getattr(t, "__name__", str(t)) for t in _base_types(hints))
+    raise PluginError(f"--set {key}={text}: cannot read {text!r} as {names}"
+                      + (" (or none)" if allows_none else ""))
+
+
+def parse_overrides(items: list[str] | None, config_cls):
+    """A ``config_cls`` instance from defaults and ``["key=value", ...]`` overrides."""
+    fields = {f.name: f for f in dataclasses.fields(config_cls)}
+    hints = typing.get_type_hints(config_cls) if fields else {}
+    values = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep:
+            raise PluginError(f"--set {item!r}: expected key=value; keys: {', '.join(fields)}")
+        if key not in fields:
+            raise PluginError(f"--set {key}: unknown key for {config_cls.__name__}; allowed "
+                              f"keys: {', '.join(fields)}")
+        values[key] = _convert(text.strip(), hints.get(key, fields[key].type), key)
+    return config_cls(**values)
+
+
+def describe_config(config_cls) -> list[tuple[str, str, str]]:
+    """(name, default, help) of every config field."""
+    out = []
+    for f in dataclasses.fields(config_cls):
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        out.append((f.name, repr(default), f.metadata.get("help", "")))
+    return out
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def main_solvers(argv: list[str] | None = None) -> int:
+    """``vvtbench solvers [-v]``: list registered solvers (with their options under -v)."""
+    p = argparse.ArgumentParser(prog="vvtbench solvers", description="list inverse solvers")
+    p.add_argument("-v", "--verbose", action="store_true", help="also list config options")
+    args = p.parse_args(argv)
+    for name, cls in list_solvers().items():
+        print(f"{name:14s} {cls.version:8s} {cls.description}")
+        if args.verbose:
+            for key, default, help_ in describe_config(cls.Config):
+                print(f"    {key:14s} = {default:10s} {help_}")
+    return 0
+
+
+def build_solve_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vvtbench solve",
+                                description="run an inverse solver on a scene and score it")
+    p.add_argument("solver", help="registered name or path/to/file.py:Class")
+    p.add_argument("target", help="scene name or .toml (simulated; true image-space modes)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="solver config override (repeatable)")
+    p.add_argument("--modes", type=int, default=10, help="number of observed modes (10)")
+    p.add_argument("--grid", type=int, nargs="+", default=None,
+                   help="inference voxel grid (default 8 8 8; drums 20 20)")
+    p.add_argument("--geometry-scale", type=float, default=1.0,
+                   help="inference mesh width / true width (x), geometry-mismatch track")
+    p.add_argument("-o", "--output", required=True, help="output directory")
+    p.add_argument("--no-mode-match", action="store_true", help="skip the mode-match metric")
+    return p
+
+
+def main_solve(argv: list[str] | None = None) -> int:
+    """``vvtbench solve SOLVER SCENE [--set k=v] [--modes K] -o DIR``."""
+    args = build_solve_parser().parse_args(argv)
+    try:
+        cls = load_solver(args.solver)
+        config = parse_overrides(args.overrides, cls.Config)
+    except PluginError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    from . import __version__
+    from .metrics import score
+    from .problem import InverseProblem
+    from .scene import load_scene
+    from .simulate import simulate
+
+    target = Path(args.target)
+    if target.is_dir():
+        print(f"error: {target}: reading generated samples is not wired yet (dataset "
+              "module); give a scene name or .toml", file=sys.stderr)
+        return 2
+    scene = load_scene(args.target)
+    grid = tuple(args.grid) if args.grid else ((20, 20) if scene.geometry.kind == "drum"
+                                               else (8, 8, 8))
+    t0 = time.perf_counter()
+    result = simulate(scene, transient=False)
+    problem = InverseProblem.from_simulation(result, inference_shape=grid, n_modes=args.modes,
+                                             geometry_scale=args.geometry_scale)
+    t_setup = time.perf_counter() - t0
+    estimate = cls(config).solve(problem)
+    metrics = score(problem, estimate.w, estimate.v, modes=not args.no_mode_match)
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    save_estimate(out, problem, estimate, metrics, extra={
+        "scene": scene.name, "n_modes": args.modes, "setup_s": t_setup, "vvtbench": __version__})
+    print(f"{cls.name} on {scene.name}: {len(estimate.history)} iterations, "
+          f"{estimate.runtime_s:.2f} s; NC w {metrics.get('nc_w', float('nan')):.3f}, "
+          f"v {metrics.get('nc_v', float('nan')):.3f} -> {out}")
+    return 0
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def save_estimate(out: Path, problem, estimate, metrics: dict, extra: dict | None = None):
+    """estimate.npz (grids of w, v and the truth), estimate.json (config, history, runtime,
+    versions, metrics) and slices.png (w and v beside the truth)."""
+    out = Path(out)
+    arrays = {"w": problem.to_grid(estimate.w), "v": problem.to_grid(estimate.v),
+              "w_params": estimate.w, "v_params": estimate.v,
+              "active": problem.voxel_map.active}
+    if problem.has_truth:
+        arrays["w_true"] = problem.to_grid(problem.w_true)
+        arrays["v_true"] = problem.to_grid(problem.v_true)
+    np.savez_compressed(out / "estimate.npz", **arrays)
+    doc = {
+        "solver": estimate.solver, "solver_version": estimate.version,
+        "config": estimate.config, "runtime_s": estimate.runtime_s,
+        "converged": estimate.converged, "iterations": len(estimate.history),
+        "history": estimate.history, "metrics": metrics, "problem": problem.meta,
+        **(extra or {}),
+    }
+    (out / "estimate.json").write_text(json.dumps(_jsonable(doc), indent=1, default=str))
+    plot_slices(out / "slices.png", problem, estimate)
+
+
+def plot_slices(path: Path, problem, estimate) -> None:
+    """Middle slices (along y) of w and v, each beside the truth (if known), with matplotlib."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [("w (estimate)", problem.to_grid(estimate.w))]
+    if problem.has_truth:
+        rows.append(("w (truth)", problem.to_grid(problem.w_true)))
+    rows.append(("v (estimate)", problem.to_grid(estimate.v)))
+    if problem.has_truth:
+        rows.append(("v (truth)", problem.to_grid(problem.v_true)))
+    ny = rows[0][1].shape[1]
+    cols = sorted({0, ny // 4, ny // 2, (3 * ny) // 4, ny - 1})
+    fig, axes = plt.subplots(len(rows), len(cols), figsize=(2.2 * len(cols), 2.2 * len(rows)),
+                             squeeze=False)
+    for r, (label, grid) in enumerate(rows):
+        for c, j in enumerate(cols):
+            ax = axes[r, c]
+            im = ax.imshow(grid[:, j, :].T, origin="lower", cmap="viridis")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(f"y slice {j}", fontsize=8)
+            if c == 0:
+                ax.set_ylabel(label, fontsize=8)
+        fig.colorbar(im, ax=axes[r, :].tolist(), fraction=0.02)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
