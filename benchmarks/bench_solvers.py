@@ -129,17 +129,22 @@ def main() -> None:
           f"{r['iterations']} iterations, converged={r['converged']}; "
           f"{res['dense_8']['total_s'] / r['mean_iteration_s']:.1f}x faster than dense; "
           f"{r['peak_rss_mb']:.0f} MiB", flush=True)
-    print("  NC w by iteration:", [round(x, 3) for x in r["nc_w"][::5]], flush=True)
+    print("  NC w by iteration (every 5th):", [round(x, 3) for x in r["nc_w"][::5]], flush=True)
+    print("  NC v by iteration (every 5th):", [round(x, 3) for x in r["nc_v"][::5]], flush=True)
     res["sparse_8_10"] = _run("sparse", 8, 10, 30 if a.quick else 100)
     r = res["sparse_8_10"]
     print(f"sparse 8^3, 10 modes: mean {r['mean_iteration_s']:.3f} s/iteration, "
           f"{r['iterations']} iterations, converged={r['converged']}, final NC w "
           f"{r['nc_w'][-1]:.3f} v {r['nc_v'][-1]:.3f}", flush=True)
-    for g in (12, 16):
+    res["sparse_8_20_rss"] = res["sparse_8_20"]
+    for g in (6, 12, 16):
         res[f"sparse_{g}_20"] = r = _run("sparse", g, 20, 3 if a.quick else 6)
         print(f"sparse {g}^3 ({r['voxels']} voxels, {r['n_free']} DOF), 20 modes: mean "
               f"{r['mean_iteration_s']:.2f} s/iteration (first {r['first_iteration_s']:.2f}), "
               f"peak RSS {r['peak_rss_mb']:.0f} MiB", flush=True)
+    print("peak RSS vs voxels (20 modes):", ", ".join(
+        f"{g}^3 ({res[f'sparse_{g}_20']['voxels']} voxels) "
+        f"{res[f'sparse_{g}_20']['peak_rss_mb']:.0f} MiB" for g in (6, 8, 12, 16)), flush=True)
     n8, n16 = res["dense_8"]["n_free"], res["sparse_16_20"]["n_free"]
     res["dense_16_extrapolated_s"] = res["dense_8"]["u_s"] * (n16 / n8) ** 3
     print(f"dense 16^3 u-update extrapolated (n^3): {res['dense_16_extrapolated_s']:.0f} s"

@@ -8,4 +8,8 @@ def __getattr__(name: str):
         from .dataset import open_sample
 
         return open_sample
+    if name == "open_dataset":
+        from .export import open_dataset
+
+        return open_dataset
     raise AttributeError(f"module 'vvtbench' has no attribute {name!r}")

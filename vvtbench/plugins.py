@@ -36,6 +36,7 @@ BUILTIN = {
     "vvt": "solvers.vvt:VVTSolver",
     "oracle": "solvers.oracle:OracleSolver",
     "homogeneous": "solvers.homogeneous:HomogeneousSolver",
+    "sensitivity": "solvers.sensitivity:SensitivitySolver",
 }
 REQUIRED = ("name", "version", "description", "Config", "solve")
 

@@ -1,0 +1,238 @@
+"""The benchmark runner: suites, cache, failures, results schema, Dask, export."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pd = pytest.importorskip("pandas")
+pytest.importorskip("pyarrow")
+
+from vvtbench.bench import (  # noqa: E402
+    COLUMNS,
+    check_results,
+    load_suite,
+    main_check_results,
+    read_results,
+    run_suite,
+)
+
+MICRO = """
+name = "micro"
+scenes = ["jello_cube_defect_top"]
+solvers = ["homogeneous", "vvt"]
+seeds = [0]
+observations = ["true", "extracted"]
+
+[defaults]
+"geometry.cells" = [5, 5, 5]
+"simulation.n_modes" = 12
+"simulation.fps" = 400.0
+"simulation.duration" = 1.0
+"camera.resolution" = [96, 96]
+"render.supersample" = 2
+"excitation.displacement" = 0.0006
+n_modes = 5
+inference_shape = [3, 3, 3]
+
+[extract]
+max_modes = 8
+fmax = 150.0
+
+[solver.vvt]
+max_iter = 3
+"""
+
+CRASH = '''
+from dataclasses import dataclass
+
+
+@dataclass
+class Config:
+    pass
+
+
+class Crash:
+    name = "crash"
+    version = "0.0.1"
+    description = "always fails"
+    Config = Config
+
+    def __init__(self, config=None):
+        pass
+
+    def solve(self, problem):
+        raise RuntimeError("boom: this solver always fails")
+'''
+
+
+def _computed(df) -> dict:
+    return {s: v["computed"] for s, v in df.attrs["stats"].items()}
+
+
+@pytest.fixture(scope="module")
+def micro(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bench")
+    suite_file = root / "micro.toml"
+    suite_file.write_text(MICRO)
+    out = root / "run"
+    df = run_suite(str(suite_file), None, out, progress=False)
+    return suite_file, out, df
+
+
+def test_micro_suite_end_to_end(micro):
+    _, out, df = micro
+    assert list(df.columns) == list(COLUMNS)
+    assert len(df) == 4
+    assert set(df["observation"]) == {"true", "extracted"}
+    assert (df["status"] == "ok").all(), df[["solver", "observation", "error"]]
+    assert df["n_modes_observed"].min() >= 3
+    vvt_true = df[(df.solver == "vvt") & (df.observation == "true")].iloc[0]
+    assert np.isfinite(vvt_true.nc_w) and -1 <= vvt_true.nc_w <= 1
+    assert (df[df.solver == "homogeneous"].nc_w == 0).all()
+    assert _computed(df) == {"generate": 1, "extract": 1, "observe": 2, "solve": 4,
+                             "evaluate": 4}
+    for p in df["estimate_path"]:
+        assert (out / p).is_file()
+    assert (out / "results.parquet").is_file() and (out / "results.csv").is_file()
+    assert check_results(out / "results.parquet") == []
+    assert check_results(out / "results.csv") == []
+    # nothing half-written is left behind
+    assert not list((out / "cache").rglob("*.tmp-*"))
+
+
+def test_rerun_hits_cache_and_changed_option_recomputes_dependants(micro):
+    suite_file, out, df0 = micro
+    df1 = run_suite(str(suite_file), None, out, progress=False)
+    assert _computed(df1) == {s: 0 for s in _computed(df1)}
+    assert all(v["cached"] == v["tasks"] for v in df1.attrs["stats"].values())
+    pd.testing.assert_frame_equal(df0.drop(columns="runtime_s"), df1.drop(columns="runtime_s"))
+    df2 = run_suite(str(suite_file), None, out, progress=False,
+                    solver_config={"vvt": {"max_iter": 2}})
+    assert _computed(df2) == {"generate": 0, "extract": 0, "observe": 0, "solve": 2,
+                              "evaluate": 2}
+    changed = df2.solver == "vvt"
+    assert (df2[changed].config_hash.values != df0[changed].config_hash.values).all()
+    assert (df2[~changed].config_hash.values == df0[~changed].config_hash.values).all()
+
+
+def test_crashing_solver_is_an_error_row(micro, tmp_path):
+    suite_file, out, _ = micro
+    plugin = tmp_path / "crash_solver.py"
+    plugin.write_text(CRASH)
+    df = run_suite(str(suite_file), ["homogeneous", f"{plugin}:Crash"], out, progress=False)
+    bad = df[df.solver == "crash"]
+    assert len(bad) == 2 and (bad.status == "error").all()
+    assert bad.error.str.contains("boom: this solver always fails").all()
+    assert bad.error.str.startswith("solve: RuntimeError").all()
+    for p in bad.traceback_path:
+        assert "boom" in (out / p).read_text()
+    assert (df[df.solver == "homogeneous"].status == "ok").all()
+    assert check_results(df) == []
+
+
+def test_check_results_rejects_broken_tables(micro, tmp_path, capsys):
+    _, out, _ = micro
+    df = read_results(out / "results.parquet")
+    broken = df.copy()
+    broken.loc[1, "status"] = "maybe"
+    broken.loc[0, "nc_w"] = 1.7
+    broken = broken.drop(columns=["dataset_revision"])
+    path = tmp_path / "broken.csv"
+    broken.to_csv(path, index=False)
+    problems = check_results(path)
+    text = "\n".join(problems)
+    assert "missing column(s): dataset_revision" in text
+    assert "column 'status', row 1: 'maybe' not allowed; allowed values: ok, error" in text
+    assert "column 'nc_w', row 0: 1.7 outside the allowed range [-1.0, 1.0]" in text
+    assert main_check_results([str(path)]) == 1
+    assert "nc_w" in capsys.readouterr().err
+    assert main_check_results([str(out / "results.parquet")]) == 0
+
+
+def test_dask_local_cluster_gives_the_same_table(micro, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    suite_file, out, df0 = micro
+    out2 = tmp_path / "dask"
+    # reuse the rendered video and extracted modes; observe/solve/evaluate run on Dask
+    for stage in ("generate", "extract"):
+        shutil.copytree(out / "cache" / stage, out2 / "cache" / stage)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as client:
+            df = run_suite(str(suite_file), None, out2, scheduler=client, progress=False)
+    assert _computed(df)["solve"] == 4 and _computed(df)["generate"] == 0
+    cols = [c for c in df.columns if c not in ("runtime_s",)]
+    pd.testing.assert_frame_equal(df0[cols], df[cols], check_exact=False, atol=1e-6)
+
+
+@pytest.mark.parametrize("fmt", ["zarr", "hdf5"])
+def test_export_round_trip(micro, tmp_path, fmt):
+    from vvtbench.dataset import open_sample
+    from vvtbench.export import main_export, open_dataset
+
+    _, out, _ = micro
+    target = tmp_path / ("ds.zarr" if fmt == "zarr" else "ds.h5")
+    assert main_export([str(out), "--format", fmt, "-o", str(target)]) == 0
+    sample_dir = next((out / "cache" / "generate").glob("*/sample"))
+    s = open_sample(sample_dir)
+    with open_dataset(target) as ds:
+        assert ds.names == ["jello_cube_defect_top"]
+        p = ds[ds.names[0]]
+        np.testing.assert_array_equal(p.video[...], s.read_frames())
+        np.testing.assert_array_equal(p["modes/frequencies_hz"], s.frequencies_hz)
+        np.testing.assert_array_equal(p["observation/jacobian"], s["observation/jacobian"])
+        assert p.truth_json == s.info and p.seed == 0
+        assert "Stanford 3D Scanning Repository" in ds.readme
+    # plain libraries
+    if fmt == "zarr":
+        import zarr
+
+        g = zarr.open_group(str(target), mode="r")
+        video = g["samples/jello_cube_defect_top/video"][:2]
+        truth = json.loads(g["samples/jello_cube_defect_top"].attrs["truth"])
+        assert (target / "README.md").is_file()
+    else:
+        import h5py
+
+        with h5py.File(target, "r") as f:
+            video = f["samples/jello_cube_defect_top/video"][:2]
+            truth = json.loads(f["samples/jello_cube_defect_top"].attrs["truth"])
+        assert Path(str(target) + ".README.md").is_file()
+    np.testing.assert_array_equal(video, s.read_frames(0, 2))
+    assert truth["video"]["frames"] == s.n_frames
+
+
+def test_shipped_suites_parse():
+    from vvtbench.bench import build_graph
+
+    smoke = load_suite("smoke")
+    tasks, runs = build_graph(smoke, smoke.solvers)
+    assert {r.observation for r in runs} == {"true", "extracted"}
+    paper = load_suite("paper")
+    names = {t.name for t in paper.tracks}
+    assert {"modes", "damping", "bunny", "geometry", "poisson", "element_order",
+            "regularization", "drums"} <= names
+    tasks, runs = build_graph(paper, paper.solvers)
+    damping = [r for r in runs if r.track == "damping"]
+    assert damping and all("+" in r.scene for r in damping)
+    reg = {r.variation for r in runs if r.track == "regularization"}
+    assert len(reg) == 5 and all(r.startswith("vvt.alpha_v=") for r in reg)
+
+
+def test_leaderboard(micro, tmp_path):
+    from vvtbench.leaderboard import main_leaderboard
+
+    _, out, _ = micro
+    lb = tmp_path / "lb"
+    assert main_leaderboard([str(out / "results.parquet"), "-o", str(lb)]) == 0
+    text = (lb / "README.md").read_text()
+    assert "## main — true modes" in text and "| 1 |" in text
+    page = (lb / "index.html").read_text()
+    assert "<table>" in page and "figures/main_slices.png" in page
+    assert (lb / "figures" / "main_slices.png").is_file()
+    assert (lb / "figures" / "main_intrinsic_resolution.png").is_file()
