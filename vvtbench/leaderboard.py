@@ -162,22 +162,33 @@ def plot_slices(df, track: str, base: Path, path: Path, max_rows: int = 6) -> bo
                              squeeze=False)
     for i, (label, w, v) in enumerate(grids):
         for f_i, (name, g) in enumerate((("w", w), ("v", v))):
+            vmin, vmax = _colour_range(g)
             for c_i, j in enumerate(cols):
                 ax = axes[i, f_i * len(cols) + c_i]
                 img = g if membrane else g[:, j, :]
-                ax.imshow(np.asarray(img).T, origin="lower", cmap="viridis")
+                ax.imshow(np.asarray(img).T, origin="lower", cmap="viridis", vmin=vmin, vmax=vmax)
                 ax.set_xticks([])
                 ax.set_yticks([])
                 if i == 0:
                     ax.set_title(name if membrane else f"{name}, y={j}", fontsize=7)
                 if f_i == 0 and c_i == 0:
                     ax.set_ylabel(label, fontsize=6)
-    fig.suptitle(f"{track}: {first.scene} [{first.variation}] (each panel own colour scale)",
+    fig.suptitle(f"{track}: {first.scene} [{first.variation}] (colour scale per row and field)",
                  fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return True
+
+
+def _colour_range(field: np.ndarray) -> tuple[float, float]:
+    """Min and max of a field over all its slices; a (nearly) uniform field gets +-5 % around
+    its value so that round-off is not shown as structure."""
+    lo, hi = float(np.nanmin(field)), float(np.nanmax(field))
+    mid = 0.5 * (lo + hi)
+    if hi - lo <= 1e-6 * max(abs(mid), 1e-30):
+        return mid - 0.05 * abs(mid), mid + 0.05 * abs(mid)
+    return lo, hi
 
 
 def _slug(s: str) -> str:
