@@ -14,7 +14,12 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from vvtbench.motion.phase import PhaseMotion, iter_displacements, upsample_periodic
+from vvtbench.motion.phase import (
+    PhaseMotion,
+    iter_displacements,
+    phase_difference,
+    upsample_periodic,
+)
 from vvtbench.motion.pyramid import SteerablePyramid, get_pyramid, max_scales
 
 N = 128
@@ -102,6 +107,33 @@ def test_pyramid_downsampled_bands_equal_subsampled_full_resolution() -> None:
         np.testing.assert_allclose(a, c[:, ::sy, ::sx], atol=1e-5 * np.abs(c).max())
 
 
+def test_decimated_pyramid_gives_exact_samples_at_double_stride() -> None:
+    """Spectrum folding: scale s sampled every 2**(s+1) px, coefficients and gradients exact."""
+    x = np.random.default_rng(2).standard_normal((2, 64, 48))
+    dec = get_pyramid((64, 48), 3, 4, decimate=True)
+    full = get_pyramid((64, 48), 3, 4, downsample=False)
+    pairs = zip(dec.iter_bands(x, gradient=True), full.iter_bands(x, gradient=True), strict=True)
+    for (band, c, g), (_, cf, gf) in pairs:
+        s = 2 ** (band.scale + 1)
+        assert band.stride == (s, s) and c.shape == (2, 64 // s, 48 // s)
+        np.testing.assert_allclose(c, cf[:, ::s, ::s], atol=1e-5 * np.abs(cf).max())
+        np.testing.assert_allclose(g, gf[:, :, ::s, ::s], atol=1e-5 * np.abs(gf).max())
+    with pytest.raises(ValueError, match="divisible"):
+        SteerablePyramid((60, 48), 3, 4, decimate=True)
+
+
+def test_phase_difference_matches_numpy_angle() -> None:
+    rng = np.random.default_rng(5)
+    ang = np.concatenate([rng.normal(0, 0.1, 5000), rng.uniform(-np.pi, np.pi, 500)])
+    ang = np.concatenate([ang, [0.0, 0.46, -0.47, np.pi / 2, np.pi, -3.0]])
+    z = (rng.uniform(0.1, 10, ang.size) * np.exp(1j * ang)).astype(np.complex64)
+    z[:3] = [0, 1e-30, -1]
+    got = phase_difference(z)
+    assert got.dtype == np.float32
+    err = np.angle(np.exp(1j * (got - np.angle(z.astype(np.complex128)))))
+    assert np.abs(err).max() < 1e-6
+
+
 def test_pyramid_plane_wave_selects_band_and_phase_gradient() -> None:
     """A plane wave at a band's centre frequency lands in that band with phase w . x."""
     pyr = get_pyramid((64, 64), 3, 4, downsample=False)
@@ -127,11 +159,15 @@ def test_fourier_shift_helper_matches_roll(speckle: Speckle) -> None:
     np.testing.assert_allclose(speckle.shift(0, 1), np.roll(speckle.ref, 1, axis=0), atol=1e-12)
 
 
+@pytest.mark.parametrize("decimate", [True, False])
 @pytest.mark.parametrize("d", [0.5, 0.1, 0.01])
-def test_static_shifts_recovered(speckle: Speckle, motion: PhaseMotion, d: float) -> None:
+def test_static_shifts_recovered(
+    speckle: Speckle, motion: PhaseMotion, d: float, decimate: bool
+) -> None:
     shifts = [(d, 0.0), (0.0, d), (d, d), (d, -d)]
     frames = np.stack([speckle.shift(*s) for s in shifts])
-    disp = motion.displacement(frames)
+    pm = motion if decimate else PhaseMotion(speckle.ref, decimate=False)
+    disp = pm.displacement(frames)
     assert disp.shape == (4, N, N, 2) and disp.dtype == np.float32
     mask = _interior(motion)
     for est, true in zip(disp, shifts, strict=True):
@@ -209,6 +245,11 @@ def test_batch_equals_one_at_a_time_and_threads(speckle: Speckle, motion: PhaseM
     np.testing.assert_array_equal(whole, single)
     threaded = PhaseMotion(speckle.ref, workers=2).displacement(frames)
     np.testing.assert_array_equal(whole, threaded)
+    # the working grid (decimated by default) is what the full-resolution output upsamples
+    assert motion.decimate and motion.grid_shape == (N // 2, N // 2)
+    grid = motion.displacement(frames, full_resolution=False)
+    assert grid.shape == (5, N // 2, N // 2, 2)
+    np.testing.assert_allclose(whole[:, ::2, ::2], grid, atol=1e-6)
 
 
 def test_streaming_equals_whole_array(speckle: Speckle, motion: PhaseMotion) -> None:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..motion.phase import PhaseMotion
+from ..motion.phase import PhaseMotion, upsample_periodic
 from .modeset import ModeSet
 from .peaks import (
     align_phase,
@@ -67,6 +67,7 @@ def modes_from_displacements(
     block_bytes: int = 64 << 20,
     confidence: ArrayLike | None = None,
     metadata: dict[str, Any] | None = None,
+    output_shape: tuple[int, int] | None = None,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -95,6 +96,11 @@ def modes_from_displacements(
         Stored in the result.
     metadata : dict, optional
         Extra provenance stored in the result.
+    output_shape : tuple of int, optional
+        ``(H, W)`` of the frames when ``disp`` lives on a coarser working grid (e.g.
+        :attr:`PhaseMotion.grid_shape`, sample ``(i, j)`` at pixel ``(i H / h, j W / w)``):
+        each real mode is upsampled bilinearly (periodic) to it before normalisation, so
+        shapes and amplitudes refer to full-resolution pixels.  ``weights`` stay on the grid.
 
     Returns
     -------
@@ -122,6 +128,8 @@ def modes_from_displacements(
     shapes = []
     for i, k in enumerate(pk.bins):
         real, _, coll = align_phase(Z[i], w)
+        if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
+            real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
         zeta, _, _ = damping_lorentzian(freqs, power, int(k))
         rows["frequencies_hz"].append(refine_frequency(freqs, power, int(k)))
@@ -135,9 +143,9 @@ def modes_from_displacements(
         rows["shake_mac"].append(smac)
         rows["camera_shake"].append(smac > shake_threshold)
         shapes.append((real / norm if norm > 0 else real).astype(np.float32))
-    H, W = Z.shape[1:3] if Z.ndim == 4 else (0, 0)
+    H, W = shapes[0].shape[:2] if shapes else (0, 0)
     if not shapes:
-        H, W = _frame_shape(disp)
+        H, W = output_shape if output_shape is not None else _frame_shape(disp)
     arr = {
         k: np.array(v, dtype={"peak_bins": np.int64, "camera_shake": bool}.get(k, np.float64))
         for k, v in rows.items()
@@ -299,14 +307,16 @@ def extract_modes(
         workers=workers,
     )
     with DisplacementStore(memory_budget, tmpdir) as store:
-        for d in pm.iter_displacements(_chain(ref, it), batch=batch):
+        # the working grid (half resolution when decimated): 4x less to store and transform;
+        # the smoothed field is band-limited, mode shapes are upsampled at the end
+        for d in pm.iter_displacements(_chain(ref, it), batch=batch, full_resolution=False):
             store.append(d)
             if bar is not None:
                 bar.update(d.shape[0])
         if bar is not None:
             bar.close()
         t1 = time.perf_counter()
-        weights = confidence_weights(pm.confidence) if weighting == "confidence" else None
+        weights = confidence_weights(pm.grid_confidence) if weighting == "confidence" else None
         meta = {
             **video.meta,
             "fps_input": float(fps),
@@ -317,6 +327,8 @@ def extract_modes(
                 "sigma": sigma,
                 "outlier_fraction": outlier_fraction,
                 "reference": "first frame",
+                "decimate": pm.decimate,
+                "grid_shape": list(pm.grid_shape),
             },
             "weighting": weighting,
             "spilled_to_disk": store.on_disk,
@@ -336,6 +348,7 @@ def extract_modes(
             keep_camera_shake=keep_camera_shake,
             confidence=pm.confidence,
             metadata=meta,
+            output_shape=pm.shape,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}

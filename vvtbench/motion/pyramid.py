@@ -15,6 +15,13 @@ Conventions
   ``ceil(H / 2**s) x ceil(W / 2**s)`` (lossless: the band is zero outside), and the
   coefficients are scaled so that they equal the full-resolution coefficients sampled at
   full-resolution positions ``(row * stride[0], col * stride[1])``.
+* With ``decimate=True`` (requires ``downsample`` and ``H``, ``W`` divisible by
+  ``2**n_scales``) scale ``s`` is sampled every ``2**(s + 1)`` pixels: the cropped spectrum
+  is folded (aliases summed) onto a grid half as large per axis, which gives the *exact*
+  full-resolution coefficients at positions ``2**(s + 1) * (row, col)`` for half the FFT
+  size.  This is the sampling of the dual-tree complex wavelet transform: a one-sided
+  (analytic) band needs about half the samples of a real band of the same width.  Only the
+  quadrants of the spectrum where a band's filter is non-zero are multiplied and summed.
 * Boundaries are periodic (FFT).
 """
 
@@ -33,6 +40,7 @@ __all__ = [
     "Band",
     "SteerablePyramid",
     "angular_filter",
+    "can_decimate",
     "get_pyramid",
     "max_scales",
     "radial_filter",
@@ -161,6 +169,9 @@ class SteerablePyramid:
         Number of orientations, ``>= 2``.
     downsample : bool, default True
         Crop the spectrum of each scale (scale ``s`` sampled every ``~2**s`` pixels).
+    decimate : bool, default False
+        Sample scale ``s`` every ``2**(s + 1)`` pixels (spectrum folding, exact samples).
+        Needs ``downsample`` and ``H``, ``W`` divisible by ``2**n_scales``.
 
     Attributes
     ----------
@@ -174,6 +185,7 @@ class SteerablePyramid:
         n_scales: int = 3,
         n_orientations: int = 4,
         downsample: bool = True,
+        decimate: bool = False,
     ) -> None:
         if len(shape) != 2:
             raise ValueError(f"shape must be (H, W), got {shape!r}")
@@ -193,6 +205,12 @@ class SteerablePyramid:
         self.n_scales = int(n_scales)
         self.n_orientations = int(n_orientations)
         self.downsample = bool(downsample)
+        self.decimate = bool(decimate)
+        if self.decimate and not can_decimate((H, W), self.n_scales, self.downsample):
+            raise ValueError(
+                f"decimate=True needs downsample=True and H, W divisible by 2**n_scales = "
+                f"{2**self.n_scales}, got {H}x{W}"
+            )
         wr = W // 2 + 1
 
         bands: list[Band] = []
@@ -231,6 +249,7 @@ class SteerablePyramid:
             owy.flags.writeable = False
             self._omega.append((owx, owy))
             wc = math.pi / 2 ** (s + 1)
+            bh, bw = (h // 2, w // 2) if self.decimate else (h, w)
             for k in range(self.n_orientations):
                 th = math.pi * k / self.n_orientations
                 bands.append(
@@ -239,16 +258,115 @@ class SteerablePyramid:
                         orientation=k,
                         theta=th,
                         frequency=(wc * math.cos(th), wc * math.sin(th)),
-                        shape=(h, w),
-                        stride=(H / h, W / w),
+                        shape=(bh, bw),
+                        stride=(H / bh, W / bw),
                     )
                 )
         self.bands: tuple[Band, ...] = tuple(bands)
+        if self.decimate:
+            self._build_folding()
+
+    def _build_folding(self) -> None:
+        """Precompute, per scale, the quadrant sources and per band the non-zero blocks.
+
+        Scale ``s`` crop ``(hc, wc) = (H, W) / 2**s`` is folded onto ``(h, w) = (hc, wc) / 2``.
+        In FFT order the crop splits into quadrants ``(a, b)``: rows ``a = 0`` hold
+        ``ky in [0, h)``, ``a = 1`` hold ``ky in [-h, 0)``; columns likewise with ``kx``.
+        Quadrants with ``b = 0`` are views of the ``rfft2`` output; ``b = 1`` (``kx < 0``)
+        come from its Hermitian mirror (one gather per scale).
+        """
+        H, W = self.shape
+        self._neg_rows: list[NDArray[np.intp]] = []
+        self._blocks: list[list[tuple[int, int, NDArray[np.float32], NDArray[np.float32]]]] = []
+        self._block_omega: list[dict[tuple[int, int], tuple[NDArray, NDArray]]] = []
+        for s in range(self.n_scales):
+            hc, wc = H // 2**s, W // 2**s
+            h, w = hc // 2, wc // 2
+            i = np.arange(h)
+            # kx < 0 quadrants: conj F[(-ky) mod H, -kx]; rows for a = 0 then a = 1
+            self._neg_rows.append(np.concatenate([(-i) % H, h - i]).astype(np.intp))
+            filt = self._filters[s] * np.float32(0.25)  # ifft over h*w, not hc*wc
+            owx, owy = self._omega[s]
+            omega = {}
+            for a in (0, 1):
+                for b in (0, 1):
+                    sl = (slice(a * h, (a + 1) * h), slice(b * w, (b + 1) * w))
+                    omega[(a, b)] = (owx[sl].copy(), owy[sl].copy())
+            self._block_omega.append(omega)
+            for k in range(self.n_orientations):
+                blocks = []
+                for a in (0, 1):
+                    for b in (0, 1):
+                        fb = np.ascontiguousarray(filt[k, a * h : (a + 1) * h, b * w : (b + 1) * w])
+                        if np.any(fb != 0):
+                            # interleaved (re, im) copy: complex * real as a float32 product
+                            fb2 = np.repeat(fb, 2, axis=-1)
+                            fb.flags.writeable = False
+                            fb2.flags.writeable = False
+                            blocks.append((a, b, fb, fb2))
+                self._blocks.append(blocks)
+
+    def _quadrants(
+        self, spec: NDArray[np.complex64], scale: int
+    ) -> dict[tuple[int, int], NDArray[np.complex64]]:
+        """The four ``(B, h, w)`` quadrants of a scale's cropped two-sided spectrum."""
+        H, W = self.shape
+        h, w = H // 2 ** (scale + 1), W // 2 ** (scale + 1)
+        # -kx = 1 .. w, gathered with contiguous rows, then reversed and conjugated
+        g = np.take(spec[:, :, 1 : w + 1], self._neg_rows[scale], axis=1)
+        neg = np.empty_like(g)
+        np.conjugate(g[:, :, ::-1], out=neg)
+        return {
+            (0, 0): spec[:, :h, :w],
+            (1, 0): spec[:, H - h :, :w],
+            (0, 1): neg[:, :h],
+            (1, 1): neg[:, h:],
+        }
+
+    def _iter_bands_decimated(
+        self, frames: ArrayLike, gradient: bool, workers: int | None
+    ) -> Iterator[tuple]:
+        spec = self.spectrum(frames, workers=workers)
+        B = spec.shape[0]
+        i = 0
+        tmp: NDArray[np.complex64] | None = None
+        for s in range(self.n_scales):
+            quad = self._quadrants(spec, s)
+            h, w = self.bands[i].shape
+            if tmp is None or tmp.shape != (B, h, w):
+                tmp = np.empty((B, h, w), np.complex64)
+            for _ in range(self.n_orientations):
+                band = self.bands[i]
+                blocks = self._blocks[i]
+                i += 1
+                X = np.empty((B, h, w), np.complex64)
+                D = np.zeros((2, B, h, w), np.complex64) if gradient else None
+                for j, (a, b, _, fb2) in enumerate(blocks):
+                    q = quad[(a, b)].view(np.float32)
+                    if j == 0:
+                        np.multiply(q, fb2, out=X.view(np.float32))
+                        if D is None:
+                            continue
+                        tmp[...] = X
+                    else:
+                        np.multiply(q, fb2, out=tmp.view(np.float32))
+                        X += tmp
+                    if D is not None:
+                        wx, wy = self._block_omega[s][(a, b)]
+                        D[0] += tmp * (1j * wx)
+                        D[1] += tmp * (1j * wy)
+                c = sfft.ifft2(X, axes=(-2, -1), workers=workers, overwrite_x=True)
+                if D is None:
+                    yield band, c
+                else:
+                    g = sfft.ifft2(D, axes=(-2, -1), workers=workers, overwrite_x=True)
+                    yield band, c, g
 
     def __repr__(self) -> str:
         return (
             f"SteerablePyramid(shape={self.shape}, n_scales={self.n_scales}, "
-            f"n_orientations={self.n_orientations}, downsample={self.downsample})"
+            f"n_orientations={self.n_orientations}, downsample={self.downsample}, "
+            f"decimate={self.decimate})"
         )
 
     # ------------------------------------------------------------------ helpers
@@ -331,6 +449,9 @@ class SteerablePyramid:
         grad : ndarray
             Only if ``gradient``: ``(2, B, h, w)`` complex64.
         """
+        if self.decimate:
+            yield from self._iter_bands_decimated(frames, gradient, workers)
+            return
         spec = self.spectrum(frames, workers=workers)
         i = 0
         for s in range(self.n_scales):
@@ -369,11 +490,18 @@ class SteerablePyramid:
         return [c for _, c in self.iter_bands(frames, workers=workers)]
 
 
+def can_decimate(shape: tuple[int, int], n_scales: int, downsample: bool = True) -> bool:
+    """Whether ``decimate=True`` is possible: ``downsample`` and ``H``, ``W`` divisible by
+    ``2**n_scales``."""
+    m = 2 ** int(n_scales)
+    return bool(downsample) and shape[0] % m == 0 and shape[1] % m == 0
+
+
 @lru_cache(maxsize=8)
 def _cached(
-    shape: tuple[int, int], n_scales: int, n_orientations: int, downsample: bool
+    shape: tuple[int, int], n_scales: int, n_orientations: int, downsample: bool, decimate: bool
 ) -> SteerablePyramid:
-    return SteerablePyramid(shape, n_scales, n_orientations, downsample)
+    return SteerablePyramid(shape, n_scales, n_orientations, downsample, decimate)
 
 
 def get_pyramid(
@@ -381,6 +509,7 @@ def get_pyramid(
     n_scales: int = 3,
     n_orientations: int = 4,
     downsample: bool = True,
+    decimate: bool = False,
 ) -> SteerablePyramid:
     """Cached :class:`SteerablePyramid` for a frame shape and parameters.
 
@@ -388,7 +517,7 @@ def get_pyramid(
     ----------
     shape : tuple of int
         Frame shape ``(H, W)``.
-    n_scales, n_orientations, downsample
+    n_scales, n_orientations, downsample, decimate
         See :class:`SteerablePyramid`.
 
     Returns
@@ -396,4 +525,6 @@ def get_pyramid(
     SteerablePyramid
         Shared instance (its filter arrays are read-only).
     """
-    return _cached(tuple(int(n) for n in shape), n_scales, n_orientations, bool(downsample))
+    return _cached(
+        tuple(int(n) for n in shape), n_scales, n_orientations, bool(downsample), bool(decimate)
+    )
