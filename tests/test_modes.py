@@ -33,7 +33,7 @@ from vvtbench.modes import (
     sample_field,
     sample_modes,
 )
-from vvtbench.modes.peaks import align_phase
+from vvtbench.modes.peaks import align_phase, distortion_products
 from vvtbench.render.camera import Camera
 
 BORDER = 10
@@ -392,3 +392,40 @@ def test_ffv1_gray16_roundtrip_through_extract(tmp_path) -> None:
     np.testing.assert_array_equal(loaded.frequencies_hz, ms.frequencies_hz)
     np.testing.assert_array_equal(loaded.power, ms.power)
     assert loaded.metadata["motion"]["n_scales"] == 3
+
+
+# ---------------------------------------------------------------------------- leakage, distortion
+def test_distortion_products_found_and_true_modes_kept() -> None:
+    f = [5.21, 7.58, 2.37, 10.42, 12.2, 31.0, 23.75]
+    p = [400.0, 120.0, 0.1, 0.2, 3.0, 0.2, 5.0]
+    found = {d["index"]: d for d in distortion_products(f, p, 1 / 3)}
+    assert sorted(found) == [2, 3]  # 7.58 - 5.21 and 2 * 5.21
+    assert found[2]["kind"] == "difference" and found[3]["kind"] == "harmonic"
+    # 31.0 is one bin from 23.75 + 7.58 = 31.33: a mode, not a product
+    assert 5 not in found and 4 not in found
+    # a strong peak is never a product of weaker ones; parents can be excluded
+    assert distortion_products([5.0, 10.0], [1.0, 100.0], 0.1) == []
+    assert distortion_products([5.0, 10.0], [100.0, 1.0], 0.1, parents=[False, True]) == []
+
+
+def test_hann_window_and_distortion_rejection_in_mode_identification() -> None:
+    """A strong undamped mode off-bin (leaks ~1/k without a window) next to a weak mode at
+    1/300 of its amplitude, plus a weak harmonic of the strong one (phase non-linearity)."""
+    fps, T, n = 200.0, 400, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    d = 0.3 * np.cos(2 * np.pi * 10.25 * t) * pa + 1e-3 * np.cos(2 * np.pi * 31.0 * t) * pb
+    d = d + 3e-3 * np.cos(2 * np.pi * 20.5 * t) * pa**2  # 2nd harmonic of the strong mode
+    hann = modes_from_displacements(d, fps)
+    assert sorted(np.round(hann.frequencies_hz, 1).tolist()) == [10.2, 31.0]
+    i = nearest(hann, 31.0)
+    assert mac(hann.shapes[i], pb) > 0.99
+    assert hann.amplitudes_px[i] * np.abs(hann.shapes[i]).max() == pytest.approx(1e-3, rel=0.05)
+    (rej,) = hann.metadata["rejected"]
+    assert rej["reason"] == "distortion" and rej["kind"] == "harmonic"
+    assert abs(rej["frequency_hz"] - 20.5) < fps / T
+    kept = modes_from_displacements(d, fps, reject_distortion=False)
+    assert len(kept) == 3
+    # without a window the 1/k leakage of the strong mode buries the weak one
+    rect = modes_from_displacements(d, fps, window="none", reject_distortion=False)
+    assert not np.any(np.abs(rect.frequencies_hz - 31.0) < 1.0)

@@ -28,11 +28,19 @@ from .peaks import (
     check_band,
     damping_half_power,
     damping_lorentzian,
+    distortion_products,
     pick_peaks,
     refine_frequency,
     translation_mac,
 )
-from .spectrum import DEFAULT_BUDGET, DisplacementStore, bin_fields, motion_power_spectrum
+from .spectrum import (
+    DEFAULT_BUDGET,
+    DisplacementStore,
+    Window,
+    bin_fields,
+    motion_power_spectrum,
+    window_gain,
+)
 from .video import VIDEO_SUFFIXES, average_frames, open_video
 
 __all__ = ["confidence_weights", "extract_modes", "main_extract", "modes_from_displacements"]
@@ -62,8 +70,10 @@ def modes_from_displacements(
     max_modes: int | None = 20,
     min_power_ratio: float = 1e-6,
     detrend: str = "mean",
+    window: Window = "hann",
     shake_threshold: float = 0.9,
     keep_camera_shake: bool = False,
+    reject_distortion: bool = True,
     block_bytes: int = 64 << 20,
     confidence: ArrayLike | None = None,
     metadata: dict[str, Any] | None = None,
@@ -86,10 +96,17 @@ def modes_from_displacements(
         Most prominent peaks analysed (before camera-shake rejection), default 20.
     detrend : {"mean", "linear", "none"}
         Per-pixel temporal detrending.
+    window : {"hann", "none"}, default "hann"
+        Temporal taper before the FFT (:mod:`.spectrum`): Hann keeps the leakage of strong
+        undamped modes (sidelobes ~ 1/k with "none") from masking weak modes and from
+        contaminating their shapes; peaks are about 2 bins wide instead of 1.
     shake_threshold : float, default 0.9
         A peak with translation MAC above it is flagged ``camera_shake``.
     keep_camera_shake : bool, default False
         Keep flagged peaks in the result (otherwise listed in ``metadata["rejected"]``).
+    reject_distortion : bool, default True
+        Drop peaks that are harmonics / intermodulation products of stronger peaks
+        (:func:`peaks.distortion_products`; listed in ``metadata["rejected"]``).
     block_bytes : int
         Working memory per pixel block of the FFT.
     confidence : array_like, optional
@@ -108,7 +125,7 @@ def modes_from_displacements(
     """
     band = check_band(fps, fmin, fmax)
     freqs, power = motion_power_spectrum(
-        disp, fps, weights=weights, detrend=detrend, block_bytes=block_bytes
+        disp, fps, weights=weights, detrend=detrend, window=window, block_bytes=block_bytes
     )
     pk = pick_peaks(
         freqs,
@@ -121,8 +138,9 @@ def modes_from_displacements(
         max_peaks=max_modes,
         min_power_ratio=min_power_ratio,
     )
-    Z = bin_fields(disp, pk.bins, detrend=detrend, block_bytes=block_bytes)
+    Z = bin_fields(disp, pk.bins, detrend=detrend, window=window, block_bytes=block_bytes)
     T = _n_frames(disp)
+    gain = window_gain(T, window)
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     rows: dict[str, list] = {k: [] for k in _ROWS}
     shapes = []
@@ -135,7 +153,7 @@ def modes_from_displacements(
         rows["frequencies_hz"].append(refine_frequency(freqs, power, int(k)))
         rows["damping"].append(zeta)
         rows["damping_half_power"].append(damping_half_power(freqs, power, int(k)))
-        rows["amplitudes_px"].append(2.0 * norm / T)
+        rows["amplitudes_px"].append(2.0 * norm / gain)
         rows["peak_bins"].append(int(k))
         rows["prominences"].append(float(pk.prominences[i]))
         rows["collinearity"].append(coll)
@@ -158,7 +176,9 @@ def modes_from_displacements(
         max_modes=max_modes,
         min_power_ratio=min_power_ratio,
         detrend=detrend,
+        window=window,
         shake_threshold=shake_threshold,
+        reject_distortion=reject_distortion,
         weighted=weights is not None,
     )
     ms = ModeSet(
@@ -172,7 +192,7 @@ def modes_from_displacements(
         **arr,
     )
     shake = ms.camera_shake
-    meta["rejected"] = [
+    rejected = [
         {
             "bin": int(ms.peak_bins[i]),
             "frequency_hz": float(ms.frequencies_hz[i]),
@@ -182,7 +202,28 @@ def modes_from_displacements(
         for i in np.flatnonzero(shake)
         if not keep_camera_shake
     ]
-    return ms if keep_camera_shake else ms.select(~shake)
+    drop = shake.copy() if not keep_camera_shake else np.zeros(len(ms), bool)
+    if reject_distortion and len(ms) > 1:
+        # camera-shake peaks are no parents: their products are translations as well and
+        # are caught by the shake test
+        f = ms.frequencies_hz
+        flagged = distortion_products(f, power[ms.peak_bins], float(fps) / T, parents=~shake)
+        for d in flagged:
+            k, (i, j) = d["index"], d["parents"]
+            if shake[k]:
+                continue
+            drop[k] = True
+            rejected.append(
+                {
+                    "bin": int(ms.peak_bins[k]),
+                    "frequency_hz": float(f[k]),
+                    "reason": "distortion",
+                    "kind": d["kind"],
+                    "parents_hz": [float(f[i]), float(f[j])],
+                }
+            )
+    meta["rejected"] = rejected
+    return ms.select(~drop)
 
 
 _ROWS = (
@@ -229,8 +270,10 @@ def extract_modes(
     max_frames: int | None = None,
     weighting: str = "confidence",
     detrend: str = "mean",
+    window: Window = "hann",
     shake_threshold: float = 0.9,
     keep_camera_shake: bool = False,
+    reject_distortion: bool = True,
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -260,7 +303,7 @@ def extract_modes(
     weighting : {"confidence", "none"}, default "confidence"
         Pixel weights for the spectrum, phase alignment and shake test:
         :func:`confidence_weights` of the motion confidence, or uniform (paper).
-    detrend, shake_threshold, keep_camera_shake :
+    detrend, window, shake_threshold, keep_camera_shake, reject_distortion :
         See :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
@@ -344,8 +387,10 @@ def extract_modes(
             max_modes=max_modes,
             min_power_ratio=min_power_ratio,
             detrend=detrend,
+            window=window,
             shake_threshold=shake_threshold,
             keep_camera_shake=keep_camera_shake,
+            reject_distortion=reject_distortion,
             confidence=pm.confidence,
             metadata=meta,
             output_shape=pm.shape,
@@ -428,7 +473,15 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--roi", type=_parse_roi, default=None, help="crop y0,y1,x0,x1")
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--weighting", choices=("confidence", "none"), default="confidence")
+    ap.add_argument(
+        "--window", choices=("hann", "none"), default="hann", help="temporal taper of the FFT"
+    )
     ap.add_argument("--keep-shake", action="store_true", help="keep camera-shake peaks")
+    ap.add_argument(
+        "--keep-distortion",
+        action="store_true",
+        help="keep peaks that are harmonics / intermodulation products of stronger ones",
+    )
     ap.add_argument("--memory-budget-mb", type=float, default=1024.0)
     ap.add_argument("--tmpdir", default=None, help="where displacements spill to disk")
     ap.add_argument("--no-plots", action="store_true")
@@ -460,7 +513,9 @@ def main_extract(argv: list[str] | None = None) -> int:
             roi=args.roi,
             max_frames=args.max_frames,
             weighting=args.weighting,
+            window=args.window,
             keep_camera_shake=args.keep_shake,
+            reject_distortion=not args.keep_distortion,
             memory_budget=int(args.memory_budget_mb * (1 << 20)),
             tmpdir=args.tmpdir,
             progress=not args.quiet,
@@ -482,7 +537,12 @@ def main_extract(argv: list[str] | None = None) -> int:
             + f"  amp {row['amplitudes_px']:.3g} px  prominence {row['prominences']:.2f}"
         )
     for r in ms.metadata.get("rejected", []):
-        print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} (MAC {r['shake_mac']:.2f})")
+        why = (
+            f"MAC {r['shake_mac']:.2f}"
+            if r["reason"] == "camera_shake"
+            else f"{r['kind']} of {r['parents_hz'][0]:.3f} and {r['parents_hz'][1]:.3f} Hz"
+        )
+        print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} ({why})")
     return 0
 
 

@@ -9,6 +9,8 @@
 * :func:`translation_mac`: similarity of a mode with the best rigid image translation
   (global camera shake detection).
 * :func:`merge_modes`: merge modes identified in several videos of the same view.
+* :func:`distortion_products`: peaks that are harmonics or intermodulation products
+  (``2 f_i``, ``f_i + f_j``, ``|f_i - f_j|``) of stronger peaks.
 
 Image-space modes are arrays ``(H, W, 2)`` (``[..., 0] = dx`` right, ``[..., 1] = dy`` down).
 """
@@ -31,6 +33,7 @@ __all__ = [
     "check_band",
     "damping_half_power",
     "damping_lorentzian",
+    "distortion_products",
     "mac",
     "merge_modes",
     "pick_peaks",
@@ -187,6 +190,84 @@ def refine_frequency(freqs: ArrayLike, power: ArrayLike, k: int) -> float:
 
 
 # --------------------------------------------------------------------------- damping
+def distortion_products(
+    frequencies: ArrayLike,
+    powers: ArrayLike,
+    bin_hz: float,
+    *,
+    tolerance_bins: float = 0.25,
+    power_ratio: float = 0.1,
+    parents: ArrayLike | None = None,
+) -> list[dict]:
+    """Peaks explained as second-order distortion products of stronger peaks.
+
+    Phase-based motion (and the image formation) is slightly non-linear for motions of the
+    order of a pixel: the measured motion of a vibrating object then holds, at about 1 % of
+    the modal amplitudes, harmonics ``2 f_i`` and intermodulation products ``f_i + f_j``,
+    ``|f_i - f_j|``.  Without spectral leakage to hide them they are clean, narrow peaks.
+    A peak ``k`` is flagged when, for two peaks ``i, j`` stronger than it (flagged ones
+    included, so products of products are found), ``|f_k - c| <= tolerance_bins * bin_hz``
+    for ``c`` in ``{f_i + f_j, |f_i - f_j|}`` (``i = j`` gives ``2 f_i``) and ``P_k <
+    power_ratio * min(P_i, P_j)``.  The tolerance is tight because the sub-bin refined
+    frequencies of products match to a few hundredths of a bin, while a true mode lands at
+    a random offset (a quarter bin keeps false rejections rare, about a few % per peak for
+    ~20 peaks).
+
+    Parameters
+    ----------
+    frequencies : array_like
+        Refined peak frequencies (Hz).
+    powers : array_like
+        Peak powers (any consistent unit).
+    bin_hz : float
+        Frequency resolution ``fps / T`` (Hz).
+    tolerance_bins : float, default 0.25
+        Frequency tolerance in bins.
+    power_ratio : float, default 0.1
+        A product is at most this fraction of the weaker parent's power.
+    parents : array_like of bool, optional
+        Which peaks may be parents (default all).
+
+    Returns
+    -------
+    list of dict
+        One per flagged peak: ``index``, ``parents`` ``(i, j)``, ``kind`` (``"harmonic"``,
+        ``"sum"`` or ``"difference"``), ``expected_hz``.
+    """
+    f = np.asarray(frequencies, dtype=np.float64)
+    p = np.asarray(powers, dtype=np.float64)
+    if f.shape != p.shape or f.ndim != 1:
+        raise ValueError("frequencies and powers must be 1-D arrays of the same length")
+    tol = tolerance_bins * bin_hz
+    ok = np.ones(f.size, bool) if parents is None else np.asarray(parents, bool)
+    order = np.argsort(-p, kind="stable")
+    out = []
+    for r, k in enumerate(order):
+        best = None
+        stronger = [i for i in order[:r] if ok[i]]
+        for a, i in enumerate(stronger):
+            for j in stronger[a:]:
+                if p[k] >= power_ratio * min(p[i], p[j]):
+                    continue
+                cands = [("harmonic" if i == j else "sum", f[i] + f[j])]
+                if i != j:
+                    cands.append(("difference", abs(f[i] - f[j])))
+                for kind, c in cands:
+                    err = abs(f[k] - c)
+                    if err <= tol and (best is None or err < best[0]):
+                        best = (err, int(i), int(j), kind, float(c))
+        if best is not None:
+            out.append(
+                {
+                    "index": int(k),
+                    "parents": (best[1], best[2]),
+                    "kind": best[3],
+                    "expected_hz": best[4],
+                }
+            )
+    return out
+
+
 def _valley(p: NDArray[np.float64], k: int, step: int) -> int:
     """Index of the first local minimum from peak ``k`` going in direction ``step``."""
     i = k

@@ -14,6 +14,10 @@ Conventions
   bin spacing ``fps / T``.
 * DFT without normalisation, ``X_l = sum_t d_t exp(-2 pi i l t / T)``: a sinusoid of amplitude
   ``A`` px on bin ``l`` gives ``|X_l| = A T / 2``.
+* Optional taper ``window="hann"``: ``d_t`` is multiplied by the periodic Hann window
+  ``w_t = (1 - cos(2 pi t / T)) / 2`` (after detrending), so ``|X_l| = A sum(w) / 2 = A T / 4``
+  for a sinusoid on bin ``l``.  Its sidelobes fall as ``1 / k**3`` (rectangular: ``1 / k``),
+  which keeps the leakage of strong, undamped modes from burying weaker ones.
 * Motion power spectrum (paper Sec. 4.1): ``S_l = sum_p w_p (|DX_l(p)|**2 + |DY_l(p)|**2)``
   over pixels ``p`` with optional weights ``w_p`` (default 1), in px**2 (unnormalised DFT).
 """
@@ -32,13 +36,34 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "DisplacementStore",
     "Detrend",
+    "Window",
     "block_columns",
     "bin_fields",
     "frequency_axis",
     "motion_power_spectrum",
+    "window_gain",
+    "window_weights",
 ]
 
 Detrend = Literal["mean", "linear", "none"]
+Window = Literal["hann", "none"]
+
+
+def window_weights(n_frames: int, window: Window) -> NDArray[np.float64] | None:
+    """The temporal taper ``(T,)`` (periodic Hann) or ``None`` for ``"none"``."""
+    if window == "none":
+        return None
+    if window != "hann":
+        raise ValueError(f"window must be 'hann' or 'none', got {window!r}")
+    t = np.arange(int(n_frames), dtype=np.float64)
+    return 0.5 - 0.5 * np.cos(2.0 * np.pi * t / max(int(n_frames), 1))
+
+
+def window_gain(n_frames: int, window: Window) -> float:
+    """``sum(w_t)``: a sinusoid of amplitude ``A`` on a bin gives ``|X_l| = A * gain / 2``."""
+    w = window_weights(n_frames, window)
+    return float(n_frames) if w is None else float(w.sum())
+
 
 DEFAULT_BUDGET = 1 << 30  # 1 GiB
 
@@ -288,14 +313,18 @@ def _as_store(disp: DisplacementStore | ArrayLike) -> DisplacementStore:
 
 
 def _iter_blocks(
-    store: DisplacementStore, block_bytes: int, detrend: Detrend
+    store: DisplacementStore, block_bytes: int, detrend: Detrend, window: Window = "none"
 ) -> Iterator[tuple[slice, NDArray[np.float64]]]:
     P = store.block_size(block_bytes)
     C = store.n_columns
+    taper = window_weights(store.n_frames, window)
     for c0 in range(0, C, P):
         sl = slice(c0, min(c0 + P, C))
         x = np.asarray(store.column_block(sl.start, sl.stop), dtype=np.float64)
-        yield sl, _detrend(x, detrend)
+        x = _detrend(x, detrend)
+        if taper is not None:
+            x *= taper[:, None]
+        yield sl, x
 
 
 def motion_power_spectrum(
@@ -304,6 +333,7 @@ def motion_power_spectrum(
     *,
     weights: ArrayLike | None = None,
     detrend: Detrend = "mean",
+    window: Window = "none",
     block_bytes: int = 64 << 20,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Motion power spectrum ``S_l = sum_p w_p (|DX_l|**2 + |DY_l|**2)``, by pixel blocks.
@@ -318,6 +348,8 @@ def motion_power_spectrum(
         ``(H, W)`` non-negative pixel weights (e.g. ``PhaseMotion.confidence``); default 1.
     detrend : {"mean", "linear", "none"}, default "mean"
         Per-pixel removal of the temporal mean (or least-squares line) before the FFT.
+    window : {"none", "hann"}, default "none"
+        Temporal taper applied after detrending (see module notes).
     block_bytes : int, default 64 MiB
         Working memory per pixel block.
 
@@ -336,7 +368,7 @@ def motion_power_spectrum(
     freqs = frequency_axis(T, fps)
     wcol = _column_weights(weights, fshape)
     power = np.zeros(freqs.size, np.float64)
-    for sl, x in _iter_blocks(store, block_bytes, detrend):
+    for sl, x in _iter_blocks(store, block_bytes, detrend, window):
         X = np.fft.rfft(x, axis=0)
         p = X.real**2 + X.imag**2
         power += p.sum(axis=1) if wcol is None else p @ wcol[sl]
@@ -348,6 +380,7 @@ def bin_fields(
     bins: Sequence[int] | ArrayLike,
     *,
     detrend: Detrend = "mean",
+    window: Window = "none",
     block_bytes: int = 64 << 20,
 ) -> NDArray[np.complex128]:
     """Complex image-space fields ``(DX_l, DY_l)`` at selected DFT bins, by pixel blocks.
@@ -360,13 +393,16 @@ def bin_fields(
         DFT bin indices ``l`` (``0 <= l <= T // 2``).
     detrend : {"mean", "linear", "none"}
         As in :func:`motion_power_spectrum`.
+    window : {"none", "hann"}
+        As in :func:`motion_power_spectrum`.
     block_bytes : int
         Working memory per pixel block.
 
     Returns
     -------
     ndarray
-        ``(k, H, W, 2)`` complex128, ``X_l = sum_t d_t exp(-2 pi i l t / T)``.
+        ``(k, H, W, 2)`` complex128, ``X_l = sum_t w_t d_t exp(-2 pi i l t / T)``
+        (``w_t = 1`` without window).
     """
     detrend = _check_detrend(detrend)
     store = _as_store(disp)
@@ -380,6 +416,6 @@ def bin_fields(
     t = np.arange(T)
     # (k, T) DFT rows; exact integer phase reduction keeps it accurate for long videos
     E = np.exp(-2j * np.pi * ((b[:, None] * t[None, :]) % T) / T)
-    for sl, x in _iter_blocks(store, block_bytes, detrend):
+    for sl, x in _iter_blocks(store, block_bytes, detrend, window):
         out[:, sl] = E @ x
     return out.reshape(b.size, *fshape)

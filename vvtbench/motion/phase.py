@@ -116,8 +116,11 @@ _FAST_T2 = np.float32(0.25)  # fast path for |Im z / Re z| <= 1/2, Re z > 0 (|ph
 
 
 def phase_difference(
-    z: NDArray[np.complex64], out: NDArray[np.float32] | None = None
-) -> NDArray[np.float32]:
+    z: NDArray[np.complex64],
+    out: NDArray[np.float32] | None = None,
+    *,
+    return_slow: bool = False,
+) -> NDArray[np.float32] | tuple[NDArray[np.float32], NDArray[np.intp]]:
     """``angle(z)`` in float32, fast for the small angles of sub-pixel motion.
 
     Where ``Re z > 0`` and ``|Im z| <= Re z / 2`` (``|angle| < 0.464`` rad, the usual case
@@ -132,11 +135,16 @@ def phase_difference(
         complex64 array.
     out : ndarray, optional
         float32 output of the same shape.
+    return_slow : bool, default False
+        Also return the flat indices computed by ``numpy.angle`` (all angles beyond 0.46 rad
+        are among them).
 
     Returns
     -------
     ndarray
         float32 angles in ``(-pi, pi]``.
+    slow : ndarray
+        Only if ``return_slow``.
     """
     with np.errstate(all="ignore"):
         t = np.divide(z.imag, z.real, out=out)
@@ -152,7 +160,7 @@ def phase_difference(
     idx = np.flatnonzero(bad)
     if idx.size:
         t.reshape(-1)[idx] = np.angle(z.reshape(-1)[idx])
-    return t
+    return (t, idx) if return_slow else t
 
 
 def _min_eig(m: NDArray[np.floating]) -> NDArray[np.floating]:
@@ -198,6 +206,12 @@ class PhaseMotion:
     ridge : float, default 1e-4
         Tikhonov regularisation relative to the mean trace of the normal matrix; weakly
         textured pixels are shrunk towards zero displacement.
+    max_phase : float, default pi / 2
+        Band samples whose phase difference exceeds this (rad) are dropped for that frame
+        (the normal matrix is reduced accordingly): near +-pi the phase is ambiguous, which
+        makes fine scales under motions of about a pixel or more biased and non-linear (they
+        would produce harmonics and intermodulation peaks in the spectrum).  The coarser
+        scales then carry the estimate.  ``pi`` keeps everything.
     workers : int, optional
         Threads: a batch is split into up to ``workers`` sub-batches processed concurrently
         (NumPy, SciPy FFT and ndimage release the GIL); ``-1`` = all CPUs, default 1.  Results
@@ -232,6 +246,7 @@ class PhaseMotion:
         downsample: bool = True,
         decimate: bool | None = None,
         ridge: float = 1e-4,
+        max_phase: float = np.pi / 2,
         workers: int | None = None,
     ) -> None:
         ref = np.asarray(reference_frame)
@@ -255,6 +270,9 @@ class PhaseMotion:
         self.frequency = frequency
         self.sigma = float(sigma)
         self.outlier_fraction = float(outlier_fraction)
+        if not 0.0 < max_phase <= np.pi:
+            raise ValueError(f"max_phase must be in (0, pi], got {max_phase}")
+        self.max_phase = float(max_phase)
         if workers is None:
             workers = 1
         if workers == -1:
@@ -266,6 +284,7 @@ class PhaseMotion:
         self._cref: list[NDArray[np.complex64]] = []  # conj of reference coefficients
         self._wgx: list[NDArray[np.float32]] = []  # weight * gx
         self._wgy: list[NDArray[np.float32]] = []  # weight * gy
+        self._wgg: list[NDArray[np.float32]] = []  # weight * (gx gx, gx gy, gy gy)
         m = np.zeros((3, *self.grid_shape), np.float32)
         m_s: NDArray[np.float32] | None = None
         for band, c, grad in self.pyramid.iter_bands(ref, gradient=True, workers=self.workers):
@@ -294,6 +313,9 @@ class PhaseMotion:
             self._cref.append(np.conj(c).astype(np.complex64))
             self._wgx.append(np.ascontiguousarray(w * g[0], dtype=np.float32))
             self._wgy.append(np.ascontiguousarray(w * g[1], dtype=np.float32))
+            self._wgg.append(
+                np.stack([w * g[0] * g[0], w * g[0] * g[1], w * g[1] * g[1]]).astype(np.float32)
+            )
         self._m = m
         self._ridge = float(ridge * np.mean(m[0] + m[2]))
         self._m_smooth = self._smooth(m)
@@ -346,13 +368,24 @@ class PhaseMotion:
         ndarray
             ``(2, B, h, w)`` float32 on the working grid :attr:`grid_shape` (unsmoothed).
         """
-        return self._rhs(self._check(frames))
+        return self._rhs(self._check(frames))[0]
 
-    def _rhs(self, x: NDArray[np.float32]) -> NDArray[np.float32]:
+    def _rhs(
+        self, x: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+        """Right-hand side and the per-frame reduction of the normal matrix.
+
+        Band samples whose phase difference exceeds :attr:`max_phase` (ambiguous: close to
+        wrapping, e.g. fine scales under motions of a pixel or more) are dropped: they add
+        nothing to ``b`` and their ``w g g^T`` is returned in ``dm`` (``(3, B, h, w)`` on the
+        grid, ``None`` if nothing was dropped) to be subtracted from the normal matrix.
+        """
         B = x.shape[0]
         grid = self.grid_shape
         b = np.zeros((2, B, *grid), np.float32)
         b_s = b
+        dm: NDArray[np.float32] | None = None
+        dm_s: NDArray[np.float32] | None = None
         tmp: NDArray[np.float32] | None = None
         n_or = self.pyramid.n_orientations
         for i, (band, c) in enumerate(self.pyramid.iter_bands(x, workers=1)):
@@ -360,15 +393,33 @@ class PhaseMotion:
                 b_s = b if band.shape == grid else np.zeros((2, B, *band.shape), np.float32)
                 tmp = np.empty(c.shape, np.float32)
                 dphi = np.empty(c.shape, np.float32)
+                dm_s = None
             c *= self._cref[i]  # c * conj(c_ref): its angle is the phase difference
-            phase_difference(c, out=dphi)
+            _, slow = phase_difference(c, out=dphi, return_slow=True)
+            if slow.size:
+                flat = dphi.reshape(-1)
+                wrap = slow[np.abs(flat[slow]) > self.max_phase]
+                if wrap.size:
+                    flat[wrap] = 0.0
+                    if dm_s is None:
+                        dm_s = np.zeros((3, B * band.shape[0] * band.shape[1]), np.float32)
+                    pix = wrap % (band.shape[0] * band.shape[1])
+                    for k in range(3):
+                        np.add.at(dm_s[k], wrap, self._wgg[i][k].reshape(-1)[pix])
             np.multiply(dphi, self._wgx[i], out=tmp)
             b_s[0] -= tmp
             np.multiply(dphi, self._wgy[i], out=tmp)
             b_s[1] -= tmp
-            if band.orientation == n_or - 1 and b_s is not b:
-                b += upsample_periodic(b_s, grid)
-        return b
+            if band.orientation == n_or - 1:
+                if b_s is not b:
+                    b += upsample_periodic(b_s, grid)
+                if dm_s is not None:
+                    up = upsample_periodic(dm_s.reshape(3, B, *band.shape), grid)
+                    if dm is None:
+                        dm = up if up is not dm_s else up.copy()
+                    else:
+                        dm += up
+        return b, dm
 
     def displacement(
         self,
@@ -413,9 +464,13 @@ class PhaseMotion:
     def _displacement(
         self, x: NDArray[np.float32], full_resolution: bool = True
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-        b = self._rhs(x)
+        b, dm = self._rhs(x)
         B = b.shape[1]
         m = self._m[:, None]
+        if dm is not None:
+            m = m - dm
+            np.maximum(m[0], 0.0, out=m[0])  # round-off
+            np.maximum(m[2], 0.0, out=m[2])
         outliers = np.zeros((B, *self.grid_shape), np.bool_)
         if self.outlier_fraction > 0:
             raw = solve2x2(m, b, self._ridge)
@@ -430,7 +485,7 @@ class PhaseMotion:
             b *= keep
             ms = self._smooth(m * keep)
         else:
-            ms = self._m_smooth[:, None]
+            ms = self._m_smooth[:, None] if dm is None else self._smooth(m)
         bs = self._smooth(b)
         d = solve2x2(ms, bs, self._ridge)
         if full_resolution and self.grid_shape != self.shape:
