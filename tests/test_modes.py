@@ -33,7 +33,7 @@ from vvtbench.modes import (
     sample_field,
     sample_modes,
 )
-from vvtbench.modes.peaks import align_phase, distortion_products
+from vvtbench.modes.peaks import align_phase, distortion_products, roughness
 from vvtbench.render.camera import Camera
 
 BORDER = 10
@@ -410,22 +410,33 @@ def test_distortion_products_found_and_true_modes_kept() -> None:
 
 def test_hann_window_and_distortion_rejection_in_mode_identification() -> None:
     """A strong undamped mode off-bin (leaks ~1/k without a window) next to a weak mode at
-    1/300 of its amplitude, plus a weak harmonic of the strong one (phase non-linearity)."""
+    1/300 of its amplitude; a weak, spatially incoherent harmonic of the 20.5 Hz mode (as
+    phase non-linearity makes) is rejected, the smooth mode at twice 10.25 Hz is kept."""
     fps, T, n = 200.0, 400, 24
     t = np.arange(T)[:, None, None, None] / fps
     pa, pb = pattern(n, "a"), pattern(n, "b")
+    sign = np.where(np.random.default_rng(0).random((n, n, 1)) < 0.5, -1.0, 1.0)
     d = 0.3 * np.cos(2 * np.pi * 10.25 * t) * pa + 1e-3 * np.cos(2 * np.pi * 31.0 * t) * pb
-    d = d + 3e-3 * np.cos(2 * np.pi * 20.5 * t) * pa**2  # 2nd harmonic of the strong mode
+    d = d + 3e-3 * np.cos(2 * np.pi * 20.5 * t) * pb  # a true mode at 2 x 10.25 Hz
+    d = d + 5e-4 * np.cos(2 * np.pi * 41.0 * t) * pb * sign  # incoherent harmonic
     hann = modes_from_displacements(d, fps)
-    assert sorted(np.round(hann.frequencies_hz, 1).tolist()) == [10.2, 31.0]
+    assert sorted(np.round(hann.frequencies_hz, 2).tolist()) == [10.25, 20.5, 31.0]
     i = nearest(hann, 31.0)
     assert mac(hann.shapes[i], pb) > 0.99
     assert hann.amplitudes_px[i] * np.abs(hann.shapes[i]).max() == pytest.approx(1e-3, rel=0.05)
     (rej,) = hann.metadata["rejected"]
     assert rej["reason"] == "distortion" and rej["kind"] == "harmonic"
-    assert abs(rej["frequency_hz"] - 20.5) < fps / T
-    kept = modes_from_displacements(d, fps, reject_distortion=False)
-    assert len(kept) == 3
+    assert rej["parents_hz"] == pytest.approx([20.5, 20.5], abs=0.01)
+    assert abs(rej["frequency_hz"] - 41.0) < fps / T and rej["roughness"] > 0.3
+    assert len(modes_from_displacements(d, fps, reject_distortion=False)) == 4
     # without a window the 1/k leakage of the strong mode buries the weak one
     rect = modes_from_displacements(d, fps, window="none", reject_distortion=False)
     assert not np.any(np.abs(rect.frequencies_hz - 31.0) < 1.0)
+
+
+def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:
+    n = 48
+    smooth = pattern(n, "a")
+    sign = np.where(np.random.default_rng(1).random((n, n, 1)) < 0.5, -1.0, 1.0)
+    assert roughness(smooth) < 0.01
+    assert roughness(smooth * sign) > 0.5

@@ -31,6 +31,7 @@ from .peaks import (
     distortion_products,
     pick_peaks,
     refine_frequency,
+    roughness,
     translation_mac,
 )
 from .spectrum import (
@@ -74,6 +75,9 @@ def modes_from_displacements(
     shake_threshold: float = 0.9,
     keep_camera_shake: bool = False,
     reject_distortion: bool = True,
+    max_roughness: float = 0.3,
+    product_roughness: float = 0.15,
+    rough_sigma_px: float = 2.0,
     block_bytes: int = 64 << 20,
     confidence: ArrayLike | None = None,
     metadata: dict[str, Any] | None = None,
@@ -105,8 +109,17 @@ def modes_from_displacements(
     keep_camera_shake : bool, default False
         Keep flagged peaks in the result (otherwise listed in ``metadata["rejected"]``).
     reject_distortion : bool, default True
-        Drop peaks that are harmonics / intermodulation products of stronger peaks
-        (:func:`peaks.distortion_products`; listed in ``metadata["rejected"]``).
+        Drop peaks whose shape is spatially incoherent (:func:`peaks.roughness` at
+        ``rough_sigma_px`` full-resolution pixels above ``max_roughness``: no mode of an
+        object varies that fast; reason ``"incoherent"``), and peaks that are harmonics /
+        intermodulation products of stronger peaks (:func:`peaks.distortion_products`, at
+        most half the weaker parent's power) with a roughness above ``product_roughness``
+        (reason ``"distortion"``).  Second-order products of phase-based motion change sign
+        with the texture (roughness ~0.3-0.5 at 256^2) while true modes are smooth (< 0.1);
+        a true mode that happens to sit at a product frequency is kept.  Listed in
+        ``metadata["rejected"]``.
+    max_roughness, product_roughness, rough_sigma_px : float
+        See ``reject_distortion``.
     block_bytes : int
         Working memory per pixel block of the FFT.
     confidence : array_like, optional
@@ -144,8 +157,11 @@ def modes_from_displacements(
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     rows: dict[str, list] = {k: [] for k in _ROWS}
     shapes = []
+    rough = []
+    stride = 1.0 if output_shape is None else output_shape[0] / Z.shape[1]
     for i, k in enumerate(pk.bins):
         real, _, coll = align_phase(Z[i], w)
+        rough.append(roughness(real, w, rough_sigma_px / stride))
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
@@ -179,6 +195,9 @@ def modes_from_displacements(
         window=window,
         shake_threshold=shake_threshold,
         reject_distortion=reject_distortion,
+        max_roughness=max_roughness,
+        product_roughness=product_roughness,
+        roughness=[float(r) for r in rough],
         weighted=weights is not None,
     )
     ms = ModeSet(
@@ -203,25 +222,38 @@ def modes_from_displacements(
         if not keep_camera_shake
     ]
     drop = shake.copy() if not keep_camera_shake else np.zeros(len(ms), bool)
-    if reject_distortion and len(ms) > 1:
+    if reject_distortion and len(ms):
+        f = ms.frequencies_hz
         # camera-shake peaks are no parents: their products are translations as well and
         # are caught by the shake test
-        f = ms.frequencies_hz
-        flagged = distortion_products(f, power[ms.peak_bins], float(fps) / T, parents=~shake)
-        for d in flagged:
-            k, (i, j) = d["index"], d["parents"]
-            if shake[k]:
+        flagged = {
+            d["index"]: d
+            for d in distortion_products(
+                f, power[ms.peak_bins], float(fps) / T, power_ratio=0.5, parents=~shake
+            )
+        }
+        for k in range(len(ms)):
+            if drop[k]:
+                continue
+            entry = {
+                "bin": int(ms.peak_bins[k]),
+                "frequency_hz": float(f[k]),
+                "roughness": float(rough[k]),
+            }
+            d = flagged.get(k)
+            if d is not None and rough[k] > product_roughness:
+                i, j = d["parents"]
+                entry.update(
+                    reason="distortion",
+                    kind=d["kind"],
+                    parents_hz=[float(f[i]), float(f[j])],
+                )
+            elif rough[k] > max_roughness:
+                entry.update(reason="incoherent")
+            else:
                 continue
             drop[k] = True
-            rejected.append(
-                {
-                    "bin": int(ms.peak_bins[k]),
-                    "frequency_hz": float(f[k]),
-                    "reason": "distortion",
-                    "kind": d["kind"],
-                    "parents_hz": [float(f[i]), float(f[j])],
-                }
-            )
+            rejected.append(entry)
     meta["rejected"] = rejected
     return ms.select(~drop)
 
@@ -537,11 +569,12 @@ def main_extract(argv: list[str] | None = None) -> int:
             + f"  amp {row['amplitudes_px']:.3g} px  prominence {row['prominences']:.2f}"
         )
     for r in ms.metadata.get("rejected", []):
-        why = (
-            f"MAC {r['shake_mac']:.2f}"
-            if r["reason"] == "camera_shake"
-            else f"{r['kind']} of {r['parents_hz'][0]:.3f} and {r['parents_hz'][1]:.3f} Hz"
-        )
+        if r["reason"] == "camera_shake":
+            why = f"MAC {r['shake_mac']:.2f}"
+        elif r["reason"] == "distortion":
+            why = f"{r['kind']} of {r['parents_hz'][0]:.3f} and {r['parents_hz'][1]:.3f} Hz"
+        else:
+            why = f"roughness {r['roughness']:.2f}"
         print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} ({why})")
     return 0
 
