@@ -340,6 +340,37 @@ class PhaseMotion:
         s = self.sigma / self.grid_stride
         return gaussian_filter(a, s, axes=(-2, -1), mode="reflect", truncate=3.0)
 
+    def _smooth_removed(self, removed: NDArray[np.bool_]) -> NDArray[np.float32]:
+        """``smooth(m * keep)`` as ``smooth(m) - smooth(m * removed)`` for sparse ``removed``.
+
+        The second term is a scatter of the separable Gaussian kernel (same taps and
+        ``reflect`` boundary as :meth:`_smooth`) around each removed pixel, done with
+        ``numpy.bincount``; much cheaper than smoothing three dense channels per frame when
+        ~1 % of the pixels are removed.
+        """
+        B = removed.shape[0]
+        h, w = self.grid_shape
+        s = self.sigma / self.grid_stride
+        r = int(3.0 * s + 0.5)
+        k = np.exp(-0.5 * (np.arange(-r, r + 1) / s) ** 2)
+        k /= k.sum()
+        fb, fy, fx = np.nonzero(removed)
+        off = np.arange(-r, r + 1)
+        yy = fy[:, None] + off[None, :]
+        xx = fx[:, None] + off[None, :]
+        yy = np.where(yy < 0, -yy - 1, np.where(yy >= h, 2 * h - yy - 1, yy))
+        xx = np.where(xx < 0, -xx - 1, np.where(xx >= w, 2 * w - xx - 1, xx))
+        target = ((fb * h)[:, None, None] + yy[:, :, None]) * w + xx[:, None, :]
+        kk = (k[:, None] * k[None, :])[None]
+        out = np.empty((3, B, h, w), np.float32)
+        for c in range(3):
+            vals = (self._m[c][fy, fx].astype(np.float64)[:, None, None] * kk).ravel()
+            corr = np.bincount(target.ravel(), weights=vals, minlength=B * h * w)
+            np.subtract(self._m_smooth[c][None], corr.reshape(B, h, w), out=out[c])
+        np.maximum(out[0], 0.0, out=out[0])  # round-off where everything was removed
+        np.maximum(out[2], 0.0, out=out[2])
+        return out
+
     def _check(self, frames: ArrayLike) -> NDArray[np.float32]:
         x = np.asarray(frames)
         if x.ndim != 3:
@@ -483,9 +514,21 @@ class PhaseMotion:
             outliers = (mag2 > thr[:, None]).reshape(B, *self.grid_shape)
             keep = (~outliers).astype(np.float32)
             b *= keep
-            ms = self._smooth(m * keep)
+            if self.sigma > 0:
+                # smooth(m_frame * keep) = smooth(m) - smooth(m * removed) - smooth(dm * keep);
+                # the same arithmetic whatever the batch (batches give identical results)
+                ms = self._smooth_removed(outliers)
+                if dm is not None:
+                    dm *= keep
+                    ms -= self._smooth(dm)
+            else:
+                ms = m * keep
         else:
-            ms = self._m_smooth[:, None] if dm is None else self._smooth(m)
+            ms = (
+                self._m_smooth[:, None]
+                if dm is None
+                else self._m_smooth[:, None] - self._smooth(dm)
+            )
         bs = self._smooth(b)
         d = solve2x2(ms, bs, self._ridge)
         if full_resolution and self.grid_shape != self.shape:
