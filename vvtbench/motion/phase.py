@@ -451,8 +451,8 @@ class PhaseMotion:
                     if dm_s is None:
                         dm_s = np.zeros((3, B * band.shape[0] * band.shape[1]), np.float32)
                     pix = wrap % (band.shape[0] * band.shape[1])
-                    for k in range(3):
-                        np.add.at(dm_s[k], wrap, self._wgg[i][k].reshape(-1)[pix])
+                    for k in range(3):  # flat indices are unique within a band
+                        dm_s[k, wrap] += self._wgg[i][k].reshape(-1)[pix]
             np.multiply(dphi, self._wgx[i], out=tmp)
             b_s[0] -= tmp
             np.multiply(dphi, self._wgy[i], out=tmp)
