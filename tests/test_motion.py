@@ -193,6 +193,22 @@ def test_sign_conventions(speckle: Speckle, motion: PhaseMotion) -> None:
     assert mn[0] < 0 and mn[1] < 0
 
 
+def test_ambiguous_phases_dropped_for_large_shifts(speckle: Speckle) -> None:
+    """At 2 px the finest scale's phase differences approach +-pi; dropping those beyond
+    pi/2 (default) reduces the underestimate (keeping all: ~13 % low)."""
+    frames = np.stack([speckle.shift(2.0, 0.0), speckle.shift(0.0, -2.0)])
+    est = {}
+    for mp in (np.pi / 2, np.pi):
+        pm = PhaseMotion(speckle.ref, max_phase=mp)
+        d = pm.displacement(frames)
+        m = _interior(pm)
+        est[mp] = (np.median(d[0][m, 0]), -np.median(d[1][m, 1]))
+    assert all(v > 1.78 for v in est[np.pi / 2])
+    assert all(a > b for a, b in zip(est[np.pi / 2], est[np.pi], strict=True))
+    with pytest.raises(ValueError, match="max_phase"):
+        PhaseMotion(speckle.ref, max_phase=0.0)
+
+
 def test_no_motion_gives_zero(speckle: Speckle, motion: PhaseMotion) -> None:
     d = motion.displacement(speckle.ref[None])
     assert np.abs(d).max() < 1e-4
