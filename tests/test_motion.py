@@ -16,6 +16,7 @@ import pytest
 
 from vvtbench.motion.phase import (
     PhaseMotion,
+    gaussian_smooth,
     iter_displacements,
     phase_difference,
     upsample_periodic,
@@ -338,3 +339,12 @@ def test_upsample_periodic_is_exact_on_linear_interpolants() -> None:
     np.testing.assert_array_equal(up[::2, ::2], a)
     np.testing.assert_allclose(up[0, 1], 0.5)
     np.testing.assert_allclose(up[0, 7], (3 + 0) / 2)  # periodic wrap
+
+
+@pytest.mark.parametrize("shape,sigma", [((2, 3, 40, 33), 1.0), ((5, 7), 1.0), ((4, 4), 1.0)])
+def test_gaussian_smooth_matches_ndimage(shape: tuple[int, ...], sigma: float) -> None:
+    from scipy.ndimage import gaussian_filter
+
+    a = np.random.default_rng(4).random(shape).astype(np.float32)
+    want = gaussian_filter(a, sigma, axes=(-2, -1), mode="reflect", truncate=3.0)
+    np.testing.assert_allclose(gaussian_smooth(a, sigma), want, atol=1e-6)
