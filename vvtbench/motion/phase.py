@@ -269,11 +269,11 @@ class PhaseMotion:
         Tikhonov regularisation relative to the mean trace of the normal matrix; weakly
         textured pixels are shrunk towards zero displacement.
     max_phase : float, default pi / 2
-        Band samples whose phase difference exceeds this (rad) are dropped for that frame
-        (the normal matrix is reduced accordingly): near +-pi the phase is ambiguous, which
-        makes fine scales under motions of about a pixel or more biased and non-linear (they
-        would produce harmonics and intermodulation peaks in the spectrum).  The coarser
-        scales then carry the estimate.  ``pi`` keeps everything.
+        Samples of the finest scale whose phase difference exceeds this (rad) are dropped
+        for that frame (the normal matrix is reduced accordingly): near +-pi the phase is
+        ambiguous, which makes the finest scale biased and non-linear under motions of about
+        a pixel or more.  The coarser scales (wavelengths >= 8 px, wrapping only beyond
+        ~2 px) then carry the estimate.  ``pi`` keeps everything.
     workers : int, optional
         Threads: a batch is split into up to ``workers`` sub-batches processed concurrently
         (NumPy, SciPy FFT and ndimage release the GIL); ``-1`` = all CPUs, default 1.  Results
@@ -401,32 +401,48 @@ class PhaseMotion:
             return a
         return gaussian_smooth(a, self.sigma / self.grid_stride)
 
-    def _smooth_removed(self, removed: NDArray[np.bool_]) -> NDArray[np.float32]:
-        """``smooth(m * keep)`` as ``smooth(m) - smooth(m * removed)`` for sparse ``removed``.
+    def _smooth_removed(
+        self,
+        removed: NDArray[np.bool_],
+        extra: tuple[NDArray[np.intp], NDArray[np.float32]] | None = None,
+    ) -> NDArray[np.float32]:
+        """``smooth(m_frame)`` for ``m_frame = m * keep - sum(extra)``, by sparse scatter.
 
-        The second term is a scatter of the separable Gaussian kernel (same taps and
-        ``reflect`` boundary as :meth:`_smooth`) around each removed pixel, done with
-        ``numpy.bincount``; much cheaper than smoothing three dense channels per frame when
-        ~1 % of the pixels are removed.
+        ``smooth(m) - smooth(m * removed) - smooth(extra)``: the last two terms are scatters
+        of the separable Gaussian kernel (same taps and ``reflect`` boundary as
+        :meth:`_smooth`) around each removed pixel and each ``extra`` point (flat index into
+        ``(B, h, w)``, values ``(3, n)``), done with ``numpy.bincount``; much cheaper than
+        smoothing three dense channels per frame when ~1 % of the pixels are touched.  The
+        arithmetic of a frame does not depend on the other frames of the batch.
         """
         B = removed.shape[0]
         h, w = self.grid_shape
+        fb, fy, fx = np.nonzero(removed)
+        vals = self._m[:, fy, fx]
+        if extra is not None:
+            idx, ev = extra
+            ok = ~removed.reshape(-1)[idx]  # removed pixels are already fully taken out
+            eb, ey, ex = np.unravel_index(idx[ok], (B, h, w))
+            order = np.argsort(np.concatenate([fb, eb]), kind="stable")  # frame by frame
+            fb = np.concatenate([fb, eb])[order]
+            fy = np.concatenate([fy, ey])[order]
+            fx = np.concatenate([fx, ex])[order]
+            vals = np.concatenate([vals, ev[:, ok]], axis=1)[:, order]
         s = self.sigma / self.grid_stride
         r = int(3.0 * s + 0.5)
         k = np.exp(-0.5 * (np.arange(-r, r + 1) / s) ** 2)
         k /= k.sum()
-        fb, fy, fx = np.nonzero(removed)
         off = np.arange(-r, r + 1)
         yy = fy[:, None] + off[None, :]
         xx = fx[:, None] + off[None, :]
         yy = np.where(yy < 0, -yy - 1, np.where(yy >= h, 2 * h - yy - 1, yy))
         xx = np.where(xx < 0, -xx - 1, np.where(xx >= w, 2 * w - xx - 1, xx))
-        target = ((fb * h)[:, None, None] + yy[:, :, None]) * w + xx[:, None, :]
+        target = (((fb * h)[:, None, None] + yy[:, :, None]) * w + xx[:, None, :]).ravel()
         kk = (k[:, None] * k[None, :])[None]
         out = np.empty((3, B, h, w), np.float32)
         for c in range(3):
-            vals = (self._m[c][fy, fx].astype(np.float64)[:, None, None] * kk).ravel()
-            corr = np.bincount(target.ravel(), weights=vals, minlength=B * h * w)
+            wts = (vals[c].astype(np.float64)[:, None, None] * kk).ravel()
+            corr = np.bincount(target, weights=wts, minlength=B * h * w)
             np.subtract(self._m_smooth[c][None], corr.reshape(B, h, w), out=out[c])
         np.maximum(out[0], 0.0, out=out[0])  # round-off where everything was removed
         np.maximum(out[2], 0.0, out=out[2])
@@ -464,20 +480,22 @@ class PhaseMotion:
 
     def _rhs(
         self, x: NDArray[np.float32]
-    ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
-        """Right-hand side and the per-frame reduction of the normal matrix.
+    ) -> tuple[NDArray[np.float32], tuple[NDArray[np.intp], NDArray[np.float32]] | None]:
+        """Right-hand side and the samples dropped from the normal matrix.
 
-        Band samples whose phase difference exceeds :attr:`max_phase` (ambiguous: close to
-        wrapping, e.g. fine scales under motions of a pixel or more) are dropped: they add
-        nothing to ``b`` and their ``w g g^T`` is returned in ``dm`` (``(3, B, h, w)`` on the
-        grid, ``None`` if nothing was dropped) to be subtracted from the normal matrix.
+        Samples of the finest scale (on the working grid) whose phase difference exceeds
+        :attr:`max_phase` (ambiguous: close to wrapping under motions of about a pixel) are
+        dropped: they add nothing to ``b`` and are returned as ``(flat, wgg)``, flat indices
+        into ``(B, h, w)`` (repeats possible, one per orientation) and their ``w g g^T``
+        ``(3, n)``, to be taken out of the normal matrix (``None`` if nothing was dropped).
+        Coarser scales (wavelengths of 8 px and more) wrap only beyond ~2 px.
         """
         B = x.shape[0]
         grid = self.grid_shape
         b = np.zeros((2, B, *grid), np.float32)
         b_s = b
-        dm: NDArray[np.float32] | None = None
-        dm_s: NDArray[np.float32] | None = None
+        drop_idx: list[NDArray[np.intp]] = []
+        drop_val: list[NDArray[np.float32]] = []
         tmp: NDArray[np.float32] | None = None
         n_or = self.pyramid.n_orientations
         for i, (band, c) in enumerate(self.pyramid.iter_bands(x, workers=1)):
@@ -485,33 +503,24 @@ class PhaseMotion:
                 b_s = b if band.shape == grid else np.zeros((2, B, *band.shape), np.float32)
                 tmp = np.empty(c.shape, np.float32)
                 dphi = np.empty(c.shape, np.float32)
-                dm_s = None
             c *= self._cref[i]  # c * conj(c_ref): its angle is the phase difference
             _, slow = phase_difference(c, out=dphi, return_slow=True)
-            if slow.size:
+            if slow.size and band.shape == grid:
                 flat = dphi.reshape(-1)
                 wrap = slow[np.abs(flat[slow]) > self.max_phase]
                 if wrap.size:
                     flat[wrap] = 0.0
-                    if dm_s is None:
-                        dm_s = np.zeros((3, B * band.shape[0] * band.shape[1]), np.float32)
-                    pix = wrap % (band.shape[0] * band.shape[1])
-                    for k in range(3):  # flat indices are unique within a band
-                        dm_s[k, wrap] += self._wgg[i][k].reshape(-1)[pix]
+                    drop_idx.append(wrap)
+                    drop_val.append(self._wgg[i].reshape(3, -1)[:, wrap % (grid[0] * grid[1])])
             np.multiply(dphi, self._wgx[i], out=tmp)
             b_s[0] -= tmp
             np.multiply(dphi, self._wgy[i], out=tmp)
             b_s[1] -= tmp
-            if band.orientation == n_or - 1:
-                if b_s is not b:
-                    b += upsample_periodic(b_s, grid)
-                if dm_s is not None:
-                    up = upsample_periodic(dm_s.reshape(3, B, *band.shape), grid)
-                    if dm is None:
-                        dm = up if up is not dm_s else up.copy()
-                    else:
-                        dm += up
-        return b, dm
+            if band.orientation == n_or - 1 and b_s is not b:
+                b += upsample_periodic(b_s, grid)
+        if not drop_idx:
+            return b, None
+        return b, (np.concatenate(drop_idx), np.concatenate(drop_val, axis=1))
 
     def displacement(
         self,
@@ -556,14 +565,19 @@ class PhaseMotion:
     def _displacement(
         self, x: NDArray[np.float32], full_resolution: bool = True
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-        b, dm = self._rhs(x)
+        b, dropped = self._rhs(x)
         B = b.shape[1]
+        h, w = self.grid_shape
         m = self._m[:, None]
-        if dm is not None:
-            m = m - dm
+        if dropped is not None:
+            idx, vals = dropped
+            dm = np.stack([np.bincount(idx, weights=v, minlength=B * h * w) for v in vals]).astype(
+                np.float32
+            )
+            m = m - dm.reshape(3, B, h, w)
             np.maximum(m[0], 0.0, out=m[0])  # round-off
             np.maximum(m[2], 0.0, out=m[2])
-        outliers = np.zeros((B, *self.grid_shape), np.bool_)
+        outliers = np.zeros((B, h, w), np.bool_)
         if self.outlier_fraction > 0:
             raw = solve2x2(m, b, self._ridge)
             mag2 = raw[0]
@@ -572,24 +586,16 @@ class PhaseMotion:
             mag2 += raw[1]
             mag2 = mag2.reshape(B, -1)
             thr = np.quantile(mag2, 1.0 - self.outlier_fraction, axis=1)
-            outliers = (mag2 > thr[:, None]).reshape(B, *self.grid_shape)
-            keep = (~outliers).astype(np.float32)
-            b *= keep
-            if self.sigma > 0:
-                # smooth(m_frame * keep) = smooth(m) - smooth(m * removed) - smooth(dm * keep);
-                # the same arithmetic whatever the batch (batches give identical results)
-                ms = self._smooth_removed(outliers)
-                if dm is not None:
-                    dm *= keep
-                    ms -= self._smooth(dm)
-            else:
-                ms = m * keep
-        else:
+            outliers = (mag2 > thr[:, None]).reshape(B, h, w)
+            b *= ~outliers
+        if self.sigma > 0:
             ms = (
                 self._m_smooth[:, None]
-                if dm is None
-                else self._m_smooth[:, None] - self._smooth(dm)
+                if dropped is None and not self.outlier_fraction > 0
+                else self._smooth_removed(outliers, dropped)
             )
+        else:
+            ms = m * ~outliers
         bs = self._smooth(b)
         d = solve2x2(ms, bs, self._ridge)
         if full_resolution and self.grid_shape != self.shape:
