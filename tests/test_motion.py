@@ -262,6 +262,8 @@ def test_batch_equals_one_at_a_time_and_threads(speckle: Speckle, motion: PhaseM
     np.testing.assert_array_equal(whole, single)
     threaded = PhaseMotion(speckle.ref, workers=2).displacement(frames)
     np.testing.assert_array_equal(whole, threaded)
+    chunked = PhaseMotion(speckle.ref, workers=2, chunk_frames=2).displacement(frames)
+    np.testing.assert_array_equal(whole, chunked)
     # the working grid (decimated by default) is what the full-resolution output upsamples
     assert motion.decimate and motion.grid_shape == (N // 2, N // 2)
     grid = motion.displacement(frames, full_resolution=False)
@@ -327,6 +329,8 @@ def test_bad_input_raises(speckle: Speckle, motion: PhaseMotion) -> None:
         SteerablePyramid((N, N), n_orientations=1)
     with pytest.raises(ValueError, match="frequency"):
         PhaseMotion(speckle.ref, frequency="global")
+    with pytest.raises(ValueError, match="chunk_frames"):
+        PhaseMotion(speckle.ref, chunk_frames=0)
     with pytest.raises(ValueError, match="streamed frames"):
         list(motion.iter_displacements([speckle.ref, np.zeros((N, N + 2))], batch=2))
     with pytest.raises(ValueError, match="real"):

@@ -275,9 +275,12 @@ class PhaseMotion:
         a pixel or more.  The coarser scales (wavelengths >= 8 px, wrapping only beyond
         ~2 px) then carry the estimate.  ``pi`` keeps everything.
     workers : int, optional
-        Threads: a batch is split into up to ``workers`` sub-batches processed concurrently
-        (NumPy, SciPy FFT and ndimage release the GIL); ``-1`` = all CPUs, default 1.  Results
-        do not depend on it.
+        Threads: the chunks of a batch are processed concurrently (NumPy and SciPy FFT
+        release the GIL); ``-1`` = all CPUs, default 1.  Results do not depend on it.
+    chunk_frames : int, optional
+        Frames processed together (vectorised); default ``max(1, 2**19 // (H * W))`` (2 at
+        512^2, 8 at 256^2), which keeps the per-band arrays in the CPU caches: larger
+        chunks are up to 1.5x slower.  Results do not depend on it.
 
     Attributes
     ----------
@@ -310,6 +313,7 @@ class PhaseMotion:
         ridge: float = 1e-4,
         max_phase: float = np.pi / 2,
         workers: int | None = None,
+        chunk_frames: int | None = None,
     ) -> None:
         ref = np.asarray(reference_frame)
         if ref.ndim != 2:
@@ -342,6 +346,11 @@ class PhaseMotion:
         if int(workers) != workers or workers < 1:
             raise ValueError(f"workers must be a positive integer or -1, got {workers!r}")
         self.workers = int(workers)
+        if chunk_frames is None:
+            chunk_frames = max(1, (1 << 19) // (ref.shape[0] * ref.shape[1]))
+        if int(chunk_frames) != chunk_frames or chunk_frames < 1:
+            raise ValueError(f"chunk_frames must be a positive integer, got {chunk_frames!r}")
+        self.chunk_frames = int(chunk_frames)
 
         self._cref: list[NDArray[np.complex64]] = []  # conj of reference coefficients
         self._wgx: list[NDArray[np.float32]] = []  # weight * gx
@@ -551,15 +560,21 @@ class PhaseMotion:
             Only if ``return_outliers``.
         """
         x = self._check(frames)
-        n = min(self.workers, x.shape[0])
+        # small chunks keep the per-band arrays in cache (about 2 frames of 512^2 each);
+        # chunks are spread over the worker threads
+        step = self.chunk_frames
+        pieces = [x[i : i + step] for i in range(0, x.shape[0], step)]
+        n = min(self.workers, len(pieces))
         if n > 1:
-            chunks = np.array_split(x, n)
             with ThreadPoolExecutor(n) as ex:
-                parts = list(ex.map(lambda c: self._displacement(c, full_resolution), chunks))
+                parts = list(ex.map(lambda c: self._displacement(c, full_resolution), pieces))
+        else:
+            parts = [self._displacement(c, full_resolution) for c in pieces]
+        if len(parts) == 1:
+            d, outliers = parts[0]
+        else:
             d = np.concatenate([p[0] for p in parts])
             outliers = np.concatenate([p[1] for p in parts])
-        else:
-            d, outliers = self._displacement(x, full_resolution)
         return (d, outliers) if return_outliers else d
 
     def _displacement(
