@@ -166,10 +166,12 @@ def modes_from_displacements(
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
         zeta, _, _ = damping_lorentzian(freqs, power, int(k))
-        rows["frequencies_hz"].append(refine_frequency(freqs, power, int(k)))
+        f_ref = refine_frequency(freqs, power, int(k))
+        rows["frequencies_hz"].append(f_ref)
         rows["damping"].append(zeta)
         rows["damping_half_power"].append(damping_half_power(freqs, power, int(k)))
-        rows["amplitudes_px"].append(2.0 * norm / gain)
+        delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
+        rows["amplitudes_px"].append(2.0 * norm / gain / scalloping(delta, window))
         rows["peak_bins"].append(int(k))
         rows["prominences"].append(float(pk.prominences[i]))
         rows["collinearity"].append(coll)
@@ -269,6 +271,18 @@ _ROWS = (
     "shake_mac",
     "camera_shake",
 )
+
+
+def scalloping(delta: float, window: Window) -> float:
+    """Relative DFT response to a sinusoid ``delta`` bins off the bin centre (<= 1).
+
+    ``sinc(delta)`` without window, ``sinc(delta) / (1 - delta**2)`` for the periodic Hann
+    window (large ``T``); ``delta`` is clipped to ``[-0.5, 0.5]``.  Dividing the peak-bin
+    amplitude by it corrects the scalloping loss (up to 36 % / 15 % halfway between bins).
+    """
+    d = min(abs(float(delta)), 0.5)
+    s = float(np.sinc(d))
+    return s / (1.0 - d * d) if window == "hann" else s
 
 
 def _frame_shape(disp: DisplacementStore | ArrayLike) -> tuple[int, int]:

@@ -23,8 +23,8 @@ def _plt():
 def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
     """Motion power spectrum (log scale) with picked peaks marked and labelled.
 
-    Kept modes are red triangles labelled ``#i f Hz``; rejected camera-shake peaks
-    (``metadata["rejected"]``) are grey crosses.
+    Kept modes are red triangles labelled ``#i f Hz``; rejected peaks (camera shake,
+    distortion products, incoherent; ``metadata["rejected"]``) are grey crosses.
     """
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9, 4), dpi=110)
