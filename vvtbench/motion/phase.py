@@ -505,6 +505,7 @@ class PhaseMotion:
         b_s = b
         drop_idx: list[NDArray[np.intp]] = []
         drop_val: list[NDArray[np.float32]] = []
+        levels: list[NDArray[np.float32]] = []  # per coarser scale: its own b
         tmp: NDArray[np.float32] | None = None
         n_or = self.pyramid.n_orientations
         for i, (band, c) in enumerate(self.pyramid.iter_bands(x, workers=1)):
@@ -526,7 +527,19 @@ class PhaseMotion:
             np.multiply(dphi, self._wgy[i], out=tmp)
             b_s[1] -= tmp
             if band.orientation == n_or - 1 and b_s is not b:
-                b += upsample_periodic(b_s, grid)
+                levels.append(b_s)
+        # coarse to fine: an exact x2 step per level (linear of linear is linear) is cheaper
+        # than upsampling every level to the grid; direct when the sizes are not halves
+        acc = None
+        for lev in reversed(levels):
+            if acc is not None:
+                if all(2 * a == c for a, c in zip(acc.shape[-2:], lev.shape[-2:], strict=True)):
+                    lev += upsample_periodic(acc, lev.shape[-2:])
+                else:
+                    b += upsample_periodic(acc, grid)
+            acc = lev
+        if acc is not None:
+            b += upsample_periodic(acc, grid)
         if not drop_idx:
             return b, None
         return b, (np.concatenate(drop_idx), np.concatenate(drop_val, axis=1))
