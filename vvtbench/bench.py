@@ -562,11 +562,7 @@ def build_problem(scene_dict: dict, inference: dict, observation: str,
                   modesets: list | None = None, camera=None, extract_opts: dict | None = None):
     """The InverseProblem of a scene under inference options, observing true image-space modes
     or extracted ones (``modesets``: one ModeSet per video of the object, merged)."""
-    from dataclasses import replace
-
     from .fem.mesh import box_mesh
-    from .metrics import mac_matrix
-    from .modes import merge_modesets, sample_modes
     from .problem import InverseProblem
     from .scene import parse_scene
     from .simulate import simulate
@@ -603,49 +599,11 @@ def build_problem(scene_dict: dict, inference: dict, observation: str,
     if observation == "true":
         problem.meta["observation"] = "true"
         return problem
-    # extracted modes: sample at the visible vertices' pixels (of the true object)
+    # extracted modes: sampled at the visible vertices' pixels (of the true object)
     opts = extract_opts or {}
-    sets = list(modesets)
-    ms = sets[0] if len(sets) == 1 else merge_modesets(
-        sets, freq_tol=opts.get("merge_freq_tol", 0.02), min_mac=opts.get("merge_min_mac", 0.8))
-    if len(sets) == 1:
-        ms = ms.select(~ms.camera_shake)
-    order_f = np.argsort(ms.frequencies_hz)
-    ms = ms.select(order_f[:n_modes])
-    if len(ms) == 0:
-        raise ValueError("no modes were extracted from the video")
-    scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
-    cam = camera
-    if cam is None:
-        from .render.camera import Camera
-
-        cam = Camera.from_spec(scene.camera)
-    uv = cam.project(problem.mesh.points[problem.visible_nodes] / scale)
-    gamma = sample_modes(ms.shapes, uv)
-    norms = np.linalg.norm(gamma, axis=1)
-    keep = norms > 0
-    gamma = gamma[keep] / norms[keep, None]
-    freqs = ms.frequencies_hz[keep]
-    # pair each extracted mode with a true one (MAC, optimal assignment): the full-field 3-D
-    # modes the oracle receives, and a diagnostic of the extraction
-    from scipy.optimize import linear_sum_assignment
-
-    mac = mac_matrix(gamma, problem.gamma)
-    rows, cols = linear_sum_assignment(-mac)
-    order_r = np.argsort(rows)
-    rows, cols = rows[order_r], cols[order_r]
-    U = problem.modes_3d[:, cols] * np.sign(
-        np.einsum("ij,ij->i", gamma[rows], problem.gamma[cols]) + 1e-300)[None, :]
-    gamma, freqs = gamma[rows], freqs[rows]
-    meta = dict(problem.meta)
-    meta.update({
-        "observation": "extracted", "source": "extracted from the rendered video",
-        "n_modes_extracted": int(len(ms)), "extracted_frequencies_hz": freqs.tolist(),
-        "matched_true_modes": cols.tolist(), "extraction_mac": mac[rows, cols].tolist(),
-        "true_frequencies_hz": problem.frequencies_hz[cols].tolist(),
-    })
-    return replace(problem, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, modes_3d=U,
-                   meta=meta)
+    return problem.with_extracted_modes(
+        modesets, camera, n_modes, merge_freq_tol=opts.get("merge_freq_tol", 0.02),
+        merge_min_mac=opts.get("merge_min_mac", 0.8))
 
 
 def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:

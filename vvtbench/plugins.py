@@ -203,7 +203,8 @@ def build_solve_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vvtbench solve",
                                 description="run an inverse solver on a scene and score it")
     p.add_argument("solver", help="registered name or path/to/file.py:Class")
-    p.add_argument("target", help="scene name or .toml (simulated; true image-space modes)")
+    p.add_argument("target", help="scene name or .toml (simulated; true image-space modes), "
+                   "or a sample folder written by `vvtbench generate`")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="solver config override (repeatable)")
     p.add_argument("--modes", type=int, default=10, help="number of observed modes (10)")
@@ -213,6 +214,12 @@ def build_solve_parser() -> argparse.ArgumentParser:
                    help="inference mesh width / true width (x), geometry-mismatch track")
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.add_argument("--no-mode-match", action="store_true", help="skip the mode-match metric")
+    p.add_argument("--observation", choices=("true", "extracted"), default="extracted",
+                   help="samples only: observe the true image-space modes or those extracted "
+                   "from the video (default)")
+    p.add_argument("--modes-file", default=None,
+                   help="samples only: an extract output folder (modes.json + modes.npz); "
+                   "default: extract from the sample's video into OUTPUT/modes (reused)")
     return p
 
 
@@ -232,10 +239,9 @@ def main_solve(argv: list[str] | None = None) -> int:
     from .simulate import simulate
 
     target = Path(args.target)
+    out = Path(args.output)
     if target.is_dir():
-        print(f"error: {target}: reading generated samples is not wired yet (dataset "
-              "module); give a scene name or .toml", file=sys.stderr)
-        return 2
+        return _solve_sample(args, cls, config, target, out)
     scene = load_scene(args.target)
     grid = tuple(args.grid) if args.grid else ((20, 20) if scene.geometry.kind == "drum"
                                                else (8, 8, 8))
@@ -246,12 +252,73 @@ def main_solve(argv: list[str] | None = None) -> int:
     t_setup = time.perf_counter() - t0
     estimate = cls(config).solve(problem)
     metrics = score(problem, estimate.w, estimate.v, modes=not args.no_mode_match)
-    out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     save_estimate(out, problem, estimate, metrics, extra={
         "scene": scene.name, "n_modes": args.modes, "setup_s": t_setup, "vvtbench": __version__})
     print(f"{cls.name} on {scene.name}: {len(estimate.history)} iterations, "
           f"{estimate.runtime_s:.2f} s; NC w {metrics.get('nc_w', float('nan')):.3f}, "
+          f"v {metrics.get('nc_v', float('nan')):.3f} -> {out}")
+    return 0
+
+
+def _solve_sample(args, cls, config, target: Path, out: Path) -> int:
+    """``vvtbench solve SOLVER SAMPLE_DIR``: the problem of a generated sample, observing the
+    modes extracted from its video (or the true ones), solved and written like a scene's."""
+    from . import __version__
+    from .dataset import DatasetError, open_sample
+    from .metrics import score
+    from .problem import InverseProblem
+
+    try:
+        sample = open_sample(target)
+    except DatasetError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    modesets = None
+    modes_dir = None
+    t0 = time.perf_counter()
+    if args.observation == "extracted":
+        from .modes import ModeSet, extract_modes
+
+        if args.modes_file is not None:
+            modes_dir = Path(args.modes_file)
+            if modes_dir.is_file():
+                modes_dir = modes_dir.parent
+            try:
+                modesets = [ModeSet.load(modes_dir)]
+            except (FileNotFoundError, ValueError) as error:
+                print(f"error: --modes-file: {error}", file=sys.stderr)
+                return 2
+        else:
+            modes_dir = out / "modes"
+            if (modes_dir / "modes.json").is_file():
+                modesets = [ModeSet.load(modes_dir)]
+            else:
+                ms = extract_modes(sample.video_path, sample.fps)
+                ms.save(modes_dir)
+                modesets = [ms]
+    elif args.modes_file is not None:
+        print("error: --modes-file needs --observation extracted", file=sys.stderr)
+        return 2
+    grid = tuple(args.grid) if args.grid else None
+    try:
+        problem = InverseProblem.from_sample(
+            sample, args.observation, modesets, inference_shape=grid, n_modes=args.modes,
+            geometry_scale=args.geometry_scale)
+    except ValueError as error:
+        print(f"error: {target}: {error}", file=sys.stderr)
+        return 2
+    t_setup = time.perf_counter() - t0
+    estimate = cls(config).solve(problem)
+    metrics = score(problem, estimate.w, estimate.v, modes=not args.no_mode_match)
+    out.mkdir(parents=True, exist_ok=True)
+    save_estimate(out, problem, estimate, metrics, extra={
+        "scene": sample.scene.name, "sample": str(target), "observation": args.observation,
+        "modes_dir": None if modes_dir is None else str(modes_dir),
+        "n_modes": problem.n_modes, "setup_s": t_setup, "vvtbench": __version__})
+    print(f"{cls.name} on {target} ({args.observation} modes, {problem.n_modes}): "
+          f"{len(estimate.history)} iterations, {estimate.runtime_s:.2f} s; "
+          f"NC w {metrics.get('nc_w', float('nan')):.3f}, "
           f"v {metrics.get('nc_v', float('nan')):.3f} -> {out}")
     return 0
 

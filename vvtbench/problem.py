@@ -266,6 +266,142 @@ class InverseProblem:
             w_true=w_true, v_true=v_true, kind="membrane" if membrane else "solid", meta=meta,
         )
 
+    def with_extracted_modes(
+        self,
+        modesets: list,
+        camera=None,
+        n_modes: int = 10,
+        merge_freq_tol: float = 0.02,
+        merge_min_mac: float = 0.8,
+    ) -> InverseProblem:
+        """This problem observing modes extracted from video instead of the true ones.
+
+        The extracted image-space shapes are sampled at the pixels of the visible inference
+        vertices (of the true object: positions divided by the geometry scale) and normalized;
+        the ``n_modes`` lowest non-shake modes are kept. Each one is paired with a true mode by
+        MAC (optimal assignment) to give the oracle its full-field 3-D mode and to record the
+        extraction's quality in ``meta``.
+
+        Parameters
+        ----------
+        modesets : one :class:`~vvtbench.modes.ModeSet` per video of the object (several are
+            merged by frequency and MAC).
+        camera : the camera of the video; default the one in ``meta["camera"]``.
+        n_modes : number of lowest extracted modes kept.
+        merge_freq_tol, merge_min_mac : merging tolerances for several videos.
+
+        Returns
+        -------
+        InverseProblem
+            A copy with ``gamma``, ``eigenvalues`` and ``modes_3d`` replaced.
+        """
+        from scipy.optimize import linear_sum_assignment
+
+        from .metrics import mac_matrix
+        from .modes import merge_modesets, sample_modes
+
+        sets = list(modesets)
+        if not sets:
+            raise ValueError("no mode sets given")
+        ms = sets[0] if len(sets) == 1 else merge_modesets(
+            sets, freq_tol=merge_freq_tol, min_mac=merge_min_mac)
+        if len(sets) == 1:
+            ms = ms.select(~ms.camera_shake)
+        order_f = np.argsort(ms.frequencies_hz)
+        ms = ms.select(order_f[:n_modes])
+        if len(ms) == 0:
+            raise ValueError("no modes were extracted from the video")
+        scale = np.asarray(self.meta["geometry_scale"], dtype=float)
+        cam = camera
+        if cam is None:
+            from .render.camera import Camera
+
+            cam = Camera.from_dict(self.meta["camera"])
+        uv = cam.project(self.mesh.points[self.visible_nodes] / scale)
+        gamma = sample_modes(ms.shapes, uv)
+        norms = np.linalg.norm(gamma, axis=1)
+        keep = norms > 0
+        gamma = gamma[keep] / norms[keep, None]
+        freqs = ms.frequencies_hz[keep]
+        mac = mac_matrix(gamma, self.gamma)
+        rows, cols = linear_sum_assignment(-mac)
+        order_r = np.argsort(rows)
+        rows, cols = rows[order_r], cols[order_r]
+        U = self.modes_3d[:, cols] * np.sign(
+            np.einsum("ij,ij->i", gamma[rows], self.gamma[cols]) + 1e-300)[None, :]
+        gamma, freqs = gamma[rows], freqs[rows]
+        meta = dict(self.meta)
+        meta.update({
+            "observation": "extracted", "source": "extracted from the rendered video",
+            "n_modes_extracted": int(len(ms)), "extracted_frequencies_hz": freqs.tolist(),
+            "matched_true_modes": cols.tolist(), "extraction_mac": mac[rows, cols].tolist(),
+            "true_frequencies_hz": self.frequencies_hz[cols].tolist(),
+        })
+        return replace(self, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, modes_3d=U,
+                       meta=meta)
+
+    @classmethod
+    def from_sample(
+        cls,
+        sample,
+        observation: str = "extracted",
+        modesets: list | None = None,
+        inference_shape: tuple[int, ...] | None = None,
+        n_modes: int = 10,
+        geometry_scale: float | tuple[float, float, float] = 1.0,
+        extract_options: dict | None = None,
+        **priors,
+    ) -> InverseProblem:
+        """The problem of a sample written by ``vvtbench generate``.
+
+        The sample's scene is simulated again (deterministic, modes only) to get the truth and
+        the true modes on the inference mesh; with ``observation="extracted"`` the observed
+        modes are those extracted from the sample's video (``modesets``, or
+        :func:`vvtbench.modes.extract_modes` run on the video now with ``extract_options``).
+
+        Parameters
+        ----------
+        sample : a :class:`~vvtbench.dataset.Sample` or its folder.
+        observation : ``"true"`` (true image-space modes) or ``"extracted"``.
+        modesets : extracted mode sets of the video (``ModeSet.load`` of an extract output).
+        inference_shape : voxel grid; default (8, 8, 8), drums (20, 20).
+        n_modes : number of observed modes.
+        geometry_scale : inference mesh size / true size.
+        extract_options : keyword arguments of ``extract_modes`` when extracting here.
+        **priors : ``nu``, ``w0``, ``v0``, ``w_mean``.
+
+        Returns
+        -------
+        InverseProblem
+        """
+        from .dataset import open_sample
+        from .simulate import simulate
+
+        if observation not in ("true", "extracted"):
+            raise ValueError(f"observation must be 'true' or 'extracted', got {observation!r}")
+        if not hasattr(sample, "scene"):
+            sample = open_sample(sample)
+        scene = sample.scene
+        if inference_shape is None:
+            inference_shape = (20, 20) if scene.geometry.kind == "drum" else (8, 8, 8)
+        result = simulate(scene, transient=False)
+        n_true = len(result.modes)
+        if observation == "true" and n_modes > n_true:
+            raise ValueError(f"asked for {n_modes} modes; the scene simulates {n_true}")
+        problem = cls.from_simulation(
+            result, camera=sample.camera, inference_shape=tuple(inference_shape),
+            n_modes=n_true if observation == "extracted" else n_modes,
+            geometry_scale=geometry_scale, **priors)
+        problem.meta["sample"] = str(sample.path)
+        if observation == "true":
+            problem.meta["observation"] = "true"
+            return problem
+        if modesets is None:
+            from .modes import extract_modes
+
+            modesets = [extract_modes(sample.video_path, sample.fps, **(extract_options or {}))]
+        return problem.with_extracted_modes(modesets, sample.camera, n_modes)
+
 
 @dataclass
 class Estimate:

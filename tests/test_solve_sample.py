@@ -1,0 +1,81 @@
+"""``vvtbench solve SOLVER SAMPLE_DIR`` and ``InverseProblem.from_sample`` on a tiny sample.
+
+Rendering needs headless EGL (Mesa llvmpipe is fine); see tests/test_render.py.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vvtbench import dataset as ds
+from vvtbench.plugins import main_solve
+from vvtbench.problem import InverseProblem
+from vvtbench.scene import parse_scene
+
+SAMPLE = {
+    "name": "tiny_solve",
+    "seed": 3,
+    "geometry": {"kind": "box", "cells": [4, 4, 4]},
+    "excitation": {"kind": "pluck", "at": [0.05, 0.0, 0.05], "displacement": 0.0006},
+    "simulation": {"n_modes": 8, "duration": 0.5, "fps": 400.0},
+    "camera": {"resolution": [80, 80], "position": [0.16, -0.13, 0.13],
+               "look_at": [0.025, 0.025, 0.022], "fov_y_deg": 30.0},
+    "render": {"supersample": 2},
+}
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory) -> Path:
+    scene = parse_scene(json.loads(json.dumps(SAMPLE)), "tiny_solve")
+    return ds.generate(scene, tmp_path_factory.mktemp("s"), progress=False)
+
+
+def test_from_sample_true_modes_match_the_sample(sample):
+    p = InverseProblem.from_sample(sample, "true", inference_shape=(3, 3, 3), n_modes=4)
+    s = ds.open_sample(sample)
+    assert p.n_modes == 4 and p.n_params == 27
+    assert np.allclose(p.frequencies_hz, s.frequencies_hz[:4], rtol=1e-6)
+    assert p.meta["observation"] == "true" and p.meta["sample"] == str(sample)
+    assert np.allclose(np.linalg.norm(p.gamma, axis=1), 1.0)
+
+
+def test_solve_sample_extracted_writes_estimate_and_reuses_modes(sample, tmp_path, capsys):
+    out = tmp_path / "est"
+    argv = ["vvt", str(sample), "--grid", "3", "3", "3", "--modes", "4", "--set", "max_iter=2",
+            "--no-mode-match", "-o", str(out)]
+    assert main_solve(argv) == 0
+    for name in ("estimate.npz", "estimate.json", "slices.png", "modes/modes.json"):
+        assert (out / name).is_file(), name
+    doc = json.loads((out / "estimate.json").read_text())
+    assert doc["observation"] == "extracted" and doc["problem"]["observation"] == "extracted"
+    assert 1 <= doc["n_modes"] <= 4 and doc["iterations"] == 2
+    est = np.load(out / "estimate.npz")
+    assert est["w"].shape == (3, 3, 3) and np.all(np.isfinite(est["w_params"]))
+    mtime = (out / "modes" / "modes.npz").stat().st_mtime_ns
+    # a second run reuses the extracted modes; --modes-file gives the same problem
+    assert main_solve(argv) == 0
+    assert (out / "modes" / "modes.npz").stat().st_mtime_ns == mtime
+    out2 = tmp_path / "est2"
+    assert main_solve(["homogeneous", str(sample), "--grid", "3", "3", "3", "--modes", "4",
+                       "--modes-file", str(out / "modes"), "--no-mode-match",
+                       "-o", str(out2)]) == 0
+    doc2 = json.loads((out2 / "estimate.json").read_text())
+    assert doc2["problem"]["extracted_frequencies_hz"] == doc["problem"][
+        "extracted_frequencies_hz"]
+    assert not (out2 / "modes").exists()
+
+
+def test_solve_sample_true_observation_and_errors(sample, tmp_path, capsys):
+    out = tmp_path / "true"
+    assert main_solve(["homogeneous", str(sample), "--observation", "true", "--grid", "3", "3",
+                       "3", "--modes", "4", "--no-mode-match", "-o", str(out)]) == 0
+    assert json.loads((out / "estimate.json").read_text())["problem"]["observation"] == "true"
+    assert not (out / "modes").exists()
+    assert main_solve(["homogeneous", str(sample), "--observation", "true", "--modes-file",
+                       str(tmp_path), "-o", str(out)]) == 2
+    assert main_solve(["homogeneous", str(tmp_path), "-o", str(out)]) == 2
+    assert "not a vvtbench sample" in capsys.readouterr().err
