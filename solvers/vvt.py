@@ -302,20 +302,24 @@ class USolver:
         prods = None
         a = self.alpha_u
         PtP = self.PtP
+        B = a * gamma_rhs
+        # modes with a cached factor: PCG, all of them in lockstep (one block mat-vec a step)
+        cached = np.array([i for i in range(k) if i in self.factors], dtype=int)
+        solved = np.zeros(k, dtype=bool)
+        if cached.size:
+            lam_c, y_c = lam[cached], y[cached]
+
+            def matvec(X, J):
+                R = K @ X - (M @ X) * lam_c[J]
+                return (K @ R - (M @ R) * lam_c[J]) * y_c[J] + a * (PtP @ X)
+
+            X, ok, its = _block_pcg(matvec, B[:, cached], [self.factors[i] for i in cached],
+                                    U_prev[:, cached], self.rtol, self.pcg_maxiter)
+            self.stats["pcg_iterations"] += int(its.sum())
+            U[:, cached[ok]] = X[:, ok]
+            solved[cached[ok]] = True
         for i in range(k):
-            b = a * gamma_rhs[:, i]
-            F = self.factors.get(i)
-            u = None
-            if F is not None:
-                li, yi = lam[i], y[i]
-
-                def matvec(x, li=li, yi=yi):
-                    r = K @ x - li * (M @ x)
-                    return yi * (K @ r - li * (M @ r)) + a * (PtP @ x)
-
-                u, its = _pcg(matvec, b, F, U_prev[:, i], self.rtol, self.pcg_maxiter)
-                self.stats["pcg_iterations"] += its
-            if u is None:
+            if not solved[i]:
                 if prods is None:
                     prods = self._products_on_pattern(K, M)
                 S = self._system(lam[i], y[i], prods)
@@ -324,12 +328,62 @@ class USolver:
                     self.method == "pcg" or self._factor_mb is None
                     or self._factor_mb * (len(self.factors) + 1) <= self.cache_mb)
                 F = self._factor(S, keep)
-                u = F(b)
+                U[:, i] = F(B[:, i])
                 if keep and self._cacheable(F):
                     self.factors[i] = F
             self.stats["solves"] += 1
-            U[:, i] = u
         return U
+
+
+def _block_pcg(matvec, B, precs, X0, rtol, maxiter):
+    """Independent preconditioned CGs for the columns of B, run in lockstep so that each step
+    costs one block mat-vec (``matvec(X[:, J], J)`` for the active columns J) and one
+    preconditioner application per column. Each column is exactly :func:`_pcg` (warm start
+    X0[:, j], preconditioner ``precs[j]``, stop on the preconditioned residual < rtol ||x||).
+
+    Returns (X, converged (k,) bool, iterations (k,) int); a column that does not converge
+    within ``maxiter`` steps (or starts from zero) is not converged, with ``maxiter`` (or 0)
+    iterations counted, as :func:`_pcg` does.
+    """
+    n, k = B.shape
+    X = np.array(X0, dtype=float, order="F", copy=True)
+    its = np.zeros(k, dtype=int)
+    ok = np.zeros(k, dtype=bool)
+    live = np.flatnonzero(np.any(X != 0, axis=0))
+    if live.size == 0:
+        return X, ok, its
+    R = np.zeros_like(X)
+    Z = np.zeros_like(X)
+    R[:, live] = B[:, live] - matvec(X[:, live], live)
+    for j in live:
+        Z[:, j] = precs[j](R[:, j])
+    conv = np.linalg.norm(Z[:, live], axis=0) <= rtol * np.linalg.norm(X[:, live], axis=0)
+    ok[live[conv]] = True
+    active = live[~conv]
+    Pd = Z.copy()
+    rz = np.einsum("ij,ij->j", R, Z)
+    for it in range(1, maxiter + 1):
+        if active.size == 0:
+            break
+        J = active
+        PJ = Pd[:, J]
+        AP = matvec(PJ, J)
+        alpha = rz[J] / np.einsum("ij,ij->j", PJ, AP)
+        X[:, J] += alpha * PJ
+        R[:, J] -= alpha * AP
+        for j in J:
+            Z[:, j] = precs[j](R[:, j])
+        its[J] = it
+        conv = np.linalg.norm(Z[:, J], axis=0) <= rtol * np.linalg.norm(X[:, J], axis=0)
+        ok[J[conv]] = True
+        rest = J[~conv]
+        if rest.size:
+            rz_new = np.einsum("ij,ij->j", R[:, rest], Z[:, rest])
+            Pd[:, rest] = Z[:, rest] + (rz_new / rz[rest]) * Pd[:, rest]
+            rz[rest] = rz_new
+        active = rest
+    its[~ok & (its > 0)] = maxiter
+    return X, ok, its
 
 
 def _pcg(matvec, b, precond, x0, rtol, maxiter):
