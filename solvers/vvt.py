@@ -87,6 +87,7 @@ class ZSystem:
         c = np.zeros(2 * m)
         c[:m] = 1.0 / m
         self.c = c
+        self._cache: dict = {}
 
     def gram(self, U: np.ndarray, lam: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
         """(1/k) sum_i weights_i B_i^T B_i, B_i = [G_i, -lam_i H_i], as one sparse product of
@@ -113,30 +114,53 @@ class ZSystem:
     def solve(self, U, lam, weights, positive: bool = False, z_prev=None):
         """Minimizer z (2m,) and the Gram (for losses)."""
         S = (self.gram(U, lam, weights) + self.reg).tocsc()
-        z = _anchored_solve(S, self.c, 2 * self.alpha_mean, self.w_mean)
+        z = _anchored_solve(S, self.c, 2 * self.alpha_mean, self.w_mean, cache=self._cache)
         if positive and np.any(z <= 0):
             z = _positive_solve(S, self.c, 2 * self.alpha_mean, self.w_mean, z, self.m)
         return z, S
 
 
-def _scaled_factor(S: sp.csc_matrix, free: np.ndarray | None = None):
-    """Jacobi-scaled Cholesky of S (restricted to ``free``): returns solve(b) for S x = b."""
+def _scaled_factor(S: sp.csc_matrix, free: np.ndarray | None = None,
+                   cache: dict | None = None):
+    """Jacobi-scaled Cholesky of S (restricted to ``free``): returns solve(b) for S x = b.
+
+    ``cache`` (a dict kept by the caller): the CHOLMOD symbolic analysis is reused while the
+    matrix's structure is unchanged (the z-system's is, from one iteration to the next)."""
     if free is not None:
         S = S[free][:, free]
     d = np.sqrt(np.maximum(S.diagonal(), 1e-300))
     Dinv = sp.diags(1.0 / d)
     Ss = (Dinv @ S @ Dinv).tocsc()
-    Ss = Ss + sp.identity(Ss.shape[0], format="csc") * 1e-12  # keep it definite
-    F = Factorization(Ss)
+    Ss = (Ss + sp.identity(Ss.shape[0], format="csc") * 1e-12).tocsc()  # keep it definite
+    Ss.sort_indices()
+    F = None
+    if cache is not None:
+        try:
+            from sksparse.cholmod import analyze
+        except ImportError:
+            analyze = None
+        if analyze is not None:
+            key = cache.get("structure")
+            if key is None or not (np.array_equal(key[0], Ss.indptr)
+                                   and np.array_equal(key[1], Ss.indices)):
+                cache["symbolic"] = analyze(Ss, ordering_method="metis")
+                cache["structure"] = (Ss.indptr.copy(), Ss.indices.copy())
+            try:
+                F = cache["symbolic"]
+                F.cholesky_inplace(Ss)
+            except Exception:  # not definite: the LU fallback below
+                F = None
+    if F is None:
+        F = Factorization(Ss)
     return lambda b: F(b / d) / d
 
 
-def _anchored_solve(S, c, beta, target, free=None, fixed_value=None):
+def _anchored_solve(S, c, beta, target, free=None, fixed_value=None, cache=None):
     """argmin z^T S z / 1 ... : solves (S + beta c c^T) z = beta target c (+ fixed part) by
     Sherman-Morrison; ``free`` restricts to a subset with the rest held at ``fixed_value``."""
     n = S.shape[0]
     if free is None:
-        solve = _scaled_factor(S)
+        solve = _scaled_factor(S, cache=cache)
         x = solve(c)
         return beta * target * x / (1.0 + beta * (c @ x))
     fixed = np.setdiff1d(np.arange(n), free)
@@ -217,6 +241,7 @@ class USolver:
         self.stats = {"factorizations": 0, "pcg_iterations": 0, "solves": 0}
         self._factor_mb = None
         self._maps: dict[str, tuple] = {}
+        self._U_older = None  # the u's of two calls ago: PCG starts from the extrapolation
 
     # -- the fixed pattern of N_i and fast mapping of products onto it
     def _build_pattern(self, K, M):
@@ -260,6 +285,14 @@ class USolver:
         data -= (y * lam) * prods[1]
         data += (y * lam * lam) * prods[2]
         data += self.alpha_u * self._ptp
+        return sp.csc_matrix((data, S0.indices, S0.indptr), shape=S0.shape)
+
+    def _system_of(self, K, M, lam, y) -> sp.csc_matrix:
+        """N = y (K - lam M)^2 + alpha_u P^T P on the fixed pattern, from one product."""
+        A = (K - lam * M).tocsr()
+        data = y * self._on_pattern(A @ A, "AA")
+        data += self.alpha_u * self._ptp
+        S0 = self._pattern
         return sp.csc_matrix((data, S0.indices, S0.indptr), shape=S0.shape)
 
     def _factor(self, S, keep: bool):
@@ -313,16 +346,27 @@ class USolver:
                 R = K @ X - (M @ X) * lam_c[J]
                 return (K @ R - (M @ R) * lam_c[J]) * y_c[J] + a * (PtP @ X)
 
+            X0 = U_prev[:, cached]
+            if self._U_older is not None:
+                older = self._U_older[:, cached]
+                X0 = np.where(np.any(older != 0, axis=0), 2.0 * X0 - older, X0)
             X, ok, its = _block_pcg(matvec, B[:, cached], [self.factors[i] for i in cached],
-                                    U_prev[:, cached], self.rtol, self.pcg_maxiter)
+                                    X0, self.rtol, self.pcg_maxiter)
             self.stats["pcg_iterations"] += int(its.sum())
             U[:, cached[ok]] = X[:, ok]
             solved[cached[ok]] = True
+        todo = np.flatnonzero(~solved)
+        # a few modes: (K - lam M)^2 directly (one sparse product each); many: K^2, KM + MK,
+        # M^2 once and a linear combination per mode
+        few = len(todo) <= 2
         for i in range(k):
             if not solved[i]:
-                if prods is None:
-                    prods = self._products_on_pattern(K, M)
-                S = self._system(lam[i], y[i], prods)
+                if few:
+                    S = self._system_of(K, M, lam[i], y[i])
+                else:
+                    if prods is None:
+                        prods = self._products_on_pattern(K, M)
+                    S = self._system(lam[i], y[i], prods)
                 self.factors.pop(i, None)
                 keep = self.method != "direct" and (
                     self.method == "pcg" or self._factor_mb is None
@@ -332,6 +376,7 @@ class USolver:
                 if keep and self._cacheable(F):
                     self.factors[i] = F
             self.stats["solves"] += 1
+        self._U_older = U_prev.copy()
         return U
 
 
