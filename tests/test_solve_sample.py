@@ -41,6 +41,30 @@ def test_from_sample_true_modes_match_the_sample(sample):
     assert np.allclose(p.frequencies_hz, s.frequencies_hz[:4], rtol=1e-6)
     assert p.meta["observation"] == "true" and p.meta["sample"] == str(sample)
     assert np.allclose(np.linalg.norm(p.gamma, axis=1), 1.0)
+    # visibility by the rendered depth buffer: a subset of the normal-facing test, and for
+    # this convex cube seen from outside, the same nodes
+    assert p.meta["visibility"] == "depth buffer"
+    q = InverseProblem.from_sample(sample, "true", inference_shape=(3, 3, 3), n_modes=4,
+                                   depth_visibility=False)
+    assert q.meta["visibility"] == "normals"
+    assert set(p.visible_nodes) <= set(q.visible_nodes)
+    assert len(p.visible_nodes) >= 0.9 * len(q.visible_nodes)
+
+
+def test_depth_buffer_drops_occluded_vertices():
+    from vvtbench.fem.mesh import box_mesh
+    from vvtbench.problem import visible_vertices
+    from vvtbench.render.camera import Camera
+
+    mesh = box_mesh((2, 2, 2), (1.0, 1.0, 1.0))
+    cam = Camera.look_at(position=[0.5, 0.5, 4.0], target=[0.5, 0.5, 0.5], up=(0.0, 1.0, 0.0),
+                         fov_y_deg=40.0, width=32, height=32)
+    seen = visible_vertices(mesh, cam)
+    assert len(seen) == 9  # the top face
+    buf = np.full((32, 32), np.inf)
+    assert np.array_equal(visible_vertices(mesh, cam, depth_buffer=buf), seen)
+    buf[:] = 1.0  # an occluder 1 m in front of the camera hides everything
+    assert len(visible_vertices(mesh, cam, depth_buffer=buf)) == 0
 
 
 def test_solve_sample_extracted_writes_estimate_and_reuses_modes(sample, tmp_path, capsys):

@@ -151,6 +151,7 @@ class InverseProblem:
         v0: float | None = None,
         w_mean: float | None = None,
         full_field: bool = True,
+        depth_buffer: np.ndarray | None = None,
     ) -> InverseProblem:
         """Observe the *true* modes of a :class:`~vvtbench.simulate.SimulationResult`.
 
@@ -166,7 +167,8 @@ class InverseProblem:
             paper; (20, 20) style 2-tuples for drums.
         n_modes : number of lowest modes observed.
         visible : inference-mesh node indices seen by the camera; default
-            :func:`visible_vertices` (surface, facing the camera, inside the frame, not fixed).
+            :func:`visible_vertices` (surface, facing the camera, inside the frame, not fixed;
+            with ``depth_buffer`` also not occluded).
         inference_mesh : default: boxes get ``box_mesh(inference_shape)`` (hex8) of the
             (scaled) box; other geometries reuse the (scaled) simulation mesh.
         nu : Poisson's ratio assumed by the inference model (default: the scene's base nu).
@@ -176,6 +178,9 @@ class InverseProblem:
             point X / s is, and ``P`` is the Jacobian of that fitted camera (J diag(1/s)).
         w0, v0, w_mean : priors; default the scene's base material (the paper's choice).
         full_field : also store ``modes_3d`` (for the oracle).
+        depth_buffer : (H, W) rendered rest depth of the true object at the pixel centres;
+            with the default ``visible``, occluded vertices are dropped
+            (:func:`visible_vertices`).
         """
         from .render.camera import Camera
         from .simulate import fixed_nodes as scene_fixed_nodes
@@ -221,7 +226,7 @@ class InverseProblem:
 
         if visible is None:
             visible = visible_vertices(inference_mesh, camera, exclude=fixed,
-                                       true_points=true_points)
+                                       true_points=true_points, depth_buffer=depth_buffer)
         visible = np.asarray(visible, dtype=np.int64)
         if visible.size == 0:
             raise ValueError("no inference-mesh vertex is visible from the camera")
@@ -350,6 +355,7 @@ class InverseProblem:
         n_modes: int = 10,
         geometry_scale: float | tuple[float, float, float] = 1.0,
         extract_options: dict | None = None,
+        depth_visibility: bool = True,
         **priors,
     ) -> InverseProblem:
         """The problem of a sample written by ``vvtbench generate``.
@@ -368,6 +374,8 @@ class InverseProblem:
         n_modes : number of observed modes.
         geometry_scale : inference mesh size / true size.
         extract_options : keyword arguments of ``extract_modes`` when extracting here.
+        depth_visibility : visible vertices also pass the sample's rendered depth buffer
+            (``image/depth``; self-occlusion), else only the normal-facing test.
         **priors : ``nu``, ``w0``, ``v0``, ``w_mean``.
 
         Returns
@@ -388,10 +396,17 @@ class InverseProblem:
         n_true = len(result.modes)
         if observation == "true" and n_modes > n_true:
             raise ValueError(f"asked for {n_modes} modes; the scene simulates {n_true}")
+        depth_buffer = None
+        if depth_visibility:
+            try:
+                depth_buffer = sample["image/depth"]
+            except KeyError:  # an older sample without dense image fields
+                depth_buffer = None
         problem = cls.from_simulation(
             result, camera=sample.camera, inference_shape=tuple(inference_shape),
             n_modes=n_true if observation == "extracted" else n_modes,
-            geometry_scale=geometry_scale, **priors)
+            geometry_scale=geometry_scale, depth_buffer=depth_buffer, **priors)
+        problem.meta["visibility"] = "depth buffer" if depth_buffer is not None else "normals"
         problem.meta["sample"] = str(sample.path)
         if observation == "true":
             problem.meta["observation"] = "true"
@@ -503,12 +518,17 @@ def vertex_normals(mesh: Mesh) -> np.ndarray:
 
 
 def visible_vertices(
-    mesh: Mesh, camera, exclude: np.ndarray | None = None, true_points: np.ndarray | None = None
+    mesh: Mesh, camera, exclude: np.ndarray | None = None, true_points: np.ndarray | None = None,
+    depth_buffer: np.ndarray | None = None, depth_tol: float = 0.01,
 ) -> np.ndarray:
     """Surface nodes seen by ``camera``: on a surface triangle that faces the camera (outward
     normal towards the camera centre), in front of the camera and inside the frame.
 
-    Exact for convex objects; the renderer's depth buffer handles self-occlusion later.
+    Without ``depth_buffer`` this is exact for convex objects only. ``depth_buffer`` (H, W),
+    the rendered rest depth at the pixel centres (a sample's ``image/depth``, ``inf`` on the
+    background), also removes self-occluded nodes as the dataset's visibility ground truth
+    does: a node is kept when its depth is at most ``depth_tol`` times the bounding-box
+    diagonal behind the buffer at its (nearest) pixel.
     ``true_points`` (default the mesh's) are where the nodes really are (geometry mismatch).
     """
     pts = mesh.points if true_points is None else true_points
@@ -525,6 +545,11 @@ def visible_vertices(
         & (uv[:, 1] >= -0.5) & (uv[:, 1] <= camera.height - 0.5)
     )
     nodes = nodes[inside]
+    if depth_buffer is not None and nodes.size:
+        buf = np.asarray(depth_buffer, dtype=float)
+        px = np.clip(np.rint(uv[inside]).astype(int), 0, [buf.shape[1] - 1, buf.shape[0] - 1])
+        diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+        nodes = nodes[depth[inside] <= buf[px[:, 1], px[:, 0]] + depth_tol * diag]
     if exclude is not None and len(exclude):
         nodes = np.setdiff1d(nodes, exclude)
     return nodes
