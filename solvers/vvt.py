@@ -11,8 +11,9 @@ Each iteration (the order of the authors' code):
 1. u-update, per mode, closed form: (y_i A_i^T A_i + alpha_u P^T P) u_i = alpha_u P^T gamma_i.
    Sparse: the system pattern is fixed, so it is analysed once (CHOLMOD, METIS); each mode's
    numeric Cholesky factor is cached and reused as the preconditioner of warm-started PCG in
-   later iterations (refactorized only when PCG stalls), so most iterations cost a few sparse
-   mat-vecs and triangular solves per mode instead of a factorization.
+   later iterations (refactorized when PCG needed more than 7 steps or stalls), so most
+   iterations cost a few block sparse mat-vecs and triangular solves per mode instead of a
+   factorization.
 2. z = [w; v] update: the sparse 2m x 2m normal equations
    (1/k) sum_i y_i B_i^T B_i + (alpha_w/m) L^T L (+) (alpha_v/m) L^T L + 2 alpha_mean c c^T,
    B_i = [G_i, -lam_i H_i], G_i = stiffness_columns(u_i), H_i = mass_columns(u_i), c = 1/m
