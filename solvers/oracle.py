@@ -26,21 +26,23 @@ from .vvt import ZSystem
 class OracleConfig:
     """Options of the oracle."""
 
-    alpha_w: float = field(default=1e-14, metadata={
-        "help": "Laplacian smoothing of w / voxel count (exact data needs almost none)"})
-    alpha_v: float = field(default=1e-11, metadata={
-        "help": "Laplacian smoothing of v / voxel count"})
+    alpha_w: float = field(default=1e-12, metadata={
+        "help": "Laplacian smoothing of w / voxel count (vvt's form; exact data needs less)"})
+    alpha_v: float = field(default=1e-9, metadata={
+        "help": "Laplacian smoothing of v / voxel count (enough to tame the interpolation "
+                "error of the true modes on a coarser inference mesh)"})
     alpha_mean: float = field(default=1.0, metadata={"help": "weight of the mean anchor on w"})
     w_mean: float | None = field(default=None, metadata={
         "help": "anchor for mean(w) (default: the problem's prior)"})
-    positive: bool = field(default=False, metadata={"help": "enforce w, v > 0"})
+    positive: bool = field(default=True, metadata={
+        "help": "enforce w, v > 0 (a negative density has no forward model to score)"})
 
 
 class OracleSolver:
     """Convex least squares with the true full-field 3-D modes and exact eigenvalues."""
 
     name = "oracle"
-    version = "1.0.0"
+    version = "1.1.0"
     description = "Upper bound: convex least squares with true full-field 3-D modes (Eq. 2)"
     Config = OracleConfig
 
