@@ -4,8 +4,15 @@ import numpy as np
 import pytest
 
 from vvtbench.cli import main
-from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
-from vvtbench.simulate import build_mesh, material_fields, simulate
+from vvtbench.scene import SCENES_DIR, Defect, SceneError, load_scene, parse_scene
+from vvtbench.simulate import (
+    build_mesh,
+    build_model,
+    fixed_nodes,
+    load_nodes,
+    material_fields,
+    simulate,
+)
 
 SHIPPED = sorted(SCENES_DIR.glob("*.toml"))
 
@@ -61,6 +68,16 @@ def _write(tmp_path, text):
     ('name = "x"\n[geometry\n', ["not valid TOML"]),
     ('name = "x"\n[geometry]\nkind = "box"\n[excitation]\nkind = "kick"\nat = [0, 0, 0]\n',
      ["excitation.kind", "'pluck'"]),
+    ('name = "x"\n[geometry]\nkind = "box"\n[damping]\npairs = [[12.5, 0.1], [15.5, 0.001]]\n',
+     ["key 'damping.pairs'", "negative Rayleigh", "zeta at 15.5 Hz from 0.08065 to 0.124"]),
+    ('name = "x"\n[geometry]\nkind = "box"\n[damping]\npairs = [[10.0, 0.01], [50.0, 0.2]]\n',
+     ["key 'damping.pairs'", "alpha=-", "from 0.002 to 0.05"]),
+    ('name = "x"\n[geometry]\nkind = "box"\n[[material.defects]]\nshape = "cylinder"\n'
+     'center = [0, 0, 0]\nsize = [0.01]\nE = 5.0\n',
+     ["key 'material.defects[0].size'", "cylinder defect needs 2 value(s), got 1",
+      "sphere 1 (radius)"]),
+    ('name = "x"\n[geometry]\nkind = "box"\n[boundary.node_sets.clamp]\nbox_min = [0, 0, 0]\n',
+     ["key 'boundary.node_sets.clamp'", "missing box_max"]),
 ])
 def test_bad_scene_gives_clear_error(tmp_path, text, expected):
     path = _write(tmp_path, text)
@@ -70,6 +87,153 @@ def test_bad_scene_gives_clear_error(tmp_path, text, expected):
     assert str(path) in message
     for fragment in expected:
         assert fragment in message
+
+
+@pytest.mark.parametrize("signal, key", [
+    ('kind = "chirp"\nf0 = -1.0\n', "excitation.signal.f0"),
+    ('kind = "impulse"\nwidht = 0.01\n', "excitation.signal.widht"),
+    ('f0 = 10.0\n', "excitation.signal.kind"),
+])
+def test_error_keys_have_no_union_tag(tmp_path, signal, key):
+    path = _write(tmp_path, 'name = "x"\n[geometry]\nkind = "box"\n[excitation]\nkind = "force"\n'
+                            f'at = [0, 0, 0]\n[excitation.signal]\n{signal}')
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    message = str(info.value)
+    assert f"key '{key}'" in message
+    assert ".chirp." not in message and ".impulse." not in message
+
+
+def test_error_key_of_a_geometry_field_lists_that_kinds_keys(tmp_path):
+    path = _write(tmp_path, 'name = "x"\n[geometry]\nkind = "drum"\ncells = 1\norder = 2\n')
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    message = str(info.value)
+    assert "key 'geometry.cells'" in message and "key 'geometry.order'" in message
+    assert "allowed keys here: kind, shape, size, cells" in message and ".drum." not in message
+
+
+def _box_scene(tmp_path, extra, cells=2):
+    return load_scene(_write(
+        tmp_path, f'name = "x"\n[geometry]\nkind = "box"\ncells = [{cells}, {cells}, {cells}]\n'
+        + extra))
+
+
+def test_named_node_sets_by_box_and_indices_fix_those_nodes(tmp_path):
+    scene = _box_scene(tmp_path, '[boundary]\nfixed = ["floor", "pin"]\n'
+                                 '[boundary.node_sets.floor]\nbox_min = [-1, -1, -1e-6]\n'
+                                 'box_max = [1, 1, 1e-6]\n'
+                                 '[boundary.node_sets.pin]\nindices = [26, 13]\n')
+    mesh = build_mesh(scene)
+    np.testing.assert_array_equal(mesh.node_sets["floor"], mesh.node_sets["bottom"])
+    np.testing.assert_array_equal(mesh.node_sets["pin"], [13, 26])
+    fixed = fixed_nodes(scene, mesh)
+    np.testing.assert_array_equal(fixed, np.union1d(mesh.node_sets["bottom"], [13, 26]))
+    model = build_model(scene, mesh, material_fields(scene, mesh))
+    assert model.n_free == 3 * (27 - 9 - 2)
+    np.testing.assert_array_equal(model.fixed_dofs, mesh.dofs_of(fixed))
+
+
+def test_node_set_index_out_of_range_names_file_and_key(tmp_path):
+    scene = _box_scene(tmp_path, '[boundary]\nfixed = ["pin"]\n'
+                                 '[boundary.node_sets.pin]\nindices = [3, 27]\n')
+    with pytest.raises(SceneError) as info:
+        build_mesh(scene)
+    message = str(info.value)
+    assert scene.source in message and "boundary.node_sets.pin.indices" in message
+    assert "27 out of range" in message and "27 nodes" in message
+
+
+@pytest.mark.parametrize("radius, direction", [(0.0, [1.0, 0.0, 1.0]), (0.02, [0.0, -2.0, 1.0])])
+def test_pluck_moves_the_loaded_nodes_by_the_displacement_on_average(tmp_path, radius, direction):
+    scene = _box_scene(tmp_path, f'[excitation]\nkind = "pluck"\nat = [0.05, 0.0, 0.05]\n'
+                                 f"radius = {radius}\ndirection = {direction}\n"
+                                 'displacement = 0.002\n[simulation]\nn_modes = 4\n'
+                                 'fps = 1000.0\nduration = 0.002\nmethod = "newmark"\n', cells=3)
+    result = simulate(scene)
+    nodes = load_nodes(scene, result.mesh)
+    assert len(nodes) == (1 if radius == 0 else 4)
+    d = np.asarray(direction) / np.linalg.norm(direction)
+    at_nodes = np.searchsorted(result.surface_nodes, nodes)
+    np.testing.assert_array_equal(result.surface_nodes[at_nodes], nodes)
+    u0 = result.displacements[0, at_nodes].astype(float)
+    assert np.mean(u0 @ d) == pytest.approx(0.002, rel=1e-5)
+
+
+def test_velocity_excitation_starts_the_loaded_node_at_that_velocity(tmp_path):
+    scene = _box_scene(tmp_path, '[excitation]\nkind = "velocity"\nat = [0.05, 0.05, 0.05]\n'
+                                 "velocity = [0.01, 0.0, -0.02]\n"
+                                 "[simulation]\nn_modes = 54\nfps = 1e6\nduration = 3e-6\n")
+    result = simulate(scene)
+    assert result.model.n_free == 54
+    u = result.displacements.astype(float)
+    np.testing.assert_array_equal(u[0], 0.0)
+    velocity = u[1] * scene.simulation.fps
+    corner = np.flatnonzero(result.surface_nodes == load_nodes(scene, result.mesh)[0])[0]
+    np.testing.assert_allclose(velocity[corner], [0.01, 0.0, -0.02], rtol=0, atol=1e-5)
+    others = np.delete(velocity, corner, axis=0)
+    assert np.abs(others).max() < 1e-3 * 0.02
+
+
+def test_defect_contains_for_sphere_cylinder_and_ellipsoid():
+    pts = np.array([[0.0, 0.0, 0.0], [0.009, 0.0, 0.0], [0.011, 0.0, 0.0], [0.0, 0.0, 0.019],
+                    [0.0, 0.006, 0.006], [0.0, 0.0, 0.021]])
+    sphere = Defect(shape="sphere", center=(0.0, 0.0, 0.0), size=(0.01,), E=1.0)
+    assert sphere.contains(pts).tolist() == [True, True, False, False, True, False]
+    cylinder = Defect(shape="cylinder", center=(0.0, 0.0, 0.0), size=(0.01, 0.04), axis="x",
+                      E=1.0)
+    along_x = [[0.019, 0.0, 0.0], [-0.021, 0.0, 0.0], [0.019, 0.007, 0.007], [0.0, 0.0, 0.011]]
+    assert cylinder.contains(pts).tolist() == [True, True, True, False, True, False]
+    assert cylinder.contains(along_x).tolist() == [True, False, True, False]
+    ellipsoid = Defect(shape="ellipsoid", center=(0.0, 0.0, 0.0), size=(0.01, 0.02, 0.02),
+                       E=1.0)
+    assert ellipsoid.contains(pts).tolist() == [True, True, False, True, True, False]
+    shifted = Defect(shape="sphere", center=(1.0, 2.0, 3.0), size=(0.5,), E=1.0)
+    assert shifted.contains([[1.0, 2.0, 3.4], [1.0, 2.0, 2.4]]).tolist() == [True, False]
+
+
+def test_voxel_map_from_a_tet_mesh():
+    from vvtbench.fem.mesh import box_mesh, tets_to_mesh
+    from vvtbench.fem.voxels import VoxelMap
+
+    hexes = box_mesh((4, 4, 4), (0.04, 0.04, 0.04))
+    kuhn = [[0, a, a + b, 7] for a in (1, 2, 4) for b in (1, 2, 4) if a != b]
+    mesh = tets_to_mesh(hexes.points, hexes.cells[:, kuhn].reshape(-1, 4))
+    vm = VoxelMap.from_mesh(mesh, (2, 2, 2))
+    assert mesh.element == "tet4" and mesh.n_elements == 6 * 64
+    assert vm.n_params == 8 and vm.grid.shape == (2, 2, 2)
+    np.testing.assert_allclose(vm.grid.spacing, [0.02, 0.02, 0.02])
+    ijk = np.floor(mesh.centroids / 0.02).astype(int)
+    np.testing.assert_array_equal(vm.element_voxel, (ijk[:, 0] * 2 + ijk[:, 1]) * 2 + ijk[:, 2])
+    np.testing.assert_array_equal(vm.active[vm.element_param], vm.element_voxel)
+    np.testing.assert_array_equal(np.bincount(vm.element_param), np.full(8, 48))
+    np.testing.assert_allclose(vm.average(np.full(mesh.n_elements, 3.0)), 3.0)
+
+
+def test_voxel_map_from_a_membrane_mesh():
+    from vvtbench.fem.mesh import drum_mesh
+    from vvtbench.fem.voxels import VoxelMap
+
+    mesh = drum_mesh("circle", 0.1, 6)
+    vm = VoxelMap.from_mesh(mesh, (8, 8))
+    assert vm.grid.shape == (8, 8, 1)
+    lo = mesh.bounds[0]
+    ij = np.clip(np.floor((mesh.centroids[:, :2] - lo[:2]) / 0.0125).astype(int), 0, 7)
+    np.testing.assert_array_equal(vm.element_voxel, ij[:, 0] * 8 + ij[:, 1])
+    grid = vm.to_grid(np.ones(vm.n_params))[:, :, 0]
+    assert np.isnan(grid[[0, 0, 7, 7], [0, 7, 0, 7]]).all()
+    assert vm.n_params == np.isfinite(grid).sum() < 64
+    assert np.isfinite(grid[2:6, 2:6]).all()
+
+
+def test_missing_mesh_file_names_file_and_key(tmp_path):
+    path = _write(tmp_path, 'name = "x"\n[geometry]\nkind = "mesh"\npath = "nope.obj"\n')
+    scene = load_scene(path)
+    with pytest.raises(SceneError) as info:
+        simulate(scene, transient=False)
+    message = str(info.value)
+    assert str(path) in message and "key 'geometry.path'" in message
+    assert str(tmp_path / "nope.obj") in message and "not found" in message
 
 
 def test_unknown_node_set_and_cli_exit_code(tmp_path, capsys):

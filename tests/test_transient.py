@@ -76,6 +76,42 @@ def test_damped_mode_decays_at_analytic_rate():
         assert rate == pytest.approx(zeta[i] * omega[i], rel=2e-3)
 
 
+def _envelope_decay_rate(t: np.ndarray, q: np.ndarray) -> float:
+    """Decay rate s of q(t) ~ A exp(-s t) cos(w t + phi), from its positive peaks (each refined
+    by a parabola through three samples): the slope of log(peak) against peak time."""
+    k = np.flatnonzero((q[1:-1] > q[:-2]) & (q[1:-1] >= q[2:]) & (q[1:-1] > 0)) + 1
+    y0, y1, y2 = q[k - 1], q[k], q[k + 1]
+    shift = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
+    peaks = y1 - 0.25 * (y0 - y2) * shift
+    times = t[k] + shift * (t[1] - t[0])
+    assert len(k) >= 5
+    return -np.polyfit(times, np.log(peaks), 1)[0]
+
+
+def test_newmark_pluck_decays_at_the_rayleigh_rate_of_each_mode():
+    from scipy.sparse.linalg import spsolve
+
+    from vvtbench.fem.assembly import ParametricModel
+
+    mesh = box_mesh((3, 3, 3), (0.05, 0.05, 0.05))
+    model = ParametricModel(mesh, fixed_nodes=mesh.node_sets["bottom"])
+    K, M = model.K(9000.0), model.M(1270.0)
+    modes = eigenmodes(K, M, 4, method="dense")
+    alpha, beta = 0.5, 4e-4
+    corner = np.flatnonzero(np.all(mesh.points == 0.05, axis=1))
+    load = np.zeros(mesh.n_dofs)
+    load[mesh.dofs_of(corner)] = 1.0
+    u0 = spsolve(K.tocsc(), model.restrict(load))
+    times = np.arange(1200) / 1000.0
+    u = newmark_response(K, M, alpha, beta, times, u0=u0, substeps=2)
+    q = u @ (M @ modes.vectors)
+    for n in (0, 3):
+        omega = modes.omega[n]
+        zeta = alpha / (2 * omega) + beta * omega / 2
+        assert abs(q[0, n]) > 0.1 * np.abs(q[0]).max()
+        assert _envelope_decay_rate(times, q[:, n]) == pytest.approx(zeta * omega, rel=0.01)
+
+
 def test_zeta_pairs_round_trip_and_bad_pairs():
     d = Damping(pairs=[(10.0, 0.02), (50.0, 0.03)])
     a, b = d.coefficients()

@@ -6,7 +6,7 @@ arrays and runs no physics: the backends in :mod:`vvtbench.fem` and :mod:`vvtben
 consume it. Every key is documented with units and defaults in ``docs/scenes.md``.
 
 >>> scene = Scene.model_validate({"name": "tiny", "geometry": {"kind": "box", "cells": [2, 2, 2]}})
->>> scene.geometry.size, scene.material.E, scene.boundary.fixed
+>>> scene.geometry.size, scene.material.E, scene.fixed_sets
 ((0.05, 0.05, 0.05), 9000.0, ['bottom'])
 """
 
@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 import numpy as np
 from pydantic import (
@@ -23,6 +23,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -32,7 +33,13 @@ Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 Poisson = Annotated[float, Field(gt=-1.0, lt=0.5)]
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+_PACKAGE_DIR = Path(__file__).resolve().parent
+SCENES_DIR = next(
+    (d for d in (_PACKAGE_DIR / "scenes", _PACKAGE_DIR.parent / "scenes") if d.is_dir()),
+    _PACKAGE_DIR.parent / "scenes",
+)
+"""The shipped scenes (and ``suites/``): inside the installed package (a wheel), else the
+source checkout's top-level ``scenes/`` (an editable install)."""
 BUILTIN_MESHES = ("bunny",)
 
 
@@ -99,14 +106,18 @@ class Defect(_Strict):
     tension: Positive | None = None
     areal_density: Positive | None = None
 
-    @model_validator(mode="after")
-    def _size_matches_shape(self) -> Defect:
-        expected = {"box": 3, "sphere": 1, "cylinder": 2, "ellipsoid": 3}[self.shape]
-        if len(self.size) != expected:
+    @field_validator("size")
+    @classmethod
+    def _size_matches_shape(cls, size: tuple[float, ...], info: ValidationInfo) -> tuple:
+        shape = info.data.get("shape")
+        expected = {"box": 3, "sphere": 1, "cylinder": 2, "ellipsoid": 3}.get(shape)
+        if expected is not None and len(size) != expected:
             raise ValueError(
-                f"size of a {self.shape} defect needs {expected} value(s), got {len(self.size)}"
+                f"a {shape} defect needs {expected} value(s), got {len(size)}; allowed: "
+                "box 3 (side lengths), sphere 1 (radius), cylinder 2 (radius, height), "
+                "ellipsoid 3 (semi-axes)"
             )
-        return self
+        return size
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         """Which of ``points`` (N, 3) lie inside the region."""
@@ -148,7 +159,8 @@ class NodeRegion(_Strict):
         if has_box == (self.indices is not None):
             raise ValueError("give either box_min and box_max, or indices")
         if has_box and (self.box_min is None or self.box_max is None):
-            raise ValueError("box_min and box_max go together")
+            missing = "box_max" if self.box_max is None else "box_min"
+            raise ValueError(f"missing {missing}: box_min and box_max (3 floats, m) go together")
         return self
 
 
@@ -166,22 +178,31 @@ class Damping(_Strict):
     beta: NonNegative = 0.0
     pairs: list[tuple[Positive, NonNegative]] | None = None
 
+    @field_validator("pairs")
+    @classmethod
+    def _two_feasible_pairs(
+        cls, pairs: list[tuple[float, float]] | None
+    ) -> list[tuple[float, float]] | None:
+        if pairs is None:
+            return pairs
+        if len(pairs) != 2:
+            raise ValueError("pairs needs exactly two [frequency_hz, zeta] pairs")
+        if math.isclose(pairs[0][0], pairs[1][0]):
+            raise ValueError("the two pairs need different frequencies")
+        rayleigh_from_pairs(pairs)
+        return pairs
+
     @model_validator(mode="after")
     def _pairs_or_coefficients(self) -> Damping:
-        if self.pairs is not None:
-            if len(self.pairs) != 2:
-                raise ValueError("pairs needs exactly two [frequency_hz, zeta] pairs")
-            if self.alpha or self.beta:
-                raise ValueError("give either alpha/beta or pairs, not both")
-            if math.isclose(self.pairs[0][0], self.pairs[1][0]):
-                raise ValueError("the two pairs need different frequencies")
+        if self.pairs is not None and (self.alpha or self.beta):
+            raise ValueError("give either alpha/beta or pairs, not both")
         return self
 
     def coefficients(self) -> tuple[float, float]:
         """(alpha, beta) in (1/s, s); from the pairs when given.
 
         >>> a, b = Damping(pairs=[(12.5, 0.01749), (15.5, 0.01999)]).coefficients()
-        >>> round(rayleigh_zeta(a, b, 12.5), 5), round(rayleigh_zeta(a, b, 15.5), 5)
+        >>> round(float(rayleigh_zeta(a, b, 12.5)), 5), round(float(rayleigh_zeta(a, b, 15.5)), 5)
         (0.01749, 0.01999)
         """
         if self.pairs is None:
@@ -190,17 +211,24 @@ class Damping(_Strict):
 
 
 def rayleigh_from_pairs(pairs: list[tuple[float, float]]) -> tuple[float, float]:
-    """Rayleigh (alpha, beta) giving damping ratio zeta_i at frequency f_i (Hz), i = 1, 2."""
-    w = np.array([2 * np.pi * f for f, _ in pairs])
-    z = np.array([zeta for _, zeta in pairs])
+    """Rayleigh (alpha, beta) giving damping ratio zeta_i at frequency f_i (Hz), i = 1, 2.
+
+    Both are >= 0 only if zeta_2 / zeta_1 lies between f_1 / f_2 and f_2 / f_1; otherwise a
+    ValueError says so.
+    """
+    (f1, z1), (f2, z2) = sorted((float(f), float(zeta)) for f, zeta in pairs)
+    w = np.array([2 * np.pi * f1, 2 * np.pi * f2])
     a = np.column_stack([1 / (2 * w), w / 2])
-    alpha, beta = np.linalg.solve(a, z)
-    if alpha < 0 or beta < 0:
+    alpha, beta = np.linalg.solve(a, [z1, z2])
+    tol = 1e-12 * max(z1, z2)
+    if z2 * f1 > z1 * f2 + tol or z2 * f2 < z1 * f1 - tol:
         raise ValueError(
-            f"damping pairs {pairs} need a negative Rayleigh coefficient "
-            f"(alpha={alpha:.4g}, beta={beta:.4g}); choose pairs with zeta rising less steeply"
+            f"the pairs [[{f1:g}, {z1:g}], [{f2:g}, {z2:g}]] need a negative Rayleigh "
+            f"coefficient (alpha={alpha:.4g} 1/s, beta={beta:.4g} s); allowed: zeta at "
+            f"{f2:g} Hz from {z1 * f1 / f2:.4g} to {z1 * f2 / f1:.4g} (zeta at {f1:g} Hz "
+            f"times {f1:g}/{f2:g} to {f2:g}/{f1:g})"
         )
-    return float(alpha), float(beta)
+    return max(float(alpha), 0.0), max(float(beta), 0.0)
 
 
 def rayleigh_zeta(alpha: float, beta: float, frequency_hz):
@@ -374,17 +402,47 @@ def _drop_none(value):
     return value
 
 
+def _union_models(union) -> dict[str, type[BaseModel]]:
+    members = get_args(get_args(union)[0])
+    return {get_args(m.model_fields["kind"].annotation)[0]: m for m in members}
+
+
+_TAGGED_UNIONS = {"geometry": _union_models(Geometry), "signal": _union_models(Signal)}
+
+
+def _error_key(loc: tuple) -> tuple[str, type[BaseModel] | None]:
+    """The dotted key of a pydantic error location without union tags, e.g.
+    ``excitation.signal.f0`` for ``('excitation', 'signal', 'chirp', 'f0')``, and the union
+    member the tag selected, if any."""
+    parts: list[str] = []
+    member = None
+    for p in loc:
+        s = str(p)
+        if s.startswith("function-after"):
+            continue
+        if parts and s in _TAGGED_UNIONS.get(parts[-1], {}):
+            member = _TAGGED_UNIONS[parts[-1]][s]
+        elif isinstance(p, int) and parts:
+            parts[-1] += f"[{p}]"
+        else:
+            parts.append(s)
+    return ".".join(parts), member
+
+
 def _format_error(source: str, error: ValidationError) -> str:
     lines = [f"{source}: invalid scene ({error.error_count()} problem(s))"]
     for e in error.errors():
-        key = ".".join(str(p) for p in e["loc"] if not str(p).startswith("function-after"))
-        key = key.replace(".box.", ".").replace(".mesh.", ".").replace(".drum.", ".")
+        key, member = _error_key(e["loc"])
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             parent = key.rsplit(".", 1)[0] if "." in key else ""
-            msg = f"unknown key; allowed keys here: {_allowed_keys(parent)}"
+            allowed = ", ".join(member.model_fields) if member else _allowed_keys(parent)
+            msg = f"unknown key; allowed keys here: {allowed}"
         elif e["type"] == "union_tag_invalid":
-            msg = f"{msg}"
+            key = f"{key}.kind"
+        elif e["type"] == "union_tag_not_found":
+            kinds = ", ".join(repr(k) for k in _TAGGED_UNIONS.get(key.rsplit(".", 1)[-1], {}))
+            key, msg = f"{key}.kind", f"missing; allowed: {kinds}"
         lines.append(f"  key '{key or '<top level>'}': {msg}")
     return "\n".join(lines)
 
@@ -434,7 +492,13 @@ def find_scene(name_or_path: str | Path) -> Path:
     for candidate in (SCENES_DIR / f"{name_or_path}.toml", SCENES_DIR / str(name_or_path)):
         if candidate.is_file():
             return candidate
-    known = sorted(q.stem for q in SCENES_DIR.glob("*.toml")) if SCENES_DIR.is_dir() else []
+    if not SCENES_DIR.is_dir():
+        raise SceneError(
+            f"{name_or_path}: no such scene file, and the shipped scenes are not installed "
+            f"(looked in {_PACKAGE_DIR / 'scenes'} and {SCENES_DIR}); give a path to a scene "
+            "file, or install vvtbench from its source checkout (pip install -e .)"
+        )
+    known = sorted(q.stem for q in SCENES_DIR.glob("*.toml"))
     raise SceneError(
         f"{name_or_path}: no such scene file, and not a shipped scene; shipped scenes: "
         + (", ".join(known) or "(none found in " + str(SCENES_DIR) + ")")

@@ -1,0 +1,15 @@
+"""Build configuration that pyproject.toml cannot express: the shipped scenes.
+
+The scene files live in the top-level ``scenes/`` folder of the source checkout; wheels carry
+them as ``vvtbench/scenes`` (see ``vvtbench.scene.SCENES_DIR``). Everything else is in
+pyproject.toml.
+"""
+
+from setuptools import find_packages, setup
+
+setup(
+    packages=find_packages(include=["vvtbench*", "solvers*"])
+    + ["vvtbench.scenes", "vvtbench.scenes.suites"],
+    package_dir={"vvtbench.scenes": "scenes"},
+    package_data={"vvtbench.scenes": ["*.toml"], "vvtbench.scenes.suites": ["*.toml"]},
+)
