@@ -46,8 +46,9 @@ from typing import Any
 import numpy as np
 
 from . import __version__
+from .scene import SCENES_DIR
 
-SUITES_DIR = Path(__file__).resolve().parent.parent / "scenes" / "suites"
+SUITES_DIR = SCENES_DIR / "suites"
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 OBSERVATIONS = ("true", "extracted")
 SCENE_SECTIONS = ("seed", "description", "geometry", "material", "boundary", "damping",
