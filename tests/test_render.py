@@ -153,6 +153,52 @@ def test_scaled_camera_uses_pixel_centre_convention():
     np.testing.assert_allclose(s4.project(X) + 0.5, 4.0 * (cam.project(X) + 0.5), atol=1e-9)
 
 
+def _camera_scene(**camera):
+    from vvtbench.scene import parse_scene
+
+    cam = {"resolution": [48, 64], "position": [0.16, -0.13, 0.13],
+           "look_at": [0.025, 0.025, 0.022], **camera}
+    return parse_scene({"name": "cam", "geometry": {"kind": "box", "cells": [2, 2, 2]},
+                        "camera": cam, "render": {"supersample": 2}}, "cam.toml")
+
+
+def test_camera_spec_focal_lengths_and_principal_point():
+    base = Camera.from_spec(_camera_scene(fx=80.0).camera)
+    assert (base.fx, base.fy, base.cx, base.cy) == (80.0, 80.0, 31.5, 23.5)
+    cam = Camera.from_spec(_camera_scene(fx=80.0, fy=88.0, cx=36.5, cy=20.5).camera)
+    assert (cam.fx, cam.fy, cam.cx, cam.cy) == (80.0, 88.0, 36.5, 20.5)
+    np.testing.assert_array_equal(cam.R, base.R)
+    X = np.random.default_rng(0).uniform(0.0, 0.05, size=(20, 3))
+    uv0, uv = base.project(X), cam.project(X)
+    np.testing.assert_allclose(uv[:, 0], uv0[:, 0] + 5.0, atol=1e-9)
+    np.testing.assert_allclose(uv[:, 1] - 20.5, 1.1 * (uv0[:, 1] - 23.5), atol=1e-9)
+    np.testing.assert_allclose(cam.project([0.025, 0.025, 0.022]), [36.5, 20.5], atol=1e-9)
+    fov = Camera.from_spec(_camera_scene(fov_y_deg=30.0, cx=10.0).camera)
+    assert fov.cx == 10.0 and fov.cy == 23.5 and fov.fx == fov.fy
+    from vvtbench.scene import SceneError
+
+    with pytest.raises(SceneError, match=r"(?s)cam.toml.*key 'camera': fy \(px\) needs fx"):
+        _camera_scene(fy=90.0)
+    with pytest.raises(SceneError, match="(?s)cam.toml.*key 'camera.cx': Input should be a finite"):
+        _camera_scene(fx=80.0, cx=float("inf"))
+
+
+def test_shifted_principal_point_shifts_the_rendered_rest_pose(gl):
+    """cx + 5, cy - 3 (px) moves the rest-pose render by 5 columns right and 3 rows up."""
+    from vvtbench import dataset as ds
+    from vvtbench.simulate import build_mesh
+
+    imgs = []
+    for pp in ({}, {"cx": 36.5, "cy": 20.5}):
+        scene = _camera_scene(fx=80.0, **pp)
+        _, V, F = ds._surface_geometry(build_mesh(scene))
+        with ds.scene_renderer(scene, V, F) as r:
+            imgs.append(r.render().astype(np.float64))
+    base, moved = imgs
+    assert base[3:, :-5].sum() > 0.9 * base.sum()  # the object stays inside both frames
+    np.testing.assert_allclose(moved[:-3, 5:], base[3:, :-5], atol=1e-5)
+
+
 # --------------------------------------------------------------------------- texture
 
 

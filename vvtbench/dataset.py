@@ -200,16 +200,27 @@ def sensor_dn(
 
 # --------------------------------------------------------------------------- video I/O
 class _VideoWriter:
-    """Lossless FFV1 gray16le Matroska writer (frames of uint16 DN)."""
+    """Lossless FFV1 Matroska writer of frames of DN.
 
-    def __init__(self, path: Path, height: int, width: int, fps: float, bits: int = 16) -> None:
+    Parameters
+    ----------
+    path : output ``.mkv`` file.
+    height, width : frame size (px).
+    fps : capture rate, stored in the stream tag ``CAPTURE_FPS``.
+    pix_fmt : ``"gray16le"`` (default: DN of any bit depth stored LSB-aligned in 16 bits, the
+        lossless track) or ``"gray"`` (8-bit; the segments re-encoded into the consumer track).
+    """
+
+    def __init__(self, path: Path, height: int, width: int, fps: float,
+                 pix_fmt: str = "gray16le") -> None:
         import imageio_ffmpeg
 
+        if pix_fmt not in ("gray16le", "gray"):
+            raise ValueError(f"pix_fmt must be 'gray16le' or 'gray', got {pix_fmt!r}")
         params = _FFV1 + _BITEXACT + ["-metadata:s:v:0", f"CAPTURE_FPS={fps:g}"]
-        pix = "gray16le" if bits > 8 else "gray"
-        self._dtype = "<u2" if bits > 8 else np.uint8
+        self._dtype = "<u2" if pix_fmt == "gray16le" else np.uint8
         self._gen = imageio_ffmpeg.write_frames(
-            str(path), (width, height), pix_fmt_in=pix, pix_fmt_out=pix,
+            str(path), (width, height), pix_fmt_in=pix_fmt, pix_fmt_out=pix_fmt,
             codec="ffv1", quality=None, fps=PLAYBACK_FPS, macro_block_size=1,
             output_params=params, ffmpeg_log_level="error",
         )
@@ -239,8 +250,14 @@ def _concat(segments: list[Path], out: Path, work: Path, encode: list[str] | Non
 
 
 def read_video(path: Path, height: int, width: int, *, bpp: int = 2, start: int = 0,
-               stop: int | None = None) -> Iterator[np.ndarray]:
-    """Decode frames ``start:stop`` of a gray video as (H, W) uint16 (bpp 2) or uint8 arrays."""
+               stop: int | None = None, stored_pix_fmt: str | None = None
+               ) -> Iterator[np.ndarray]:
+    """Decode frames ``start:stop`` of a gray video as (H, W) uint16 (bpp 2) or uint8 arrays.
+
+    With ``stored_pix_fmt`` (e.g. ``"gray16le"``), a video stream in another pixel format is a
+    :class:`DatasetError` instead of being silently converted (8-bit gray read as 16-bit
+    comes back multiplied by 257).
+    """
     import imageio_ffmpeg
 
     pix = "gray16le" if bpp == 2 else "gray"
@@ -248,7 +265,13 @@ def read_video(path: Path, height: int, width: int, *, bpp: int = 2, start: int 
     out = ["-frames:v", str(stop - start)] if stop is not None else None
     gen = imageio_ffmpeg.read_frames(str(path), pix_fmt=pix, bpp=bpp, input_params=inp,
                                      output_params=out)
-    next(gen)
+    meta = next(gen)
+    found = str(meta.get("pix_fmt", "")).split("(")[0].strip()
+    if stored_pix_fmt is not None and found != stored_pix_fmt:
+        gen.close()
+        raise DatasetError(f"{path}: video stream is {found or 'of unknown pixel format'}, "
+                           f"but truth.json (video.pixel_format) says {stored_pix_fmt}; "
+                           "regenerate the sample with this vvtbench")
     dtype = "<u2" if bpp == 2 else np.uint8
     try:
         for raw in gen:
@@ -322,10 +345,12 @@ def _depth_png(depth: np.ndarray) -> np.ndarray:
 _DESCRIPTIONS = {
     "scene.toml": "resolved scene (every default filled in), generating vvtbench version "
                   "in the header comment",
-    "camera.json": "pinhole camera: K (3x3 px), R (3x3), t (3, m), P = K[R|t] (3x4)",
+    "camera.json": "pinhole camera (model, convention): K (3x3 px), R (3x3), t (3, m), "
+                   "P = K[R|t] (3x4), width, height (px), fov_y_deg",
     "truth.json": "small ground truth: modal frequencies (Hz), damping ratios, Rayleigh "
                   "coefficients, video/camera-model settings, voxel grid, array index",
-    "video.mkv": "lossless video, FFV1 gray16le, values in DN (see truth.json video.bit_depth)",
+    "video.mkv": "lossless video, FFV1 gray16le, DN stored LSB-aligned in "
+                 "[0, 2^bit_depth - 1] (truth.json video.bit_depth)",
     "video.mp4": "consumer-camera video, 8-bit gray H.264 (lossy, CRF in truth.json)",
     "rest.png": "rest-pose frame, noise-free, 8-bit (for viewing)",
     "depth.png": "rest-pose depth, 16-bit, near = bright, 0 = background (for viewing)",
@@ -522,10 +547,11 @@ def _generate_into(scene: Scene, scene_text: str, work: Path, opts: _Options, st
         done = int(state.get("segments_done", 0))
         bar.stage("render video", n_frames, min(done * seg_len, n_frames))
         scale = rs.motion_scale
+        seg_pix = "gray" if opts.consumer_crf is not None else "gray16le"
         for s in range(done, n_seg):
             a, b = s * seg_len, min((s + 1) * seg_len, n_frames)
             tmp = seg_dir / f"seg_{s:05d}.tmp.mkv"
-            writer = _VideoWriter(tmp, H, W, scene.simulation.fps, bit_depth)
+            writer = _VideoWriter(tmp, H, W, scene.simulation.fps, seg_pix)
             try:
                 for k0 in range(a, b, 64):
                     k1 = min(k0 + 64, b)
@@ -820,9 +846,12 @@ class Sample:
             raise IndexError(f"frames {start}:{stop} out of range 0:{n}")
         if start == stop:
             return
-        bpp = 2 if self.info["video"]["pixel_format"] == "gray16le" else 1
+        pix = self.info["video"]["pixel_format"]
+        bpp = 2 if pix == "gray16le" else 1
+        check = pix if self.info["video"].get("lossless") else None
         scale = 1.0 / (2 ** self.bit_depth - 1)
-        for frame in read_video(self.video_path, *self.shape, bpp=bpp, start=start, stop=stop):
+        for frame in read_video(self.video_path, *self.shape, bpp=bpp, start=start, stop=stop,
+                                stored_pix_fmt=check):
             yield (frame.astype(np.float32) * np.float32(scale)) if normalize \
                 else frame.astype(np.uint16)
 

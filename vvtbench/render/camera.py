@@ -156,14 +156,17 @@ class Camera:
         *,
         width: int,
         height: int,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
     ) -> Camera:
         """Camera at ``position`` whose optical axis passes through ``target``.
 
-        The principal point is the image centre, so ``target`` projects to
-        ``((width - 1) / 2, (height - 1) / 2)``.  ``up`` (world) appears as
-        image up (``-v``).  Give exactly one of ``fov_y_deg`` (full vertical
-        field of view, edge to edge) or ``fx`` (focal length in pixels);
-        pixels are square.
+        ``target`` projects to the principal point ``(cx, cy)``, by default the
+        image centre ``((width - 1) / 2, (height - 1) / 2)``.  ``up`` (world)
+        appears as image up (``-v``).  Give exactly one of ``fov_y_deg`` (full
+        vertical field of view, edge to edge; square pixels) or ``fx`` (focal
+        length in pixels, with ``fy`` defaulting to ``fx``).
 
         Examples
         --------
@@ -173,6 +176,8 @@ class Camera:
         """
         if (fov_y_deg is None) == (fx is None):
             raise ValueError("give exactly one of fov_y_deg or fx")
+        if fy is not None and fx is None:
+            raise ValueError("fy needs fx (fov_y_deg gives square pixels)")
         if fx is None:
             if not 0.0 < fov_y_deg < 180.0:
                 raise ValueError("fov_y_deg must be in (0, 180)")
@@ -190,20 +195,24 @@ class Camera:
         x /= nx
         y = np.cross(z, x)
         R = np.stack([x, y, z])
-        return cls.from_intrinsics(fx, width=width, height=height, R=R, t=-R @ pos)
+        return cls.from_intrinsics(fx, fy, cx, cy, width=width, height=height, R=R, t=-R @ pos)
 
     @classmethod
     def from_spec(cls, spec: Any) -> Camera:
         """Camera of a scene's ``[camera]`` table (a :class:`vvtbench.scene.CameraSpec`).
 
-        ``resolution`` is ``[height, width]``; the focal length is ``fx`` (pixels) when
-        given, else it follows from ``fov_y_deg``.
+        ``resolution`` is ``[height, width]``; the focal lengths are ``fx`` and ``fy``
+        (pixels, ``fy`` defaults to ``fx``) when ``fx`` is given, else they follow from
+        ``fov_y_deg``; the principal point is ``(cx, cy)`` (pixels), by default the image
+        centre, and ``look_at`` projects onto it.
         """
         height, width = (int(n) for n in spec.resolution)
         fx = getattr(spec, "fx", None)
         fov = None if fx is not None else spec.fov_y_deg
+        fy, cx, cy = (getattr(spec, k, None) for k in ("fy", "cx", "cy"))
         return cls.look_at(
-            spec.position, spec.look_at, spec.up, fov_y_deg=fov, fx=fx, width=width, height=height
+            spec.position, spec.look_at, spec.up, fov_y_deg=fov, fx=fx, width=width, height=height,
+            fy=fy, cx=cx, cy=cy,
         )
 
     # ------------------------------------------------------------------ properties
