@@ -306,14 +306,24 @@ class Simulation(_Strict):
 
 
 class CameraSpec(_Strict):
-    """Pinhole camera: pose by position/look_at/up; intrinsics by fov_y or focal length fx."""
+    """Pinhole camera: pose by position/look_at/up; intrinsics by fov_y or focal lengths fx, fy
+    (px), principal point cx, cy (px, pixel-centre convention; default the image centre)."""
 
     position: Vec3 = (0.15, -0.2, 0.15)
     look_at: Vec3 = (0.025, 0.025, 0.02)
     up: Vec3 = (0.0, 0.0, 1.0)
     fov_y_deg: Annotated[float, Field(gt=0, lt=180)] | None = 20.0
     fx: Positive | None = None
+    fy: Positive | None = None
+    cx: Annotated[float, Field(allow_inf_nan=False)] | None = None
+    cy: Annotated[float, Field(allow_inf_nan=False)] | None = None
     resolution: tuple[Annotated[int, Field(ge=8)], Annotated[int, Field(ge=8)]] = (256, 256)
+
+    @model_validator(mode="after")
+    def _fy_needs_fx(self) -> CameraSpec:
+        if self.fy is not None and self.fx is None:
+            raise ValueError("fy (px) needs fx (px); with fov_y_deg the pixels are square")
+        return self
 
 
 class RenderSpec(_Strict):
