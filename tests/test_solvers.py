@@ -283,6 +283,21 @@ def test_plugin_from_file_and_overrides(tmp_path, problem6):
         load_solver("nope")
 
 
+def test_the_documented_third_party_solver_runs(tmp_path, problem6):
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "solvers.md").read_text()
+    block = doc.split("A complete third-party solver")[1].split("```python\n")[1].split("```")[0]
+    assert len(block.splitlines()) < 40
+    (tmp_path / "my_solver.py").write_text(block)
+    cls = load_solver(f"{tmp_path / 'my_solver.py'}:OneStepSolver")
+    est = cls(parse_overrides(["ridge=1e-4"], cls.Config)).solve(problem6)
+    assert est.w.shape == est.v.shape == (problem6.n_params,) and np.all(est.v > 0)
+    assert est.w.mean() == pytest.approx(problem6.w_mean)
+    # eigenvalues alone already point at the defect's density
+    assert normalized_correlation(est.v, problem6.v_true) > 0.4
+
+
 def test_vvt_overrides_parse():
     cls = load_solver("vvt")
     cfg = parse_overrides(["alpha_u=none", "max_iter=7", "preset=real"], cls.Config)
