@@ -104,21 +104,32 @@ def sp128() -> Speckle:
 
 
 # --------------------------------------------------------------------------- accuracy on video
-def test_amplitude_and_frequency_at_0p01_px(sp128: Speckle) -> None:
+@pytest.mark.parametrize(
+    "bins,noise", [(20.0, 0.0), (20.4, 0.0), (20.4, 0.005)], ids=["on-bin", "off-bin", "noisy"]
+)
+def test_amplitude_and_frequency_at_0p01_px(sp128: Speckle, bins: float, noise: float) -> None:
+    """0.01 px at 20 bins, at 20.4 bins (0.4 bin scalloping) and with camera noise (white,
+    0.5 % of the image's intensity range per pixel and frame, ~1.3 grey levels of 8 bits;
+    the noisy reference frame biases phase-based amplitudes low: -3 % here, -4.5 % at 1 %)."""
     T, fps = 128, 100.0
     df = fps / T
-    f0 = 20 * df
+    f0 = bins * df
     true = pattern(128, "a")
-    ms = extract_modes(video(sp128, [(true, 0.01, f0)], T, fps), fps, batch=32)
-    assert len(ms) == 1  # no spurious peaks in a noise-free video
-    i = nearest(ms, f0)
+    frames = video(sp128, [(true, 0.01, f0)], T, fps)
+    if noise:
+        rng = np.random.default_rng(7)
+        frames += (noise * np.ptp(sp128.ref) * rng.standard_normal(frames.shape)).astype("f4")
+    ms = extract_modes(frames, fps, batch=32)
+    if not noise:
+        assert len(ms) == 1  # no spurious peaks in a noise-free video
+    i = int(np.argmax(ms.amplitudes_px))
     assert abs(ms.frequencies_hz[i] - f0) <= df
-    assert ms.peak_bins[i] == 20
+    assert ms.peak_bins[i] == round(bins)
     rec = ms.amplitudes_px[i] * ms.shapes[i]
     m = interior(ms)
     ratio = np.sum(rec[m] * true[m]) / np.sum(true[m] * true[m]) / 0.01
     assert abs(abs(ratio) - 1.0) < 0.05, ratio
-    assert mac(rec[m], true[m]) > 0.98
+    assert mac(rec[m], true[m]) > (0.9 if noise else 0.98)
     assert not ms.camera_shake.any()
 
 
@@ -157,6 +168,24 @@ def test_damping_of_decaying_sinusoid(zeta: float) -> None:
     assert abs(z_l / zeta - 1) < 0.10
     assert abs(fd - 20.0) < fps / T
     assert abs(damping_half_power(f, P, k) / zeta - 1) < 0.10
+
+
+@pytest.mark.parametrize("zeta", [0.005, 0.01, 0.02, 0.04])
+def test_damping_through_default_hann_path(zeta: float) -> None:
+    """modes_from_displacements with its defaults (Hann window): a free decay half a bin
+    off the bin centres, its decay from 1.6 s down to 0.2 s in a 5 s record."""
+    fps, T, n, f0 = 200.0, 1000, 16, 20.3
+    t = np.arange(T)[:, None, None, None] / fps
+    w0 = 2 * np.pi * f0
+    x = np.exp(-zeta * w0 * t) * np.cos(w0 * math.sqrt(1 - zeta**2) * t + 0.7)
+    rng = np.random.default_rng(4)
+    d = 0.05 * x * pattern(n, "a") + 2e-4 * rng.standard_normal((T, n, n, 2))
+    ms = modes_from_displacements(d, fps)
+    assert len(ms) == 1 and ms.metadata["window"] == "hann"
+    fd = f0 * math.sqrt(1 - zeta**2)
+    assert abs(ms.frequencies_hz[0] - fd) < fps / T
+    assert abs(ms.damping[0] / zeta - 1) < 0.10, ms.damping[0]
+    assert abs(ms.damping_half_power[0] / zeta - 1) < 0.15, ms.damping_half_power[0]
 
 
 def test_power_spectrum_streamed_from_disk_matches_ram() -> None:
@@ -346,6 +375,44 @@ def test_clicks_files(tmp_path) -> None:
         load_clicks(pc)
 
 
+def test_camera_from_clicks_on_mesh_vertices(tmp_path) -> None:
+    """Clicked vertices of a mesh, projected by a known camera plus 0.2 px noise: the
+    camera is recovered and predicts the other vertices to the noise level."""
+    from vvtbench.fem.mesh import box_mesh
+    from vvtbench.modes import camera_from_clicks
+
+    cam = _camera()
+    V = box_mesh((3, 3, 3), (1.0, 0.8, 0.6)).points - [0.5, 0.4, 0.3]
+    rng = np.random.default_rng(2)
+    idx = rng.choice(len(V), 8, replace=False)
+    uv = cam.project(V[idx]) + rng.normal(0.0, 0.2, (8, 2))
+    path = tmp_path / "clicks.json"
+    pts = [
+        {"vertex": int(i), "u": float(u), "v": float(v)} for i, (u, v) in zip(idx, uv, strict=True)
+    ]
+    path.write_text(json.dumps({"points": pts, "image_size": [320, 240]}))
+    est, rms = camera_from_clicks(path, V, 320, 240)
+    assert rms < 0.3 and (est.width, est.height) == (320, 240)
+    err = np.linalg.norm(est.project(V) - cam.project(V), axis=1)
+    assert np.sqrt(np.mean(err**2)) < 0.5
+    csv = tmp_path / "clicks.csv"
+    csv.write_text("vertex,u,v\n" + "".join(f"{p['vertex']},{p['u']},{p['v']}\n" for p in pts))
+    assert np.allclose(camera_from_clicks(csv, V, 320, 240)[0].P, est.P)
+    # too few pairs, an index outside the mesh, malformed entries: the file is named
+    path.write_text(json.dumps({"points": pts[:5]}))
+    with pytest.raises(ValueError, match=r"clicks\.json: camera estimation needs >= 6 .* got 5"):
+        camera_from_clicks(path, V, 320, 240)
+    path.write_text(json.dumps({"points": [*pts[:6], {"vertex": 64, "u": 1, "v": 2}]}))
+    with pytest.raises(ValueError, match=r"clicks\.json: 'vertex' 64 out of range.*0 \.\. 63"):
+        camera_from_clicks(path, V, 320, 240)
+    path.write_text(json.dumps({"points": {"vertex": 1}}))
+    with pytest.raises(ValueError, match=r"clicks\.json: 'points' must be a list"):
+        camera_from_clicks(path, V, 320, 240)
+    path.write_text(json.dumps({"points": [*pts[:6], pts[0]]}))
+    with pytest.raises(ValueError, match=r"duplicate vertex indices \[" + str(pts[0]["vertex"])):
+        camera_from_clicks(path, V, 320, 240)
+
+
 # --------------------------------------------------------------------------- video files, CLI
 def test_ffv1_gray16_roundtrip_through_extract(tmp_path) -> None:
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
@@ -392,6 +459,91 @@ def test_ffv1_gray16_roundtrip_through_extract(tmp_path) -> None:
     np.testing.assert_array_equal(loaded.frequencies_hz, ms.frequencies_hz)
     np.testing.assert_array_equal(loaded.power, ms.power)
     assert loaded.metadata["motion"]["n_scales"] == 3
+
+
+def _write_8bit(
+    path,
+    frames: np.ndarray,
+    fps: float,
+    pix_fmt_in: str,
+    codec: str,
+    pix_fmt_out: str,
+    params: list[str],
+) -> None:
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    h, w = frames.shape[1:3]
+    wr = imageio_ffmpeg.write_frames(
+        str(path),
+        (w, h),
+        pix_fmt_in=pix_fmt_in,
+        pix_fmt_out=pix_fmt_out,
+        codec=codec,
+        quality=None,
+        fps=fps,
+        macro_block_size=1,
+        output_params=params,
+    )
+    wr.send(None)
+    for f in frames:
+        wr.send(np.ascontiguousarray(f).tobytes())
+    wr.close()
+
+
+@pytest.mark.parametrize("kind", ["colour-mp4", "gray-avi"])
+def test_8bit_colour_mp4_and_gray_avi_through_extract(tmp_path, kind: str, capsys) -> None:
+    """The 8-bit sources go through the reading path of the FFV1 gray16 test: ffmpeg's luma
+    as 8-bit ``gray``, the container's fps, then the same extraction."""
+    n, T, fps = 64, 64, 64.0
+    true = pattern(n, "a")
+    frames = video(Speckle(n, seed=2), [(true, 0.2, 8.0)], T, fps)
+    lo, hi = frames.min(), frames.max()
+    g8 = np.round((frames - lo) / (hi - lo) * 230 + 12).astype(np.uint8)
+    if kind == "colour-mp4":
+        rgb = np.stack([g8, (0.8 * g8).astype(np.uint8), 255 - g8], axis=-1)
+        luma = rgb.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+        path = tmp_path / "colour.mp4"
+        _write_8bit(path, rgb, fps, "rgb24", "libx264", "yuv420p", ["-crf", "10"])
+    else:
+        luma = g8.astype(np.float64)
+        path = tmp_path / "gray.avi"
+        _write_8bit(path, g8, fps, "gray", "rawvideo", "gray", [])
+    vs = open_video(path)
+    back = np.stack(list(vs.frames))
+    assert vs.meta["bits"] == 8 and vs.meta["decoded_pix_fmt"] == "gray" and vs.fps == fps
+    assert back.shape == (T, n, n) and back.dtype == np.float32
+    err = np.abs(back.astype(np.float64) * 255 - luma)
+    if kind == "gray-avi":
+        assert err.max() < 1e-3  # raw 8-bit gray: bit exact
+    else:
+        assert err.mean() < 2.0 and err.max() < 16  # lossy h264 yuv420p: luma kept
+    ms = extract_modes(path)  # fps from the container
+    assert ms.metadata["decoded_pix_fmt"] == "gray" and ms.metadata["fps_source"] == "container"
+    i = nearest(ms, 8.0)
+    assert abs(ms.frequencies_hz[i] - 8.0) <= fps / T
+    m = np.zeros((n, n), bool)
+    m[BORDER:-BORDER, BORDER:-BORDER] = True
+    assert mac(ms.shapes[i][m], true[m]) > 0.95
+    amp = ms.amplitudes_px[i] * np.abs(ms.shapes[i][m]).max()
+    assert amp == pytest.approx(0.2, rel=0.2)
+    if kind == "gray-avi":  # the CLI says which frame rate it took
+        capsys.readouterr()
+        out = tmp_path / "modes"
+        assert main_extract([str(path), "-o", str(out), "--quiet", "--no-plots"]) == 0
+        err_text = capsys.readouterr().err
+        assert "container's frame rate, 64 fps" in err_text and "gray.avi" in err_text
+
+
+def test_fmin_at_or_above_nyquist_names_nyquist(tmp_path, capsys) -> None:
+    with pytest.raises(ValueError, match=r"fmin = 60 Hz is not below the Nyquist frequency"):
+        check_band(100.0, 60.0, None)
+    with pytest.raises(ValueError, match="Nyquist"):
+        check_band(100.0, 30.0, 20.0)
+    with pytest.raises(ValueError, match="Nyquist"):
+        extract_modes(np.zeros((4, 16, 16), np.float32), 100.0, fmin=55.0)
+    np.save(tmp_path / "v.npy", np.zeros((4, 16, 16), np.float32))
+    out = str(tmp_path / "out")
+    assert main_extract([str(tmp_path / "v.npy"), "--fps", "10", "-o", out, "--fmin", "6"]) == 2
+    assert "Nyquist frequency fps/2 = 5 Hz" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------- leakage, distortion

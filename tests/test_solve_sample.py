@@ -103,3 +103,68 @@ def test_solve_sample_true_observation_and_errors(sample, tmp_path, capsys):
                        str(tmp_path), "-o", str(out)]) == 2
     assert main_solve(["homogeneous", str(tmp_path), "-o", str(out)]) == 2
     assert "not a vvtbench sample" in capsys.readouterr().err
+
+
+def _inference_points(sample: Path) -> np.ndarray:
+    """Vertices of the 3x3x3 inference mesh (``box_mesh`` of the scene's box)."""
+    from vvtbench.fem.mesh import box_mesh
+
+    size = tuple(float(v) for v in ds.open_sample(sample).scene.geometry.size)
+    return box_mesh((3, 3, 3), size, 1).points
+
+
+def test_solve_sample_camera_from_clicks(sample, tmp_path, capsys):
+    """Clicks on 12 inference-mesh vertices, projected by the sample's camera + 0.2 px noise:
+    the estimated camera images the mesh like the sample's and the extracted modes are
+    sampled with it."""
+    from vvtbench.modes import extract_modes
+    from vvtbench.render.camera import Camera
+
+    s = ds.open_sample(sample)
+    modes = tmp_path / "modes"
+    extract_modes(s.video_path, s.fps).save(modes)
+    pts = _inference_points(sample)
+    rng = np.random.default_rng(0)
+    idx = rng.choice(len(pts), 12, replace=False)
+    uv = s.camera.project(pts[idx]) + rng.normal(0.0, 0.2, (12, 2))
+    clicks = tmp_path / "clicks.json"
+    clicks.write_text(json.dumps({"points": [
+        {"vertex": int(i), "u": float(u), "v": float(v)}
+        for i, (u, v) in zip(idx, uv, strict=True)]}))
+    out = tmp_path / "est"
+    assert main_solve(["homogeneous", str(sample), "--grid", "3", "3", "3", "--modes", "4",
+                       "--no-mode-match", "--modes-file", str(modes), "--clicks", str(clicks),
+                       "-o", str(out)]) == 0
+    assert "camera from 12 clicks" in capsys.readouterr().out
+    meta = json.loads((out / "estimate.json").read_text())["problem"]
+    assert meta["camera_source"] == "clicks" and meta["clicks_file"] == str(clicks)
+    assert meta["clicks_rms_px"] < 0.4 and meta["observation"] == "extracted"
+    # a narrow field of view leaves focal length and distance ill-determined, not the image:
+    # all 64 vertices (clicked or not) are imaged as by the sample's camera, to ~noise
+    est = Camera.from_dict(meta["camera"])
+    err = np.linalg.norm(est.project(pts) - s.camera.project(pts), axis=1)
+    assert np.sqrt(np.mean(err**2)) < 0.5
+    assert meta["n_visible"] >= 10 and 1 <= len(meta["extracted_frequencies_hz"]) <= 4
+    assert min(meta["extraction_mac"]) > 0.5
+
+
+def test_solve_sample_clicks_errors(sample, tmp_path, capsys):
+    out = str(tmp_path / "x")
+    clicks = tmp_path / "clicks.json"
+    base = ["homogeneous", str(sample), "--observation", "true", "--modes", "4", "-o", out,
+            "--clicks"]
+    clicks.write_text(json.dumps({"points": [{"vertex": 0, "u": 1.0}]}))
+    assert main_solve([*base, str(clicks)]) == 2
+    assert "clicks.json: points[0] is missing key 'v'" in capsys.readouterr().err
+    clicks.write_text(json.dumps({"points": [{"vertex": i, "u": 1.0, "v": 2.0 * i}
+                                             for i in range(5)]}))
+    assert main_solve([*base, str(clicks)]) == 2
+    assert ">= 6 vertex <-> pixel pairs" in capsys.readouterr().err
+    assert main_solve([*base, str(tmp_path / "missing.json")]) == 2
+    assert "--clicks" in capsys.readouterr().err
+    clicks.write_text(json.dumps({"points": [{"vertex": 10 ** 6 + i, "u": 1.0, "v": 2.0 * i}
+                                             for i in range(6)]}))
+    assert main_solve([*base, str(clicks), "--grid", "3", "3", "3"]) == 2
+    assert "out of range" in capsys.readouterr().err
+    assert main_solve(["homogeneous", "jello_cube", "-o", out, "--clicks", str(clicks)]) == 2
+    assert "needs a sample folder" in capsys.readouterr().err

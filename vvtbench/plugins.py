@@ -220,6 +220,10 @@ def build_solve_parser() -> argparse.ArgumentParser:
     p.add_argument("--modes-file", default=None,
                    help="samples only: an extract output folder (modes.json + modes.npz); "
                    "default: extract from the sample's video into OUTPUT/modes (reused)")
+    p.add_argument("--clicks", default=None, metavar="FILE",
+                   help="samples only: a clicks file (JSON or CSV of inference-mesh vertex, u, "
+                   "v; >= 6 non-coplanar vertices, format in docs/modes.md): the camera is "
+                   "estimated from it instead of taken from the sample")
     return p
 
 
@@ -242,6 +246,10 @@ def main_solve(argv: list[str] | None = None) -> int:
     out = Path(args.output)
     if target.is_dir():
         return _solve_sample(args, cls, config, target, out)
+    if args.clicks is not None:
+        print(f"error: --clicks needs a sample folder; {args.target} is a scene, filmed by its "
+              "own camera", file=sys.stderr)
+        return 2
     scene = load_scene(args.target)
     grid = tuple(args.grid) if args.grid else ((20, 20) if scene.geometry.kind == "drum"
                                                else (8, 8, 8))
@@ -274,6 +282,18 @@ def _solve_sample(args, cls, config, target: Path, out: Path) -> int:
     except DatasetError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    if args.clicks is not None:
+        from .modes import load_clicks
+
+        try:  # fail before the simulation; vertex indices are checked against the mesh later
+            n_clicks = len(load_clicks(args.clicks)[0])
+        except (OSError, ValueError) as error:
+            print(f"error: --clicks: {error}", file=sys.stderr)
+            return 2
+        if n_clicks < 6:
+            print(f"error: --clicks: {args.clicks}: camera estimation needs >= 6 vertex <-> "
+                  f"pixel pairs (non-coplanar vertices), got {n_clicks}", file=sys.stderr)
+            return 2
     modesets = None
     modes_dir = None
     t0 = time.perf_counter()
@@ -304,10 +324,13 @@ def _solve_sample(args, cls, config, target: Path, out: Path) -> int:
     try:
         problem = InverseProblem.from_sample(
             sample, args.observation, modesets, inference_shape=grid, n_modes=args.modes,
-            geometry_scale=args.geometry_scale)
+            geometry_scale=args.geometry_scale, clicks=args.clicks)
     except ValueError as error:
         print(f"error: {target}: {error}", file=sys.stderr)
         return 2
+    if args.clicks is not None:
+        print(f"camera from {n_clicks} clicks ({args.clicks}): reprojection rms "
+              f"{problem.meta['clicks_rms_px']:.3f} px")
     t_setup = time.perf_counter() - t0
     estimate = cls(config).solve(problem)
     metrics = score(problem, estimate.w, estimate.v, modes=not args.no_mode_match)

@@ -20,6 +20,7 @@ Layouts
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -356,6 +357,7 @@ class InverseProblem:
         geometry_scale: float | tuple[float, float, float] = 1.0,
         extract_options: dict | None = None,
         depth_visibility: bool = True,
+        clicks: str | Path | None = None,
         **priors,
     ) -> InverseProblem:
         """The problem of a sample written by ``vvtbench generate``.
@@ -376,6 +378,14 @@ class InverseProblem:
         extract_options : keyword arguments of ``extract_modes`` when extracting here.
         depth_visibility : visible vertices also pass the sample's rendered depth buffer
             (``image/depth``; self-occlusion), else only the normal-facing test.
+        clicks : a clicks file (:mod:`vvtbench.modes.sampling`) pairing inference-mesh vertex
+            indices (``problem.mesh.points``, seen where the true object's point
+            ``points / geometry_scale`` is) with video pixels: the camera estimated from it
+            (:func:`~vvtbench.modes.sampling.camera_from_clicks`, >= 6 non-coplanar pairs)
+            replaces the sample's for ``P`` and the sampling of the extracted modes (the
+            visible vertices stay the sample's, less any outside the frame); ``meta``
+            records ``camera_source`` (``"sample"`` or ``"clicks"``), ``clicks_file``,
+            ``clicks_rms_px`` and the ``camera``.
         **priors : ``nu``, ``w0``, ``v0``, ``w_mean``.
 
         Returns
@@ -402,10 +412,30 @@ class InverseProblem:
                 depth_buffer = sample["image/depth"]
             except KeyError:  # an older sample without dense image fields
                 depth_buffer = None
-        problem = cls.from_simulation(
-            result, camera=sample.camera, inference_shape=tuple(inference_shape),
-            n_modes=n_true if observation == "extracted" else n_modes,
-            geometry_scale=geometry_scale, depth_buffer=depth_buffer, **priors)
+        setup = dict(inference_shape=tuple(inference_shape),
+                     n_modes=n_true if observation == "extracted" else n_modes,
+                     geometry_scale=geometry_scale, depth_buffer=depth_buffer, **priors)
+        camera = sample.camera
+        problem = cls.from_simulation(result, camera=camera, **setup)
+        camera_meta = {"camera_source": "sample"}
+        if clicks is not None:
+            from .modes.sampling import camera_from_clicks
+
+            scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
+            camera, rms = camera_from_clicks(clicks, problem.mesh.points / scale,
+                                             sample.camera.width, sample.camera.height)
+            # the sample's visible vertices (its depth buffer belongs to its own camera, whose
+            # distance the clicks fix only loosely), less those now outside the frame
+            seen = problem.mesh.points[problem.visible_nodes] / scale
+            uv = camera.project(seen)
+            inside = ((camera.depth(seen) > 0) & (uv[:, 0] >= -0.5)
+                      & (uv[:, 0] <= camera.width - 0.5) & (uv[:, 1] >= -0.5)
+                      & (uv[:, 1] <= camera.height - 0.5))
+            problem = cls.from_simulation(result, camera=camera,
+                                          visible=problem.visible_nodes[inside], **setup)
+            camera_meta = {"camera_source": "clicks", "clicks_file": str(clicks),
+                           "clicks_rms_px": rms}
+        problem.meta.update(camera_meta)
         problem.meta["visibility"] = "depth buffer" if depth_buffer is not None else "normals"
         problem.meta["sample"] = str(sample.path)
         if observation == "true":
@@ -415,7 +445,7 @@ class InverseProblem:
             from .modes import extract_modes
 
             modesets = [extract_modes(sample.video_path, sample.fps, **(extract_options or {}))]
-        return problem.with_extracted_modes(modesets, sample.camera, n_modes)
+        return problem.with_extracted_modes(modesets, camera, n_modes)
 
 
 @dataclass

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from collections.abc import Iterable
@@ -45,6 +46,8 @@ from .spectrum import (
 from .video import VIDEO_SUFFIXES, average_frames, open_video
 
 __all__ = ["confidence_weights", "extract_modes", "main_extract", "modes_from_displacements"]
+
+_log = logging.getLogger(__name__)
 
 
 def confidence_weights(confidence: ArrayLike, quantile: float = 0.9) -> NDArray[np.float64]:
@@ -103,7 +106,9 @@ def modes_from_displacements(
     window : {"hann", "none"}, default "hann"
         Temporal taper before the FFT (:mod:`.spectrum`): Hann keeps the leakage of strong
         undamped modes (sidelobes ~ 1/k with "none") from masking weak modes and from
-        contaminating their shapes; peaks are about 2 bins wide instead of 1.
+        contaminating their shapes; peaks are about 2 bins wide instead of 1.  Damping is
+        fitted with the exact response of the window used (:func:`peaks.damping_lorentzian`,
+        :func:`peaks.damping_half_power`).
     shake_threshold : float, default 0.9
         A peak with translation MAC above it is flagged ``camera_shake``.
     keep_camera_shake : bool, default False
@@ -165,11 +170,13 @@ def modes_from_displacements(
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
-        zeta, _, _ = damping_lorentzian(freqs, power, int(k))
+        zeta, _, _ = damping_lorentzian(freqs, power, int(k), window=window, n_frames=T)
         f_ref = refine_frequency(freqs, power, int(k))
         rows["frequencies_hz"].append(f_ref)
         rows["damping"].append(zeta)
-        rows["damping_half_power"].append(damping_half_power(freqs, power, int(k)))
+        rows["damping_half_power"].append(
+            damping_half_power(freqs, power, int(k), window=window, n_frames=T)
+        )
         delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
         rows["amplitudes_px"].append(2.0 * norm / gain / scalloping(delta, window))
         rows["peak_bins"].append(int(k))
@@ -359,15 +366,19 @@ def extract_modes(
     Returns
     -------
     ModeSet
-        ``metadata`` records the source, parameters and timings.
+        ``metadata`` records the source, parameters and timings; ``fps_source`` is
+        ``"argument"`` or ``"container"`` (then also logged at INFO level).
     """
     if weighting not in ("confidence", "none"):
         raise ValueError(f"weighting must be 'confidence' or 'none', got {weighting!r}")
     video = open_video(source, roi=roi, max_frames=max_frames)
+    fps_source = "argument"
     if fps is None:
         fps = video.fps
         if fps is None:
             raise ValueError("fps is required (the source has no frame rate)")
+        fps_source = "container"
+        _log.info("fps not given: using the container's %g fps (%s)", fps, video.meta["source"])
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps}")
     if average < 1:
@@ -409,6 +420,7 @@ def extract_modes(
         meta = {
             **video.meta,
             "fps_input": float(fps),
+            "fps_source": fps_source,
             "average": average,
             "motion": {
                 "n_scales": n_scales,
@@ -490,6 +502,24 @@ def _resolve_source(path: Path) -> Path:
     return path
 
 
+def _note_fps(given: Path, src: Path, fps: float | None) -> None:
+    """Tell on stderr which frame rate is used when ``--fps`` is not given."""
+    if fps is not None:
+        truth = given / "truth.json" if given.is_dir() else given.parent / "truth.json"
+        print(f"note: --fps not given: using {fps:g} fps from {truth}", file=sys.stderr)
+        return
+    try:
+        fps = open_video(src).fps
+    except (OSError, ValueError):
+        return  # extract_modes reports the error
+    if fps is not None:
+        print(
+            f"note: --fps not given: using the container's frame rate, {fps:g} fps, of {src} "
+            "(high-speed footage often stores a wrong one: pass --fps)",
+            file=sys.stderr,
+        )
+
+
 def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     """Argument parser of :func:`main_extract`."""
     ap = argparse.ArgumentParser(
@@ -500,7 +530,12 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument(
         "video", type=Path, help="video file (avi/mp4/mkv/.npy) or a folder holding one"
     )
-    ap.add_argument("--fps", type=float, default=None, help="recording frame rate (Hz)")
+    ap.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        help="recording frame rate (Hz); default: a sample's truth.json, else the container's",
+    )
     ap.add_argument("-o", "--out", type=Path, required=True, help="output directory")
     ap.add_argument("--fmin", type=float, default=None, help="lowest mode frequency (Hz)")
     ap.add_argument("--fmax", type=float, default=None, help="highest (Hz, <= fps/2)")
@@ -540,6 +575,8 @@ def main_extract(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     src = _resolve_source(args.video)
     fps = args.fps if args.fps is not None else _sample_fps(args.video)
+    if args.fps is None:
+        _note_fps(args.video, src, fps)
     try:
         ms = extract_modes(
             src,

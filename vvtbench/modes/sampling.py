@@ -324,7 +324,10 @@ def load_clicks(path: str | Path) -> tuple[NDArray[np.intp], NDArray[np.float64]
             raise ValueError(f"{path}: missing key 'points' (a list of {{vertex, u, v}})")
         pts = doc["points"]
         if not isinstance(pts, list):
-            raise ValueError(f"{path}: 'points' must be a list")
+            raise ValueError(
+                f"{path}: 'points' must be a list of {{vertex, u, v}} objects, "
+                f"got {type(pts).__name__}"
+            )
         for i, p in enumerate(pts):
             where = f"points[{i}]"
             if not isinstance(p, dict):
@@ -367,7 +370,8 @@ def load_clicks(path: str | Path) -> tuple[NDArray[np.intp], NDArray[np.float64]
             pair.append(x)
         uv.append(pair)
     if len(set(verts)) != len(verts):
-        raise ValueError(f"{path}: duplicate vertex indices")
+        dup = sorted({v for v in verts if verts.count(v) > 1})
+        raise ValueError(f"{path}: duplicate vertex indices {dup} (one click per vertex)")
     return np.array(verts, dtype=np.intp), np.array(uv, dtype=np.float64).reshape(-1, 2)
 
 
@@ -376,18 +380,40 @@ def camera_from_clicks(
 ) -> tuple[Camera, float]:
     """Estimate the camera from a clicks file and the mesh vertices ``(q, 3)``.
 
+    Parameters
+    ----------
+    path : str or Path
+        Clicks file (module notes); ``vertex`` indexes the rows of ``vertices``.
+    vertices : array_like
+        ``(q, 3)`` vertex positions (world units).
+    width, height : int
+        Image size (px) of the video the clicks were made on.
+
     Returns
     -------
     camera : Camera
     rms : float
         RMS reprojection error (px) over the clicked points.
+
+    Raises
+    ------
+    ValueError
+        Malformed file (see :func:`load_clicks`), fewer than 6 pairs, a vertex index out of
+        range, or degenerate / inconsistent clicks; the message names the file.
     """
     idx, uv = load_clicks(path)
     V = np.asarray(vertices, dtype=np.float64)
-    if idx.size and idx.max() >= V.shape[0]:
-        raise ValueError(
-            f"{path}: vertex index {int(idx.max())} out of range (mesh has {V.shape[0]} vertices)"
-        )
     if idx.size < 6:
-        raise ValueError(f"{path}: camera estimation needs >= 6 points, got {idx.size}")
-    return estimate_camera(V[idx], uv, width, height)
+        raise ValueError(
+            f"{path}: camera estimation needs >= 6 vertex <-> pixel pairs (non-coplanar "
+            f"vertices), got {idx.size}"
+        )
+    if idx.max() >= V.shape[0]:
+        raise ValueError(
+            f"{path}: 'vertex' {int(idx.max())} out of range: the mesh has {V.shape[0]} "
+            f"vertices (allowed 0 .. {V.shape[0] - 1})"
+        )
+    try:
+        return estimate_camera(V[idx], uv, width, height)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
