@@ -305,6 +305,7 @@ t0 = time.perf_counter()
 ms = extract_modes(src, fps, workers=-1, memory_budget={budget})
 dt = time.perf_counter() - t0
 print(json.dumps({{"rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    "child_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
     "seconds": dt, "write_s": t_write, "f": ms.frequencies_hz.tolist(),
     "spilled": ms.metadata["spilled_to_disk"], "timing": ms.metadata["timing_s"],
     "grid": ms.metadata["motion"]["grid_shape"], "rejected": ms.metadata["rejected"],
@@ -337,7 +338,8 @@ def bench_rss(n: int, lengths: list[int], budget: int, video_dir: str | None = N
         disp_gb = T * gh * gw * 2 * 4 / 1e9
         src = "FFV1 video file" if video else "generator"
         print(
-            f"long video {T} x {n}^2 from {src}: peak RSS {r['rss_mb']:7.0f} MB, extraction "
+            f"long video {T} x {n}^2 from {src}: peak RSS {r['rss_mb']:7.0f} MB (largest "
+            f"ffmpeg child {r['child_rss_mb']:.0f} MB), extraction "
             f"{r['seconds']:6.1f} s ({T / r['seconds']:.1f} fr/s end to end; motion "
             f"{r['timing']['motion']:.1f} s, spectrum+peaks+modes "
             f"{r['timing']['spectrum_and_modes']:.1f} s)"
