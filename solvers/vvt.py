@@ -9,11 +9,13 @@ Objective (paper Eq. 3, k modes, m voxels)::
 Each iteration (the order of the authors' code):
 
 1. u-update, per mode, closed form: (y_i A_i^T A_i + alpha_u P^T P) u_i = alpha_u P^T gamma_i.
-   Sparse: the system pattern is fixed, so it is analysed once (CHOLMOD, METIS); each mode's
-   numeric Cholesky factor is cached and reused as the preconditioner of warm-started PCG in
-   later iterations (refactorized when PCG needed more than 7 steps or stalls), so most
-   iterations cost a few block sparse mat-vecs and triangular solves per mode instead of a
-   factorization.
+   Sparse: the system pattern is fixed, so it is analysed once (CHOLMOD, METIS). The modes are
+   grouped by eigenvalue (ratio <= 1 + group_rtol); each group keeps one numeric Cholesky
+   factor of the system at its centre, the preconditioner of warm-started PCG for its modes
+   (all modes in lockstep, one multi-right-hand-side triangular solve per group and step),
+   refactorized when its PCG cost exceeds its running average cost including the
+   factorization (measured), so most iterations cost some block sparse mat-vecs and
+   triangular solves instead of factorizations.
 2. z = [w; v] update: the sparse 2m x 2m normal equations
    (1/k) sum_i y_i B_i^T B_i + (alpha_w/m) L^T L (+) (alpha_v/m) L^T L + 2 alpha_mean c c^T,
    B_i = [G_i, -lam_i H_i], G_i = stiffness_columns(u_i), H_i = mass_columns(u_i), c = 1/m
@@ -209,28 +211,36 @@ class USolver:
 
     All N_i share one sparsity pattern (that of K^2 plus P^T P, K and M sharing K's), which is
     analysed once (CHOLMOD, METIS) for every mode and iteration. Per iteration the three
-    products K^2, KM + MK, M^2 are formed once and mapped onto that pattern; a mode's N_i is
-    then a linear combination of three data arrays.
+    products K^2, KM + MK, M^2 are formed once (when several systems are factorized) and mapped
+    onto that pattern; a mode's N_i is then a linear combination of three data arrays.
 
     ``method``:
 
     * "direct": numeric Cholesky of N_i per mode per iteration (the symbolic analysis reused),
       one triangular solve pair: the exact solution (forward error ~1e-13 here).
-    * "pcg": each mode keeps its last numeric factor; later iterations run PCG warm-started
-      from the previous u_i with that (slightly stale) factor as preconditioner -- the
-      preconditioned spectrum lies in ~[0.9, 1.4], so a few steps reach ``rtol`` on the
-      *error* estimate ||Q^-1 r|| / ||u|| (not on the residual: N is ill-conditioned, ~1e6,
-      and a residual test at 1e-8 would leave errors of 1e-3). A mode whose PCG needs more
-      than ``pcg_maxiter`` steps is refactorized and solved directly; one that converged but
-      needed more than ``refresh_after`` steps is refactorized in the next call (at 8^3 a
-      factorization costs ~25 preconditioner applications: with 7, 30 % less work than
-      waiting for PCG to fail).
-    * "auto": "pcg" for as many modes as their cached factors fit in ``cache_mb``, "direct"
+    * "pcg": the modes are grouped by eigenvalue (sorted; a group spans lam ratios of at most
+      1 + ``group_rtol``) and each group keeps one numeric factor of N at its centre (geometric
+      mean lam, mean y; a one-mode group: that mode's own N, solved exactly when new). Every
+      mode is solved by PCG with its group's (possibly stale) factor as preconditioner,
+      warm-started from the extrapolation 2 u^(t-1) - u^(t-2); all PCGs run in lockstep, one
+      block mat-vec and one multi-right-hand-side triangular solve per group a step (several
+      right-hand sides cost little more than one). PCG stops on the *error* estimate
+      ||Q^-1 r|| / (theta ||u||) < ``rtol`` (not on the residual: N is ill-conditioned, ~1e6,
+      and a residual test at 1e-8 would leave errors of 1e-3), theta = min(1, the smallest
+      Ritz value of the preconditioned matrix from the CG coefficients), which keeps the
+      estimate honest when a shared or stale factor is far from N_i. Refresh policy, per
+      group, from measured costs (seconds per factorization F, per PCG step of a group c): a
+      group is refactorized at the next call when its PCG cost this iteration exceeds its
+      average cost per iteration since its last factorization (F included) -- the optimal
+      renewal rule for a cost growing with the factor's age; a mode whose PCG does not
+      converge within ``pcg_maxiter`` steps (default: max(30, 2 F/c)) is solved directly and
+      its group refactorized next time.
+    * "auto": "pcg" for as many groups as their cached factors fit in ``cache_mb``, "direct"
       for the rest.
     """
 
-    def __init__(self, model, PtP, alpha_u, method="auto", rtol=1e-8, pcg_maxiter=15,
-                 cache_mb=2000.0, refresh_after: int = 7) -> None:
+    def __init__(self, model, PtP, alpha_u, method="auto", rtol=1e-8, pcg_maxiter=None,
+                 cache_mb=2000.0, group_rtol: float = 0.4) -> None:
         self.model = model
         self.PtP = sp.csc_matrix(PtP)
         self.alpha_u = alpha_u
@@ -238,15 +248,18 @@ class USolver:
         self.rtol = rtol
         self.pcg_maxiter = pcg_maxiter
         self.cache_mb = cache_mb
+        self.group_rtol = group_rtol
         self._pattern = None
         self._symbolic = None
         self._work = None  # the one reusable numeric factor of "direct" solves
-        self.factors: dict[int, object] = {}
-        self.stats = {"factorizations": 0, "pcg_iterations": 0, "solves": 0}
+        self.groups: list[np.ndarray] | None = None
+        self.factors: dict[int, dict] = {}  # group -> {"F", "iters", "cost"}
+        self._stale: set[int] = set()
+        self.stats = {"factorizations": 0, "pcg_iterations": 0, "solves": 0,
+                      "factor_s": 0.0, "pcg_s": 0.0, "pcg_group_steps": 0}
         self._factor_mb = None
         self._maps: dict[str, tuple] = {}
         self._U_older = None  # the u's of two calls ago: PCG starts from the extrapolation
-        self.refresh_after = refresh_after
 
     # -- the fixed pattern of N_i and fast mapping of products onto it
     def _build_pattern(self, K, M):
@@ -307,111 +320,221 @@ class USolver:
         try:
             from sksparse.cholmod import analyze
         except ImportError:
-            return Factorization(S)
-        if self._symbolic is None:
-            self._symbolic = analyze(self._pattern, ordering_method="metis")
-        if keep:
-            F = self._symbolic.copy()
+            t0 = time.perf_counter()
+            F = Factorization(S)
         else:
-            if self._work is None:
-                self._work = self._symbolic.copy()
-            F = self._work
-        F.cholesky_inplace(S)
+            if self._symbolic is None:  # once: not part of a factorization's cost
+                self._symbolic = analyze(self._pattern, ordering_method="metis")
+            t0 = time.perf_counter()
+            if keep:
+                F = self._symbolic.copy()
+            else:
+                if self._work is None:
+                    self._work = self._symbolic.copy()
+                F = self._work
+            F.cholesky_inplace(S)
+        self.stats["factor_s"] += time.perf_counter() - t0
         return F
 
-    def _cacheable(self, F) -> bool:
+    def _fits(self, n_more: int) -> bool:
+        """Whether ``n_more`` more cached factors fit the memory budget."""
         if self.method == "direct":
             return False
-        if self.method == "pcg":
+        if self.method == "pcg" or self._factor_mb is None:
             return True
+        return self._factor_mb * (len(self.factors) + n_more) <= self.cache_mb
+
+    def _measure(self, F) -> None:
         if self._factor_mb is None:
-            try:  # every mode shares the symbolic analysis: measure one factor only
+            try:  # every factor shares the symbolic analysis: measure one only
                 self._factor_mb = F.L().nnz * 12 / 2**20
             except Exception:
-                return False
-        return self._factor_mb * (len(self.factors) + 1) <= self.cache_mb
+                self._factor_mb = float("inf")
+
+    def _costs(self):
+        """Measured seconds per factorization and per PCG step of a group (one triangular
+        solve with its factor for all its columns, and their share of the mat-vec); None until
+        known."""
+        s = self.stats
+        F = s["factor_s"] / s["factorizations"] if s["factorizations"] else None
+        c = s["pcg_s"] / s["pcg_group_steps"] if s["pcg_group_steps"] else None
+        return F, c
+
+    def _make_groups(self, lam):
+        order = np.argsort(lam, kind="stable")
+        groups, cur = [], [order[0]]
+        for i in order[1:]:
+            if lam[i] > lam[cur[0]] * (1.0 + self.group_rtol) or lam[cur[0]] <= 0:
+                groups.append(np.array(cur))
+                cur = [i]
+            else:
+                cur.append(i)
+        groups.append(np.array(cur))
+        return groups
 
     def solve(self, K, M, lam, y, gamma_rhs, U_prev):
         """All modes: returns U (n, k)."""
         if self._pattern is None:
             self._build_pattern(K, M)
         k = len(lam)
+        if self.groups is None:
+            self.groups = (self._make_groups(lam) if self.method != "direct"
+                           else [np.array([i]) for i in range(k)])
         U = np.empty_like(U_prev)
-        prods = None
         a = self.alpha_u
         PtP = self.PtP
         B = a * gamma_rhs
-        # modes with a cached factor: PCG, all of them in lockstep (one block mat-vec a step)
-        cached = np.array([i for i in range(k) if i in self.factors], dtype=int)
         solved = np.zeros(k, dtype=bool)
-        if cached.size:
-            lam_c, y_c = lam[cached], y[cached]
+        prods = None
+
+        # (re)factorize the groups without a (fresh) factor that fit the budget
+        stale = [g for g in range(len(self.groups))
+                 if g not in self.factors or g in self._stale]
+        for g in stale:
+            self.factors.pop(g, None)
+        if self.method == "direct":
+            stale = []
+        t0 = time.perf_counter()  # building the systems is part of a refresh's cost
+        if len(stale) > 2:
+            prods = self._products_on_pattern(K, M)
+        for g in stale:
+            if not self._fits(1):
+                break
+            G = self.groups[g]
+            lc = float(np.exp(np.mean(np.log(lam[G])))) if len(G) > 1 else float(lam[G[0]])
+            yc = float(np.mean(y[G]))
+            S = (self._system(lc, yc, prods) if prods is not None
+                 else self._system_of(K, M, lc, yc))
+            self.stats["factor_s"] += time.perf_counter() - t0
+            F = self._factor(S, keep=True)
+            self._measure(F)
+            self.factors[g] = {"F": F, "iters": 0, "cost": 0.0}
+            self._stale.discard(g)
+            if len(G) == 1:  # the mode's own N: the exact solution
+                U[:, G[0]] = F(B[:, G[0]])
+                solved[G[0]] = True
+                self.stats["solves"] += 1
+            t0 = time.perf_counter()
+
+        # PCG for the other modes with a cached group factor, all in lockstep
+        cols = [i for g, G in enumerate(self.groups) if g in self.factors
+                for i in G if not solved[i]]
+        if cols:
+            cols = np.array(cols, dtype=int)
+            where = {int(i): j for j, i in enumerate(cols)}
+            lam_c, y_c = lam[cols], y[cols]
 
             def matvec(X, J):
                 R = K @ X - (M @ X) * lam_c[J]
                 return (K @ R - (M @ R) * lam_c[J]) * y_c[J] + a * (PtP @ X)
 
-            X0 = U_prev[:, cached]
+            X0 = U_prev[:, cols]
             if self._U_older is not None:
-                older = self._U_older[:, cached]
+                older = self._U_older[:, cols]
                 X0 = np.where(np.any(older != 0, axis=0), 2.0 * X0 - older, X0)
-            X, ok, its = _block_pcg(matvec, B[:, cached], [self.factors[i] for i in cached],
-                                    X0, self.rtol, self.pcg_maxiter)
+            blocks = [(self.factors[g]["F"], np.array([where[int(i)] for i in G
+                                                       if int(i) in where]))
+                      for g, G in enumerate(self.groups) if g in self.factors]
+            blocks = [(F, J) for F, J in blocks if J.size]
+            Fc, cc = self._costs()
+            maxiter = self.pcg_maxiter
+            if maxiter is None:
+                maxiter = 30 if Fc is None or not cc else int(min(200, max(30, 2 * Fc / cc)))
+            t0 = time.perf_counter()
+            X, ok, its = _block_pcg(matvec, B[:, cols], blocks, X0, self.rtol, maxiter)
+            self.stats["pcg_s"] += time.perf_counter() - t0
+            # a step's cost is mostly one triangular solve per group, whatever its columns
+            self.stats["pcg_group_steps"] += sum(int(its[J].max()) + 1 for _, J in blocks)
             self.stats["pcg_iterations"] += int(its.sum())
-            U[:, cached[ok]] = X[:, ok]
-            solved[cached[ok]] = True
-            # a factor that needed many steps has gone stale: refactorize that mode next time
-            # (a direct solve then) rather than run a long or failing PCG
-            for i in cached[ok & (its > self.refresh_after)]:
-                self.factors.pop(int(i), None)
+            self.stats["solves"] += int(ok.sum())
+            U[:, cols[ok]] = X[:, ok]
+            solved[cols[ok]] = True
+            # refresh policy: refactorize a group next time when this iteration's PCG cost
+            # exceeds its average cost per iteration since the factorization (F included)
+            Fc, cc = self._costs()
+            for g, G in enumerate(self.groups):
+                if g not in self.factors:
+                    continue
+                J = [where[int(i)] for i in G if int(i) in where]
+                if not J:
+                    continue
+                rec = self.factors[g]
+                cost = cc * float(np.max(its[J]) + 1)
+                rec["iters"] += 1
+                rec["cost"] += cost
+                if not np.all(ok[J]) or cost * rec["iters"] > Fc + rec["cost"]:
+                    self._stale.add(g)
+
+        # the rest (no cached factor, or PCG failed): a direct solve per mode
         todo = np.flatnonzero(~solved)
-        # a few modes: (K - lam M)^2 directly (one sparse product each); many: K^2, KM + MK,
-        # M^2 once and a linear combination per mode
-        few = len(todo) <= 2
-        for i in range(k):
-            if not solved[i]:
-                if few:
-                    S = self._system_of(K, M, lam[i], y[i])
-                else:
-                    if prods is None:
-                        prods = self._products_on_pattern(K, M)
-                    S = self._system(lam[i], y[i], prods)
-                self.factors.pop(i, None)
-                keep = self.method != "direct" and (
-                    self.method == "pcg" or self._factor_mb is None
-                    or self._factor_mb * (len(self.factors) + 1) <= self.cache_mb)
-                F = self._factor(S, keep)
-                U[:, i] = F(B[:, i])
-                if keep and self._cacheable(F):
-                    self.factors[i] = F
+        if len(todo) > 2 and prods is None:
+            prods = self._products_on_pattern(K, M)
+        for i in todo:
+            S = (self._system(lam[i], y[i], prods) if prods is not None
+                 else self._system_of(K, M, lam[i], y[i]))
+            F = self._factor(S, keep=False)
+            U[:, i] = F(B[:, i])
             self.stats["solves"] += 1
         self._U_older = U_prev.copy()
         return U
 
 
-def _block_pcg(matvec, B, precs, X0, rtol, maxiter):
+def _block_pcg(matvec, B, blocks, X0, rtol, maxiter):
     """Independent preconditioned CGs for the columns of B, run in lockstep so that each step
     costs one block mat-vec (``matvec(X[:, J], J)`` for the active columns J) and one
-    preconditioner application per column. Each column is exactly :func:`_pcg` (warm start
-    X0[:, j], preconditioner ``precs[j]``, stop on the preconditioned residual < rtol ||x||).
+    multi-right-hand-side preconditioner application per block: ``blocks`` is a list of
+    (solve, columns) pairs, the columns sharing that preconditioner. Column j starts at
+    X0[:, j] (zero allowed) and stops when ||Q^-1 r|| < rtol theta_j ||x||, theta_j =
+    min(1, smallest Ritz value of its preconditioned matrix from the CG coefficients).
 
     Returns (X, converged (k,) bool, iterations (k,) int); a column that does not converge
-    within ``maxiter`` steps (or starts from zero) is not converged, with ``maxiter`` (or 0)
-    iterations counted, as :func:`_pcg` does.
+    within ``maxiter`` steps is not converged, with ``maxiter`` iterations counted.
     """
+    from scipy.linalg import eigvalsh_tridiagonal
+
     n, k = B.shape
     X = np.array(X0, dtype=float, order="F", copy=True)
     its = np.zeros(k, dtype=int)
     ok = np.zeros(k, dtype=bool)
-    live = np.flatnonzero(np.any(X != 0, axis=0))
-    if live.size == 0:
-        return X, ok, its
-    R = np.zeros_like(X)
-    Z = np.zeros_like(X)
-    R[:, live] = B[:, live] - matvec(X[:, live], live)
-    for j in live:
-        Z[:, j] = precs[j](R[:, j])
-    conv = np.linalg.norm(Z[:, live], axis=0) <= rtol * np.linalg.norm(X[:, live], axis=0)
+    R = B - matvec(X, np.arange(k))
+    Z = np.empty_like(R)
+
+    def precondition(J):
+        Jset = np.zeros(k, dtype=bool)
+        Jset[J] = True
+        for solve, C in blocks:
+            C = C[Jset[C]]
+            if C.size:
+                Z[:, C] = solve(np.asfortranarray(R[:, C])).reshape(n, -1)
+
+    precondition(np.arange(k))
+    alphas = [[] for _ in range(k)]
+    betas = [[] for _ in range(k)]
+
+    def theta(j):
+        al, be = alphas[j], betas[j]
+        if not al:
+            return 1.0
+        m = len(al)
+        d = np.empty(m)
+        e = np.empty(m - 1)
+        d[0] = 1.0 / al[0]
+        for t in range(1, m):
+            d[t] = 1.0 / al[t] + be[t - 1] / al[t - 1]
+            e[t - 1] = np.sqrt(be[t - 1]) / al[t - 1]
+        lo = eigvalsh_tridiagonal(d, e, select="i", select_range=(0, 0))[0]
+        return min(1.0, lo)
+
+    def converged(J):
+        zn = np.linalg.norm(Z[:, J], axis=0)
+        xn = np.linalg.norm(X[:, J], axis=0)
+        out = zn <= rtol * xn  # necessary; then the Ritz-corrected test
+        for t in np.flatnonzero(out):
+            out[t] = zn[t] <= rtol * theta(J[t]) * xn[t]
+        return out
+
+    live = np.arange(k)
+    conv = converged(live)
     ok[live[conv]] = True
     active = live[~conv]
     Pd = Z.copy()
@@ -425,46 +548,24 @@ def _block_pcg(matvec, B, precs, X0, rtol, maxiter):
         alpha = rz[J] / np.einsum("ij,ij->j", PJ, AP)
         X[:, J] += alpha * PJ
         R[:, J] -= alpha * AP
-        for j in J:
-            Z[:, j] = precs[j](R[:, j])
+        for t, j in enumerate(J):
+            alphas[j].append(alpha[t])
+        precondition(J)
         its[J] = it
-        conv = np.linalg.norm(Z[:, J], axis=0) <= rtol * np.linalg.norm(X[:, J], axis=0)
+        rz_new = np.einsum("ij,ij->j", R[:, J], Z[:, J])
+        beta = rz_new / rz[J]
+        for t, j in enumerate(J):
+            betas[j].append(beta[t])
+        conv = converged(J)
         ok[J[conv]] = True
-        rest = J[~conv]
-        if rest.size:
-            rz_new = np.einsum("ij,ij->j", R[:, rest], Z[:, rest])
-            Pd[:, rest] = Z[:, rest] + (rz_new / rz[rest]) * Pd[:, rest]
-            rz[rest] = rz_new
-        active = rest
-    its[~ok & (its > 0)] = maxiter
+        rest = ~conv
+        Jr = J[rest]
+        if Jr.size:
+            Pd[:, Jr] = Z[:, Jr] + beta[rest] * Pd[:, Jr]
+            rz[Jr] = rz_new[rest]
+        active = Jr
+    its[~ok] = maxiter
     return X, ok, its
-
-
-def _pcg(matvec, b, precond, x0, rtol, maxiter):
-    """Preconditioned CG, warm-started at x0. Stops when the preconditioned residual -- with a
-    preconditioner close to the matrix, an estimate of the error vector -- is below ``rtol``
-    times ||x||. Returns (x, iterations), or (None, iterations) if not converged."""
-    x = x0.copy()
-    if not np.any(x):
-        return None, 0
-    r = b - matvec(x)
-    z = precond(r)
-    if np.linalg.norm(z) <= rtol * np.linalg.norm(x):
-        return x, 0
-    p = z.copy()
-    rz = r @ z
-    for it in range(1, maxiter + 1):
-        Ap = matvec(p)
-        alpha = rz / (p @ Ap)
-        x += alpha * p
-        r -= alpha * Ap
-        z = precond(r)
-        if np.linalg.norm(z) <= rtol * np.linalg.norm(x):
-            return x, it
-        rz_new = r @ z
-        p = z + (rz_new / rz) * p
-        rz = rz_new
-    return None, maxiter
 
 
 # --------------------------------------------------------------------------- the plug-in
@@ -505,8 +606,12 @@ class VVTConfig:
         "help": "u-update: 'auto', 'direct' (factorize every mode every iteration), 'pcg'"})
     u_rtol: float = field(default=1e-8, metadata={
         "help": "PCG stop: estimated relative error of u (preconditioned residual / ||u||)"})
-    pcg_maxiter: int = field(default=15, metadata={
-        "help": "PCG steps before a mode's preconditioner is refactorized"})
+    pcg_maxiter: int | None = field(default=None, metadata={
+        "help": "PCG steps before a mode is solved directly and its group's factor refreshed "
+                "(default: max(30, 2 x the measured cost of a factorization in PCG steps))"})
+    group_rtol: float = field(default=0.4, metadata={
+        "help": "modes whose eigenvalues lie within a ratio 1 + group_rtol share one cached "
+                "factor (the PCG preconditioner); 0: one factor per mode"})
     cache_mb: float = field(default=2000.0, metadata={
         "help": "memory budget (MiB) for cached per-mode factorizations ('auto')"})
     track_nc: bool = field(default=True, metadata={
@@ -561,7 +666,7 @@ class VVTSolver:
         PtP = (P.T @ P).tocsc()
         rhs = np.asarray(P.T @ gamma.T)  # (n, k)
         usolver = USolver(model, PtP, cfg.alpha_u, cfg.u_solver, cfg.u_rtol, cfg.pcg_maxiter,
-                          cfg.cache_mb)
+                          cfg.cache_mb, cfg.group_rtol)
         zsys = ZSystem(problem, cfg.alpha_w, cfg.alpha_v, cfg.alpha_mean, w_mean)
         U = np.zeros((model.n_free, k))
         history: list[dict] = []
