@@ -13,6 +13,7 @@ import pytest
 
 from vvtbench.render.camera import Camera
 from vvtbench.render.texture import speckle_texture, triplanar_mapping
+from vvtbench.scene import SCENES_DIR, load_scene
 
 # --------------------------------------------------------------------------- helpers
 
@@ -417,3 +418,20 @@ def test_shaded_modes_are_linear_in_albedo(gl, lighting):
     with gl.Renderer(V, F, cam, texture=np.full((4, 4), 1.0), **tilted) as r:
         oblique = r.render()[8:16, 8:16]
     assert 0.55 - 1e-3 < oblique.mean() < 0.58
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
+def test_shipped_viewpoints(name):
+    """Drums are seen obliquely (out-of-plane motion moves the image); box scenes show three
+    faces (front y = 0, right x = max, top), as in the paper's cube figures."""
+    scene = load_scene(name)
+    cam = np.asarray(scene.camera.position, float)
+    axis = np.asarray(scene.camera.look_at, float) - cam
+    axis /= np.linalg.norm(axis)
+    if scene.geometry.kind == "drum":
+        tilt = np.degrees(np.arccos(abs(axis[2])))
+        assert 20.0 <= tilt <= 70.0, f"{name}: camera {tilt:.0f} deg off the drum normal"
+    elif scene.geometry.kind == "box":
+        size = np.asarray(scene.geometry.size, float)
+        assert cam[1] < 0.0 and cam[0] > size[0] and cam[2] > size[2], (
+            f"{name}: camera at {cam} does not see the front, right and top faces")
