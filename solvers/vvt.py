@@ -13,8 +13,8 @@ Each iteration (the order of the authors' code):
    grouped by eigenvalue (ratio <= 1 + group_rtol); each group keeps one numeric Cholesky
    factor of the system at its centre, the preconditioner of warm-started PCG for its modes
    (all modes in lockstep, one multi-right-hand-side triangular solve per group and step),
-   refactorized when its PCG cost exceeds its running average cost including the
-   factorization (measured), so most iterations cost some block sparse mat-vecs and
+   refactorized when its PCG steps exceed their running average including the
+   factorization (counted in steps), so most iterations cost some block sparse mat-vecs and
    triangular solves instead of factorizations.
 2. z = [w; v] update: the sparse 2m x 2m normal equations
    (1/k) sum_i y_i B_i^T B_i + (alpha_w/m) L^T L (+) (alpha_v/m) L^T L + 2 alpha_mean c c^T,
@@ -92,31 +92,82 @@ class ZSystem:
         self.c = c
         self._cache: dict = {}
 
-    def gram(self, U: np.ndarray, lam: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
-        """(1/k) sum_i weights_i B_i^T B_i, B_i = [G_i, -lam_i H_i], as one sparse product of
-        the stacked B_i, built for all modes at once from the unit element matrices."""
+    def _plan(self) -> dict:
+        """Fixed index maps of the node-block Gram assembly (built once).
+
+        Row (free DOF d, mode i) of B_i has nonzeros only at the parameters of the elements
+        around d's node, and every DOF of a node shares that column set: the Gram is a sum of
+        small dense per-node blocks X_n X_n^T, X_n = (parameters at n) x (DOFs at n, modes)."""
+        if "plan" in self._cache:
+            return self._cache["plan"]
         mdl = self.model
-        n, k, m = mdl.n_free, U.shape[1], self.m
+        cells = mdl.mesh.cells
+        ne, nn = cells.shape
+        m, n_nodes = self.m, mdl.mesh.n_nodes
+        param = np.broadcast_to(mdl.voxel_map.element_param[:, None], (ne, nn))
+        pair = cells.astype(np.int64) * m + param
+        uniq, inv = np.unique(pair.ravel(), return_inverse=True)
+        node_of = uniq // m
+        start = np.searchsorted(node_of, np.arange(n_nodes))
+        slot = np.arange(len(uniq)) - start[node_of]
+        width = int(slot.max()) + 1
+        index = np.full((n_nodes, width), -1, dtype=np.int64)  # parameter per (node, slot)
+        index[node_of, slot] = uniq % m
+        gidx = np.concatenate([index, np.where(index >= 0, index + m, -1)], axis=1)
+        valid = (gidx[:, :, None] >= 0) & (gidx[:, None, :] >= 0)
+        rows = np.broadcast_to(gidx[:, :, None], valid.shape)[valid]
+        cols = np.broadcast_to(gidx[:, None, :], valid.shape)[valid]
+        reg = self.reg.tocoo()
+        keys = np.concatenate([rows * (2 * m) + cols, reg.row.astype(np.int64) * (2 * m)
+                               + reg.col])
+        ukeys, pos = np.unique(keys, return_inverse=True)
+        n_block = len(rows)
+        plan = {
+            "width": width,
+            "scatter": sp.csr_matrix(  # (element, local node) -> (node, slot) rows, summed
+                (np.ones(ne * nn), (node_of[inv] * width + slot[inv], np.arange(ne * nn))),
+                shape=(n_nodes * width, ne * nn)),
+            "valid": valid,
+            "pos": pos[:n_block],
+            "reg_data": np.bincount(pos[n_block:], weights=reg.data, minlength=len(ukeys)),
+            "indices": (ukeys % (2 * m)).astype(np.int32),
+            "indptr": np.searchsorted(ukeys // (2 * m), np.arange(2 * m + 1)).astype(np.int32),
+        }
+        self._cache["plan"] = plan
+        return plan
+
+    def gram(self, U: np.ndarray, lam: np.ndarray, weights: np.ndarray,
+             with_reg: bool = False) -> sp.csr_matrix:
+        """(1/k) sum_i weights_i B_i^T B_i, B_i = [G_i, -lam_i H_i] (plus the regularizer when
+        ``with_reg``), from the unit element matrices as per-node dense blocks."""
+        mdl = self.model
+        plan = self._plan()
+        k, m = U.shape[1], self.m
+        n_nodes, width = mdl.mesh.n_nodes, plan["width"]
+        ne, nn = mdl.mesh.cells.shape
+        dpn = mdl.element_dofs.shape[1] // nn
         full = np.zeros((mdl.mesh.n_dofs, k))
         full[mdl.free_dofs] = U
         ue = full[mdl.element_dofs]  # (ne, nd, k)
         s = np.sqrt(np.asarray(weights, float) / k)
-        gy = np.einsum("eij,ejk->eik", mdl.Ke, ue) * s  # (ne, nd, k)
-        hy = np.einsum("eij,ejk->eik", mdl.Me, ue) * (-s * lam)
-        rows = mdl.free_index[mdl.element_dofs]  # (ne, nd)
-        keep = rows >= 0
-        param = np.broadcast_to(mdl.voxel_map.element_param[:, None], rows.shape)[keep]
-        r = rows[keep][:, None] + n * np.arange(k)[None, :]  # (nnz, k)
-        c = np.broadcast_to(param[:, None], r.shape)
-        data = np.concatenate([gy[keep].ravel(), hy[keep].ravel()])
-        rr = np.concatenate([r.ravel(), r.ravel()])
-        cc = np.concatenate([c.ravel(), c.ravel() + m])
-        B = sp.csr_matrix((data, (rr, cc)), shape=(n * k, 2 * m))
-        return (B.T @ B).tocsr()
+        free = (mdl.free_index[mdl.element_dofs] >= 0)[:, :, None]
+        gy = np.matmul(mdl.Ke, ue) * (s * free)  # (ne, nd, k)
+        hy = np.matmul(mdl.Me, ue) * (-s * lam * free)
+        X = np.empty((n_nodes, 2 * width, dpn * k))
+        for half, y in ((0, gy), (1, hy)):
+            C = plan["scatter"] @ y.reshape(ne * nn, dpn * k)
+            X[:, half * width:(half + 1) * width] = C.reshape(n_nodes, width, dpn * k)
+        blocks = X @ X.transpose(0, 2, 1)  # (n_nodes, 2 width, 2 width)
+        data = np.bincount(plan["pos"], weights=blocks[plan["valid"]],
+                           minlength=len(plan["indices"]))
+        if with_reg:
+            data += plan["reg_data"]
+        return sp.csr_matrix((data, plan["indices"], plan["indptr"]), shape=(2 * m, 2 * m))
 
     def solve(self, U, lam, weights, positive: bool = False, z_prev=None):
         """Minimizer z (2m,) and the Gram (for losses)."""
-        S = (self.gram(U, lam, weights) + self.reg).tocsc()
+        S = self.gram(U, lam, weights, with_reg=True)
+        S = sp.csc_matrix((S.data, S.indices, S.indptr), shape=S.shape)  # symmetric
         z = _anchored_solve(S, self.c, 2 * self.alpha_mean, self.w_mean, cache=self._cache)
         if positive and np.any(z <= 0):
             z = _positive_solve(S, self.c, 2 * self.alpha_mean, self.w_mean, z, self.m)
@@ -222,25 +273,29 @@ class USolver:
       1 + ``group_rtol``) and each group keeps one numeric factor of N at its centre (geometric
       mean lam, mean y; a one-mode group: that mode's own N, solved exactly when new). Every
       mode is solved by PCG with its group's (possibly stale) factor as preconditioner,
-      warm-started from the extrapolation 2 u^(t-1) - u^(t-2); all PCGs run in lockstep, one
-      block mat-vec and one multi-right-hand-side triangular solve per group a step (several
-      right-hand sides cost little more than one). PCG stops on the *error* estimate
-      ||Q^-1 r|| / (theta ||u||) < ``rtol`` (not on the residual: N is ill-conditioned, ~1e6,
-      and a residual test at 1e-8 would leave errors of 1e-3), theta = min(1, the smallest
-      Ritz value of the preconditioned matrix from the CG coefficients), which keeps the
-      estimate honest when a shared or stale factor is far from N_i. Refresh policy, per
-      group, from measured costs (seconds per factorization F, per PCG step of a group c): a
-      group is refactorized at the next call when its PCG cost this iteration exceeds its
-      average cost per iteration since its last factorization (F included) -- the optimal
-      renewal rule for a cost growing with the factor's age; a mode whose PCG does not
-      converge within ``pcg_maxiter`` steps (default: max(30, 2 F/c)) is solved directly and
-      its group refactorized next time.
+      started from the N-norm best combination of its last ``n_history`` solutions (Galerkin
+      on their span, which holds the extrapolation 2 u^(t-1) - u^(t-2)); all PCGs run in
+      lockstep, one block mat-vec ([K; M; a P^T P] stacked: one sparse product a stage) and
+      one triangular solve per group a step (several right-hand sides cost little more than
+      one). PCG stops on the *error* estimate ||Q^-1 r|| / (theta ||u||) < ``rtol`` (not on
+      the residual: N is ill-conditioned, ~1e6, and a residual test at 1e-8 would leave
+      errors of 1e-3), theta = min(1, the smallest Ritz value of the preconditioned matrix
+      from the CG coefficients), which keeps the estimate honest when a shared or stale
+      factor is far from N_i. Refresh policy, per group, counted in PCG steps (a
+      factorization costs ``refactor_steps`` steps of its group; measured 25-40 on 8^3 to
+      16^3 grids): a group is refactorized at the next call when its PCG steps this
+      iteration exceed its average per iteration since its last factorization (the
+      factorization included) -- the optimal renewal rule for a cost growing with the
+      factor's age, and deterministic (no timings), so reruns repeat bit for bit; a mode
+      whose PCG does not converge within ``pcg_maxiter`` steps (default: max(30, 2
+      ``refactor_steps``)) is solved directly and its group refactorized next time.
     * "auto": "pcg" for as many groups as their cached factors fit in ``cache_mb``, "direct"
       for the rest.
     """
 
     def __init__(self, model, PtP, alpha_u, method="auto", rtol=1e-8, pcg_maxiter=None,
-                 cache_mb=2000.0, group_rtol: float = 0.4) -> None:
+                 cache_mb=2000.0, group_rtol: float = 1.0, n_history: int = 3,
+                 refactor_steps: float = 30.0) -> None:
         self.model = model
         self.PtP = sp.csc_matrix(PtP)
         self.alpha_u = alpha_u
@@ -259,7 +314,9 @@ class USolver:
                       "factor_s": 0.0, "pcg_s": 0.0, "pcg_group_steps": 0}
         self._factor_mb = None
         self._maps: dict[str, tuple] = {}
-        self._U_older = None  # the u's of two calls ago: PCG starts from the extrapolation
+        self.n_history = n_history
+        self.refactor_steps = refactor_steps
+        self._history: list[np.ndarray] = []  # earlier solutions, newest first
 
     # -- the fixed pattern of N_i and fast mapping of products onto it
     def _build_pattern(self, K, M):
@@ -351,14 +408,16 @@ class USolver:
             except Exception:
                 self._factor_mb = float("inf")
 
-    def _costs(self):
-        """Measured seconds per factorization and per PCG step of a group (one triangular
-        solve with its factor for all its columns, and their share of the mat-vec); None until
-        known."""
-        s = self.stats
-        F = s["factor_s"] / s["factorizations"] if s["factorizations"] else None
-        c = s["pcg_s"] / s["pcg_group_steps"] if s["pcg_group_steps"] else None
-        return F, c
+    @staticmethod
+    def _solver(F):
+        """The preconditioner solve for a block of columns: one or two columns are solved one
+        by one (CHOLMOD's one-column solve costs less than half its two-column one on small
+        factors and about half on large ones), more in one multi-right-hand-side solve."""
+        def solve(R):
+            if R.shape[1] > 2:
+                return F(R)
+            return np.column_stack([F(R[:, j]) for j in range(R.shape[1])])
+        return solve
 
     def _make_groups(self, lam):
         order = np.argsort(lam, kind="stable")
@@ -424,22 +483,24 @@ class USolver:
             where = {int(i): j for j, i in enumerate(cols)}
             lam_c, y_c = lam[cols], y[cols]
 
-            def matvec(X, J):
-                R = K @ X - (M @ X) * lam_c[J]
-                return (K @ R - (M @ R) * lam_c[J]) * y_c[J] + a * (PtP @ X)
+            n = K.shape[0]
+            KMP = sp.vstack([K, M, a * PtP], format="csr")  # one sparse product per stage
+            KM = KMP[:2 * n]
 
-            X0 = U_prev[:, cols]
-            if self._U_older is not None:
-                older = self._U_older[:, cols]
-                X0 = np.where(np.any(older != 0, axis=0), 2.0 * X0 - older, X0)
-            blocks = [(self.factors[g]["F"], np.array([where[int(i)] for i in G
+            def matvec(X, J):
+                T = KMP @ X
+                R = T[:n] - T[n:2 * n] * lam_c[J]
+                S = KM @ R
+                return (S[:n] - S[n:] * lam_c[J]) * y_c[J] + T[2 * n:]
+
+            X0 = self._start(matvec, B[:, cols], U_prev[:, cols], cols)
+            blocks = [(self._solver(self.factors[g]["F"]), np.array([where[int(i)] for i in G
                                                        if int(i) in where]))
                       for g, G in enumerate(self.groups) if g in self.factors]
             blocks = [(F, J) for F, J in blocks if J.size]
-            Fc, cc = self._costs()
             maxiter = self.pcg_maxiter
             if maxiter is None:
-                maxiter = 30 if Fc is None or not cc else int(min(200, max(30, 2 * Fc / cc)))
+                maxiter = int(max(30, 2 * self.refactor_steps))
             t0 = time.perf_counter()
             X, ok, its = _block_pcg(matvec, B[:, cols], blocks, X0, self.rtol, maxiter)
             self.stats["pcg_s"] += time.perf_counter() - t0
@@ -451,7 +512,6 @@ class USolver:
             solved[cols[ok]] = True
             # refresh policy: refactorize a group next time when this iteration's PCG cost
             # exceeds its average cost per iteration since the factorization (F included)
-            Fc, cc = self._costs()
             for g, G in enumerate(self.groups):
                 if g not in self.factors:
                     continue
@@ -459,10 +519,11 @@ class USolver:
                 if not J:
                     continue
                 rec = self.factors[g]
-                cost = cc * float(np.max(its[J]) + 1)
+                cost = float(np.max(its[J]) + 1)
                 rec["iters"] += 1
                 rec["cost"] += cost
-                if not np.all(ok[J]) or cost * rec["iters"] > Fc + rec["cost"]:
+                renew = self.refactor_steps + rec["cost"]
+                if not np.all(ok[J]) or cost * rec["iters"] > renew:
                     self._stale.add(g)
 
         # the rest (no cached factor, or PCG failed): a direct solve per mode
@@ -475,8 +536,32 @@ class USolver:
             F = self._factor(S, keep=False)
             U[:, i] = F(B[:, i])
             self.stats["solves"] += 1
-        self._U_older = U_prev.copy()
+        self._history = [U_prev.copy()] + self._history[:self.n_history - 2]
         return U
+
+    def _start(self, matvec, Bc, X0, cols):
+        """PCG starting points: the N-norm best combination of the last ``n_history`` solutions
+        of each mode (Galerkin on their span; it contains the extrapolation 2 u1 - u2)."""
+        if self.n_history < 2 or not self._history:
+            return X0
+        V = np.stack([X0] + [h[:, cols] for h in self._history], axis=2)  # (n, c, h)
+        have = np.all(np.any(V != 0, axis=0), axis=1)
+        if not have.any():
+            return X0
+        J = np.flatnonzero(have)
+        Q, _ = np.linalg.qr(V[:, J].transpose(1, 0, 2))  # (c, n, h)
+        h = Q.shape[2]
+        NQ = matvec(Q.transpose(1, 0, 2).reshape(-1, len(J) * h), np.repeat(J, h))
+        NQ = NQ.reshape(-1, len(J), h).transpose(1, 0, 2)
+        G = Q.transpose(0, 2, 1) @ NQ  # (c, h, h)
+        r = np.einsum("cnh,nc->ch", Q, Bc[:, J])
+        try:
+            coef = np.linalg.solve(G, r[:, :, None])
+        except np.linalg.LinAlgError:
+            return X0
+        X0 = X0.copy()
+        X0[:, J] = (Q @ coef)[:, :, 0].T
+        return X0
 
 
 def _block_pcg(matvec, B, blocks, X0, rtol, maxiter):
@@ -604,12 +689,19 @@ class VVTConfig:
         "help": "divide P by max|P| as the authors' code does (their alpha_u assumes it)"})
     u_solver: str = field(default="auto", metadata={
         "help": "u-update: 'auto', 'direct' (factorize every mode every iteration), 'pcg'"})
-    u_rtol: float = field(default=1e-8, metadata={
-        "help": "PCG stop: estimated relative error of u (preconditioned residual / ||u||)"})
+    u_rtol: float = field(default=1e-6, metadata={
+        "help": "PCG stop: estimated relative error of u (preconditioned residual / ||u||); "
+                "1e-6 leaves w within 1e-6 of exact u-solves after 100 iterations, 1e-8 "
+                "within 4e-9"})
     pcg_maxiter: int | None = field(default=None, metadata={
         "help": "PCG steps before a mode is solved directly and its group's factor refreshed "
-                "(default: max(30, 2 x the measured cost of a factorization in PCG steps))"})
-    group_rtol: float = field(default=0.4, metadata={
+                "(default: max(30, 2 refactor_steps))"})
+    refactor_steps: float = field(default=30.0, metadata={
+        "help": "cost of a factorization in PCG steps of its group, for the refresh rule "
+                "(measured 25-40 on 8^3-16^3 grids; counted, not timed: reruns repeat)"})
+    n_history: int = field(default=3, metadata={
+        "help": "PCG starts from the best combination of this many previous solutions"})
+    group_rtol: float = field(default=1.0, metadata={
         "help": "modes whose eigenvalues lie within a ratio 1 + group_rtol share one cached "
                 "factor (the PCG preconditioner); 0: one factor per mode"})
     cache_mb: float = field(default=2000.0, metadata={
@@ -640,7 +732,7 @@ class VVTSolver:
     with dual ascent on the eigen-constraints; sparse and factorization-reusing."""
 
     name = "vvt"
-    version = "1.0.0"
+    version = "1.1.0"
     description = ("The paper's solver: alternating closed-form 3-D mode / material updates "
                    "with dual ascent (Feng et al., CVPR 2022), sparse")
     Config = VVTConfig
@@ -666,7 +758,8 @@ class VVTSolver:
         PtP = (P.T @ P).tocsc()
         rhs = np.asarray(P.T @ gamma.T)  # (n, k)
         usolver = USolver(model, PtP, cfg.alpha_u, cfg.u_solver, cfg.u_rtol, cfg.pcg_maxiter,
-                          cfg.cache_mb, cfg.group_rtol)
+                          cfg.cache_mb, cfg.group_rtol, cfg.n_history,
+                          cfg.refactor_steps)
         zsys = ZSystem(problem, cfg.alpha_w, cfg.alpha_v, cfg.alpha_mean, w_mean)
         U = np.zeros((model.n_free, k))
         history: list[dict] = []
