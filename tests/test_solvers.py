@@ -400,3 +400,20 @@ def test_oracle_bounds_vvt_on_a_drum_with_sharp_defect_edges():
         nc_best = normalized_correlation(getattr(best, f), getattr(pb, f"{f}_true"))
         assert nc_best >= normalized_correlation(getattr(vvt, f), getattr(pb, f"{f}_true"))
         assert nc_best > 0.85
+
+
+def test_oracle_keeps_the_exact_eigenvalues_of_the_paired_true_modes(problem6):
+    # modes from video: a spurious peak's frequency must not reach the oracle's eigenvalues
+    import dataclasses as dc
+
+    from solvers.oracle import OracleConfig, OracleSolver
+
+    pb = problem6.select_modes(6)
+    lam = pb.eigenvalues.copy()
+    lam[0] = lam[0] / 50.0
+    meta = {**pb.meta, "true_frequencies_hz": pb.frequencies_hz.tolist()}
+    fake = dc.replace(pb, eigenvalues=lam, meta=meta)
+    cfg = OracleConfig(method="strong")
+    a, b = OracleSolver(cfg).solve(pb), OracleSolver(cfg).solve(fake)
+    np.testing.assert_allclose(b.w, a.w, rtol=1e-8)
+    np.testing.assert_allclose(b.v, a.v, rtol=1e-8)
