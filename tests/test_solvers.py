@@ -415,5 +415,7 @@ def test_oracle_keeps_the_exact_eigenvalues_of_the_paired_true_modes(problem6):
     fake = dc.replace(pb, eigenvalues=lam, meta=meta)
     cfg = OracleConfig(method="strong")
     a, b = OracleSolver(cfg).solve(pb), OracleSolver(cfg).solve(fake)
-    np.testing.assert_allclose(b.w, a.w, rtol=1e-8)
-    np.testing.assert_allclose(b.v, a.v, rtol=1e-8)
+    np.testing.assert_allclose(b.w, a.w, rtol=1e-4)  # z-system conditioning ~1e10
+    np.testing.assert_allclose(b.v, a.v, rtol=1e-4)
+    wrong = OracleSolver(cfg).solve(dc.replace(pb, eigenvalues=lam))
+    assert np.abs(wrong.v / a.v - 1).max() > 0.01
