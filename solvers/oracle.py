@@ -96,6 +96,7 @@ class OracleSolver:
 
     name = "oracle"
     version = "2.1.0"
+    uses_truth = True  # a reference: the runner lets it see the full-field 3-D modes
     description = ("Upper bound: true full-field 3-D modes and exact eigenvalues; Eq. 2 least "
                    "squares or vvt on the full field, whichever fits the modes best")
     Config = OracleConfig

@@ -70,6 +70,58 @@ class Crash:
 '''
 
 
+PEEK = '''
+from dataclasses import dataclass
+
+import numpy as np
+
+from vvtbench.problem import Estimate
+
+TRUTH = ("matched_true_modes", "extraction_mac", "true_frequencies_hz")
+
+
+@dataclass
+class Config:
+    pass
+
+
+class Peek:
+    name = "peek"
+    version = "0.0.1"
+    description = "fails when it can see the truth"
+    Config = Config
+
+    def __init__(self, config=None):
+        pass
+
+    def seen(self, problem):
+        out = [k for k in TRUTH if k in problem.meta]
+        if problem.modes_3d is not None:
+            out.append("modes_3d")
+        if problem.w_true is not None or problem.v_true is not None:
+            out.append("w_true/v_true")
+        return out
+
+    def solve(self, problem):
+        if self.seen(problem):
+            raise RuntimeError(f"saw the truth: {self.seen(problem)}")
+        m = problem.n_params
+        return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0))
+
+
+class PeekReference(Peek):
+    name = "peekref"
+    uses_truth = True
+
+    def solve(self, problem):
+        seen = self.seen(problem)
+        if "modes_3d" not in seen or "w_true/v_true" in seen:
+            raise RuntimeError(f"a reference solver sees the full field only: {seen}")
+        m = problem.n_params
+        return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0))
+'''
+
+
 def _computed(df) -> dict:
     return {s: v["computed"] for s, v in df.attrs["stats"].items()}
 
@@ -133,6 +185,15 @@ def test_crashing_solver_is_an_error_row(micro, tmp_path):
         assert "boom" in (out / p).read_text()
     assert (df[df.solver == "homogeneous"].status == "ok").all()
     assert check_results(df) == []
+
+
+def test_solvers_do_not_see_the_truth_unless_they_are_references(micro, tmp_path):
+    suite_file, out, _ = micro
+    plugin = tmp_path / "peek_solver.py"
+    plugin.write_text(PEEK)
+    df = run_suite(str(suite_file), [f"{plugin}:Peek", f"{plugin}:PeekReference"], out,
+                   progress=False)
+    assert len(df) == 4 and (df.status == "ok").all(), df[["solver", "observation", "error"]]
 
 
 def test_check_results_rejects_broken_tables(micro, tmp_path, capsys):

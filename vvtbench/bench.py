@@ -630,14 +630,30 @@ def load_problem(cache: Path, observe_key: str):
         return pickle.load(f)
 
 
-def _stage_solve(cache: Path, task: Task, out: Path, deps: dict) -> dict:
+TRUTH_META_KEYS = ("matched_true_modes", "extraction_mac", "true_frequencies_hz")
+
+
+def blind_problem(problem, reference: bool = False):
+    """What a solver sees: no true material; unless it is a ``reference`` solver (class
+    attribute ``uses_truth = True``, e.g. the oracle) also no full-field 3-D modes and none of
+    the truth-derived provenance in ``meta`` (``TRUTH_META_KEYS``)."""
     from dataclasses import replace
+
+    meta = dict(problem.meta)
+    if reference:
+        return replace(problem, w_true=None, v_true=None, meta=meta)
+    for key in TRUTH_META_KEYS:
+        meta.pop(key, None)
+    return replace(problem, w_true=None, v_true=None, modes_3d=None, meta=meta)
+
+
+def _stage_solve(cache: Path, task: Task, out: Path, deps: dict) -> dict:
 
     from .plugins import load_solver, parse_overrides
 
     problem = load_problem(cache, task.deps[0])
-    blind = replace(problem, w_true=None, v_true=None, meta=dict(problem.meta))
     cls, _ = load_solver(task.payload["solver"]), None
+    blind = blind_problem(problem, reference=getattr(cls, "uses_truth", False))
     cfg_dict = task.payload["config"]
     cfg = parse_overrides([], cls.Config)
     cfg = dataclasses.replace(cfg, **cfg_dict) if cfg_dict else cfg
@@ -650,7 +666,8 @@ def _stage_solve(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     doc = {"solver": est.solver or cls.name, "solver_version": est.version or cls.version,
            "config": est.config or cfg_dict, "runtime_s": est.runtime_s or wall,
            "wall_s": wall, "converged": est.converged, "iterations": len(est.history),
-           "history": est.history}
+           "history": est.history,
+           "extra": {k: x for k, x in (est.extra or {}).items() if not isinstance(x, np.ndarray)}}
     _write_json(out / "estimate.json", doc)
     return {"runtime_s": doc["runtime_s"], "iterations": len(est.history)}
 
