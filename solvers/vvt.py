@@ -310,8 +310,7 @@ class USolver:
         self.groups: list[np.ndarray] | None = None
         self.factors: dict[int, dict] = {}  # group -> {"F", "iters", "cost"}
         self._stale: set[int] = set()
-        self.stats = {"factorizations": 0, "pcg_iterations": 0, "solves": 0,
-                      "factor_s": 0.0, "pcg_s": 0.0, "pcg_group_steps": 0}
+        self.stats = {"factorizations": 0, "pcg_iterations": 0, "solves": 0}
         self._factor_mb = None
         self._maps: dict[str, tuple] = {}
         self.n_history = n_history
@@ -377,20 +376,16 @@ class USolver:
         try:
             from sksparse.cholmod import analyze
         except ImportError:
-            t0 = time.perf_counter()
-            F = Factorization(S)
+            return Factorization(S)
+        if self._symbolic is None:
+            self._symbolic = analyze(self._pattern, ordering_method="metis")
+        if keep:
+            F = self._symbolic.copy()
         else:
-            if self._symbolic is None:  # once: not part of a factorization's cost
-                self._symbolic = analyze(self._pattern, ordering_method="metis")
-            t0 = time.perf_counter()
-            if keep:
-                F = self._symbolic.copy()
-            else:
-                if self._work is None:
-                    self._work = self._symbolic.copy()
-                F = self._work
-            F.cholesky_inplace(S)
-        self.stats["factor_s"] += time.perf_counter() - t0
+            if self._work is None:
+                self._work = self._symbolic.copy()
+            F = self._work
+        F.cholesky_inplace(S)
         return F
 
     def _fits(self, n_more: int) -> bool:
@@ -453,7 +448,6 @@ class USolver:
             self.factors.pop(g, None)
         if self.method == "direct":
             stale = []
-        t0 = time.perf_counter()  # building the systems is part of a refresh's cost
         if len(stale) > 2:
             prods = self._products_on_pattern(K, M)
         for g in stale:
@@ -464,7 +458,6 @@ class USolver:
             yc = float(np.mean(y[G]))
             S = (self._system(lc, yc, prods) if prods is not None
                  else self._system_of(K, M, lc, yc))
-            self.stats["factor_s"] += time.perf_counter() - t0
             F = self._factor(S, keep=True)
             self._measure(F)
             self.factors[g] = {"F": F, "iters": 0, "cost": 0.0}
@@ -473,7 +466,6 @@ class USolver:
                 U[:, G[0]] = F(B[:, G[0]])
                 solved[G[0]] = True
                 self.stats["solves"] += 1
-            t0 = time.perf_counter()
 
         # PCG for the other modes with a cached group factor, all in lockstep
         cols = [i for g, G in enumerate(self.groups) if g in self.factors
@@ -501,17 +493,13 @@ class USolver:
             maxiter = self.pcg_maxiter
             if maxiter is None:
                 maxiter = int(max(30, 2 * self.refactor_steps))
-            t0 = time.perf_counter()
             X, ok, its = _block_pcg(matvec, B[:, cols], blocks, X0, self.rtol, maxiter)
-            self.stats["pcg_s"] += time.perf_counter() - t0
-            # a step's cost is mostly one triangular solve per group, whatever its columns
-            self.stats["pcg_group_steps"] += sum(int(its[J].max()) + 1 for _, J in blocks)
             self.stats["pcg_iterations"] += int(its.sum())
             self.stats["solves"] += int(ok.sum())
             U[:, cols[ok]] = X[:, ok]
             solved[cols[ok]] = True
-            # refresh policy: refactorize a group next time when this iteration's PCG cost
-            # exceeds its average cost per iteration since the factorization (F included)
+            # refresh policy: refactorize a group next time when this iteration's PCG steps
+            # exceed its average per iteration since the factorization (counted in steps)
             for g, G in enumerate(self.groups):
                 if g not in self.factors:
                     continue
