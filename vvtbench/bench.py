@@ -667,7 +667,7 @@ def _stage_solve(cache: Path, task: Task, out: Path, deps: dict) -> dict:
            "config": est.config or cfg_dict, "runtime_s": est.runtime_s or wall,
            "wall_s": wall, "converged": est.converged, "iterations": len(est.history),
            "history": est.history,
-           "extra": {k: x for k, x in (est.extra or {}).items() if not isinstance(x, np.ndarray)}}
+           "extra": est.extra_scalars()}
     _write_json(out / "estimate.json", doc)
     return {"runtime_s": doc["runtime_s"], "iterations": len(est.history)}
 

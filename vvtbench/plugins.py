@@ -374,7 +374,7 @@ def save_estimate(out: Path, problem, estimate, metrics: dict, extra: dict | Non
         "config": estimate.config, "runtime_s": estimate.runtime_s,
         "converged": estimate.converged, "iterations": len(estimate.history),
         "history": estimate.history, "metrics": metrics, "problem": problem.meta,
-        "extra": {k: x for k, x in estimate.extra.items() if not isinstance(x, np.ndarray)},
+        "extra": estimate.extra_scalars(),
         **(extra or {}),
     }
     (out / "estimate.json").write_text(json.dumps(_jsonable(doc), indent=1, default=str))

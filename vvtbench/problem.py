@@ -480,6 +480,10 @@ class Estimate:
         if self.w.shape != self.v.shape:
             raise ValueError(f"w and v differ in shape: {self.w.shape} vs {self.v.shape}")
 
+    def extra_scalars(self) -> dict[str, Any]:
+        """The entries of ``extra`` that are not arrays (written to estimate.json)."""
+        return {k: x for k, x in self.extra.items() if not isinstance(x, np.ndarray)}
+
 
 # --------------------------------------------------------------------------- geometry helpers
 
