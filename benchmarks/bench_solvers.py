@@ -70,13 +70,18 @@ def dense_iteration(problem, alpha_u=10.0, alpha_w=1e-10, alpha_v=1e-7) -> dict:
 
 
 def sparse_run(grid: int, n_modes: int, max_iter: int, track: bool = True,
-               **overrides) -> dict:
+               overrides: list[str] | None = None) -> dict:
+    """A vvt run; ``overrides``: ``key=value`` config items as for ``vvtbench solve --set``."""
+    from dataclasses import replace
+
     from solvers.vvt import VVTConfig, VVTSolver
+    from vvtbench.plugins import parse_overrides
 
     t0 = time.perf_counter()
     problem = _problem(grid, n_modes)
     setup = time.perf_counter() - t0
-    est = VVTSolver(VVTConfig(max_iter=max_iter, track_nc=track, **overrides)).solve(problem)
+    cfg = replace(parse_overrides(overrides, VVTConfig), max_iter=max_iter, track_nc=track)
+    est = VVTSolver(cfg).solve(problem)
     times = [h["time_s"] for h in est.history]
     return {
         "grid": grid, "voxels": problem.n_params, "n_free": problem.model.n_free,
@@ -93,20 +98,10 @@ def sparse_run(grid: int, n_modes: int, max_iter: int, track: bool = True,
     }
 
 
-def _value(text: str):
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def _child(args) -> None:
     kind, grid, modes, iters = args[0], int(args[1]), int(args[2]), int(args[3])
-    overrides = {k: _value(v) for k, v in (a.split("=", 1) for a in args[4:])}
     if kind == "sparse":
-        out = sparse_run(grid, modes, iters, track=grid <= 8, **overrides)
+        out = sparse_run(grid, modes, iters, track=grid <= 8, overrides=args[4:])
     else:
         out = dense_iteration(_problem(grid, modes))
         out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
