@@ -125,8 +125,8 @@ class OracleSolver:
             z, _ = zsys.solve(U, problem.eigenvalues, np.ones(problem.n_modes), cfg.positive)
             m = problem.n_params
             candidates["strong"] = (z[:m], z[m:], [])
-        full = full_field_problem(problem)
-        if cfg.method in ("fitted", "select"):
+        full = full_field_problem(problem) if cfg.method != "strong" else None
+        if full is not None:
             for a in cfg.alpha_u:
                 vcfg = VVTConfig(alpha_e=0.0, alpha_u=a, positive=cfg.positive,
                                  max_iter=cfg.max_iter, w_mean=w_mean,
