@@ -18,8 +18,11 @@ them best (``method="select"``, the default):
   (alpha_e = 0), positivity on, for each data weight in ``alpha_u``: the modes may move off
   the data to become eigenvectors of the voxel model.
 
-For modes extracted from video the oracle's modes are the true ones paired with them (by
-MAC) and its eigenvalues theirs (``meta["true_frequencies_hz"]``), not the extracted ones.
+The oracle is a reference solver (``uses_truth = True``): the runner hands it the
+:class:`vvtbench.observe.Truth` explicitly, ``solve(problem, truth)``, and marks its rows as
+references. It uses ``truth.modes_3d`` (the true 3-D modes paired with the observed ones, by
+MAC for modes extracted from video) and ``truth.eigenvalues`` (theirs, exact), never the
+material.
 
 Selection uses only the oracle's own inputs: for every candidate the forward model's k + 10
 lowest modes are matched to the true 3-D modes (Hungarian on MAC); the score is
@@ -34,6 +37,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
+from vvtbench.observe import Truth
 from vvtbench.problem import Estimate, InverseProblem
 
 from .vvt import VVTConfig, VVTSolver, ZSystem
@@ -69,11 +73,10 @@ class OracleConfig:
         self.alpha_u = tuple(float(a) for a in self.alpha_u)
 
 
-def full_field_problem(problem: InverseProblem) -> InverseProblem:
-    """The problem with every free DOF observed: P = I, the true 3-D modes (unit length) as
-    data."""
+def full_field_problem(problem: InverseProblem, U: np.ndarray) -> InverseProblem:
+    """The problem with every free DOF observed: P = I, the 3-D modes ``U`` (n_free, k) (unit
+    length) as data."""
     n = problem.model.n_free
-    U = problem.modes_3d
     gamma = (U / np.linalg.norm(U, axis=0)).T
     return replace(problem, P=sp.identity(n, format="csr"), gamma=gamma,
                    visible_nodes=np.arange(n), meta=dict(problem.meta))
@@ -96,7 +99,7 @@ class OracleSolver:
 
     name = "oracle"
     version = "2.1.0"
-    uses_truth = True  # a reference: the runner lets it see the full-field 3-D modes
+    uses_truth = True  # a reference: solve(problem, truth) gets the true 3-D modes
     description = ("Upper bound: true full-field 3-D modes and exact eigenvalues; Eq. 2 least "
                    "squares or vvt on the full field, whichever fits the modes best")
     Config = OracleConfig
@@ -104,33 +107,42 @@ class OracleSolver:
     def __init__(self, config: OracleConfig | None = None) -> None:
         self.config = config if config is not None else OracleConfig()
 
-    def solve(self, problem: InverseProblem) -> Estimate:
+    def solve(self, problem: InverseProblem, truth: Truth) -> Estimate:
+        """Fit the voxel model to ``truth.modes_3d`` and ``truth.eigenvalues`` (the true
+        full-field modes paired with the observed ones, and their exact eigenvalues).
+
+        Parameters
+        ----------
+        problem : the inverse problem (inference model, observation operator, priors).
+        truth : the evaluator's truth; only its modes and eigenvalues are read.
+
+        Returns
+        -------
+        Estimate
+            ``extra["chosen"]`` names the candidate kept, ``extra["fit_scores"]`` the scores.
+        """
         t0 = time.perf_counter()
         cfg = self.config
-        if problem.modes_3d is None:
-            raise ValueError("the oracle needs full-field 3-D modes (problem.modes_3d); "
-                             "build the problem with InverseProblem.from_simulation")
-        true_f = problem.meta.get("true_frequencies_hz")
-        if true_f is not None and len(true_f) == problem.n_modes:
-            # observed modes extracted from video: the oracle keeps the exact eigenvalues of
-            # the true modes they were paired with (a spurious peak paired with a far-off
-            # true mode would otherwise give it an inconsistent mode / eigenvalue pair)
-            lam = (2 * np.pi * np.asarray(true_f, dtype=float)) ** 2
-            problem = replace(problem, eigenvalues=lam, meta=dict(problem.meta))
+        if truth is None or truth.modes_3d is None:
+            raise ValueError("the oracle needs the truth's full-field 3-D modes "
+                             "(observe() returns them; real videos have none)")
+        U3 = np.asarray(truth.modes_3d)
+        problem = replace(problem, eigenvalues=np.asarray(truth.eigenvalues, dtype=float),
+                          meta=dict(problem.meta))
         w_mean = problem.w_mean if cfg.w_mean is None else cfg.w_mean
         candidates: dict[str, tuple[np.ndarray, np.ndarray, list]] = {}
         if cfg.method in ("strong", "select"):
-            U = problem.modes_3d * abs(problem.P).max()
+            U = U3 * abs(problem.P).max()
             zsys = ZSystem(problem, cfg.alpha_w, cfg.alpha_v, cfg.alpha_mean, w_mean)
             z, _ = zsys.solve(U, problem.eigenvalues, np.ones(problem.n_modes), cfg.positive)
             m = problem.n_params
             candidates["strong"] = (z[:m], z[m:], [])
-        full = full_field_problem(problem) if cfg.method != "strong" else None
+        full = full_field_problem(problem, U3) if cfg.method != "strong" else None
         if full is not None:
             for a in cfg.alpha_u:
                 vcfg = VVTConfig(alpha_e=0.0, alpha_u=a, positive=cfg.positive,
                                  max_iter=cfg.max_iter, w_mean=w_mean,
-                                 alpha_mean=cfg.alpha_mean, track_nc=False)
+                                 alpha_mean=cfg.alpha_mean)
                 est = VVTSolver(vcfg).solve(full)
                 candidates[f"fitted(alpha_u={a:g})"] = (est.w, est.v, est.history)
         scores = ({k: fit_score(full, w, v) for k, (w, v, _) in candidates.items()}

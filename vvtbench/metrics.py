@@ -21,7 +21,8 @@ __all__ = [
     "intrinsic_resolution",
     "mac_matrix",
     "mode_match",
-    "score",
+    "invalid_reason",
+    "evaluate",
 ]
 
 
@@ -131,17 +132,47 @@ def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10) -> dict
     }
 
 
-def score(problem, w: np.ndarray, v: np.ndarray, modes: bool = True) -> dict:
-    """All metrics of an estimate on a problem with truth (NC centered and uncentered of w and
-    v, intrinsic resolution of each, and optionally the mode match)."""
-    out: dict = {}
-    if problem.has_truth:
-        for name, est, tru in (("w", w, problem.w_true), ("v", v, problem.v_true)):
-            out[f"nc_{name}"] = normalized_correlation(est, tru)
-            out[f"nc_{name}_uncentered"] = normalized_correlation(est, tru, centered=False)
-            ir = intrinsic_resolution(problem.to_grid(est), problem.to_grid(tru))
-            out[f"sigma_star_{name}"] = ir["sigma_star"]
-            out[f"nc_{name}_at_sigma_star"] = ir["nc_at_sigma_star"]
+def invalid_reason(w: np.ndarray, v: np.ndarray, n_params: int) -> str | None:
+    """Why an estimate cannot be scored (wrong shape, a non-finite value, E or rho not
+    positive in some voxel), or None when it is valid. An invalid estimate is never scored on
+    a subset of voxels."""
+    for name, x in (("w", w), ("v", v)):
+        x = np.asarray(x)
+        if x.shape != (n_params,):
+            return f"{name} has shape {x.shape}, the problem has {n_params} parameters"
+        bad = ~np.isfinite(x)
+        if bad.any():
+            return f"{name} is not finite in {int(bad.sum())} of {n_params} voxels"
+        if (x <= 0).any():
+            return f"{name} is not positive in {int((x <= 0).sum())} of {n_params} voxels"
+    return None
+
+
+def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -> dict:
+    """Every metric of a valid estimate: NC (centred and uncentred) of w and v against the
+    truth, the intrinsic resolution of each (``sigma_star_*``, ``nc_at_sigma_star_*`` and the
+    curves), and optionally the mode match against the observed modes (``mode_mac``,
+    ``freq_err_raw``, ``freq_err_scaled``; None with a note when the forward solve fails).
+
+    Returns ``{"metrics": {...}, "curves": {"w": {...}, "v": {...}}, "notes": [...]}``.
+    """
+    w, v = np.asarray(w, dtype=float), np.asarray(v, dtype=float)
+    metrics: dict = {}
+    curves: dict = {}
+    notes: list[str] = []
+    for name, est, tru in (("w", w, truth.w), ("v", v, truth.v)):
+        metrics[f"nc_{name}"] = normalized_correlation(est, tru)
+        metrics[f"nc_{name}_uncentered"] = normalized_correlation(est, tru, centered=False)
+        ir = intrinsic_resolution(problem.to_grid(est), problem.to_grid(tru))
+        metrics[f"sigma_star_{name}"] = ir["sigma_star"]
+        metrics[f"nc_at_sigma_star_{name}"] = ir["nc_at_sigma_star"]
+        curves[name] = {"sigmas": ir["sigmas"], "nc": ir["nc"]}
+    metrics.update(mode_mac=None, freq_err_raw=None, freq_err_scaled=None)
     if modes:
-        out["mode_match"] = mode_match(problem, w, v)
-    return out
+        try:
+            mm = mode_match(problem, w, v)
+            metrics.update(mode_mac=mm["mean_mac"], freq_err_raw=mm["freq_rel_error"],
+                           freq_err_scaled=mm["freq_rel_error_scaled"])
+        except Exception as error:  # a forward model without modes: say so, score the rest
+            notes.append(f"mode match not computed: {type(error).__name__}: {error}")
+    return {"metrics": metrics, "curves": curves, "notes": notes}

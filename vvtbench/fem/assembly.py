@@ -55,6 +55,8 @@ class ParametricModel:
         d = el.dofs_per_node
         self.element_dofs = (mesh.cells[:, :, None] * d + np.arange(d)).reshape(len(mesh.cells), -1)
         fixed_nodes = np.zeros(0, np.int64) if fixed_nodes is None else np.asarray(fixed_nodes)
+        self.nu = nu
+        self.fixed_nodes = fixed_nodes.astype(np.int64)
         self.fixed_dofs = np.unique(mesh.dofs_of(fixed_nodes)) if fixed_nodes.size else fixed_nodes
         is_free = np.ones(mesh.n_dofs, dtype=bool)
         is_free[self.fixed_dofs] = False

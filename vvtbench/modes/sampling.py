@@ -47,6 +47,8 @@ __all__ = [
     "reprojection_rms",
     "sample_field",
     "sample_modes",
+    "vertex_normals",
+    "visible_vertices",
 ]
 
 
@@ -129,34 +131,126 @@ def sample_modes(shapes: ArrayLike, uv: ArrayLike) -> NDArray[np.float64]:
 
 
 def observation_operator(
-    camera: Camera, vertices: ArrayLike, visible: ArrayLike | None = None
+    camera: Camera,
+    vertices: ArrayLike,
+    visible: ArrayLike | None = None,
+    *,
+    dofs_per_node: int = 3,
+    dof_index: ArrayLike | None = None,
+    n_columns: int | None = None,
+    scale: ArrayLike | float = 1.0,
 ) -> sp.csr_matrix:
-    """Linear map from 3-D vertex displacements to image displacements of visible vertices.
+    """Linear map from vertex displacements to image displacements of visible vertices.
 
     Parameters
     ----------
     camera : Camera
     vertices : array_like
-        ``(q, 3)`` rest positions (world units).
+        ``(q, 3)`` rest positions (world units) where the camera sees the vertices.
     visible : array_like, optional
         Indices (or a ``(q,)`` boolean mask) of the visible vertices, in the order of the
         ``gamma`` rows; default all vertices.
+    dofs_per_node : int
+        3 (solids: x, y, z) or 1 (membranes: the out-of-plane z DOF, the Jacobian's z column).
+    dof_index : array_like, optional
+        ``(q * dofs_per_node,)`` column of each DOF ``node * dofs_per_node + axis``, negative
+        for DOFs that drop out (fixed); default the identity (column = DOF).
+    n_columns : int, optional
+        Number of columns; default ``q * dofs_per_node`` (or ``max(dof_index) + 1``).
+    scale : float or (3,) array_like
+        The DOFs live on a geometry scaled by ``scale`` (an inference mesh stretched against
+        the true object): the Jacobian is divided by it, ``J diag(1/scale)``.
 
     Returns
     -------
     scipy.sparse.csr_matrix
-        ``(2 n, 3 q)`` block matrix of the ``2 x 3`` Jacobians (px per world unit), see the
-        module notes for the ordering.
+        ``(2 n, n_columns)``: rows ``2 i, 2 i + 1`` hold the ``2 x d`` Jacobian of the
+        projection at vertex ``visible[i]`` (px per world unit), see the module notes.
+
+    Examples
+    --------
+    >>> from vvtbench.render.camera import Camera
+    >>> cam = Camera.look_at((0, 0, 5), (0, 0, 0), up=(0, 1, 0), fov_y_deg=30, width=64, height=64)
+    >>> observation_operator(cam, np.zeros((4, 3)), [1, 3]).shape
+    (4, 12)
     """
     X = np.asarray(vertices, dtype=np.float64)
     if X.ndim != 2 or X.shape[1] != 3:
         raise ValueError(f"vertices must be (q, 3), got {X.shape}")
-    q = X.shape[0]
+    if dofs_per_node not in (1, 3):
+        raise ValueError(f"dofs_per_node must be 1 or 3, got {dofs_per_node}")
+    q, d = X.shape[0], dofs_per_node
     idx = _visible_indices(visible, q)
     J = camera.jacobian(X[idx]).reshape(idx.size, 2, 3)
-    rows = np.repeat(np.arange(2 * idx.size), 3)
-    cols = (3 * idx[:, None, None] + np.arange(3)[None, None, :]).repeat(2, axis=1).ravel()
-    return sp.csr_matrix((J.ravel(), (rows, cols)), shape=(2 * idx.size, 3 * q))
+    J = J / np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,))
+    if d == 1:
+        J = J[:, :, 2:3]
+    index = np.arange(q * d) if dof_index is None else np.asarray(dof_index, dtype=np.int64)
+    if n_columns is None:
+        n_columns = q * d if dof_index is None else int(index.max(initial=-1)) + 1
+    n = idx.size
+    rows = np.broadcast_to(np.arange(2 * n).reshape(n, 2, 1), (n, 2, d))
+    cols = np.broadcast_to(index[idx[:, None] * d + np.arange(d)][:, None, :], (n, 2, d))
+    keep = cols >= 0
+    return sp.csr_matrix((J[keep], (rows[keep], cols[keep])), shape=(2 * n, n_columns))
+
+
+def vertex_normals(points: ArrayLike, surface: ArrayLike) -> NDArray[np.float64]:
+    """Area-weighted outward normals of the surface vertices (zero for the others).
+
+    ``points`` (q, 3); ``surface`` (F, 3) outward triangles indexing ``points``.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(surface, dtype=np.int64)
+    p = pts[tri]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    out = np.zeros_like(pts)
+    for c in range(3):
+        np.add.at(out, tri[:, c], n)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
+
+
+def visible_vertices(
+    points: ArrayLike,
+    surface: ArrayLike,
+    camera: Camera,
+    exclude: ArrayLike | None = None,
+    depth_buffer: ArrayLike | None = None,
+    depth_tol: float = 0.01,
+) -> NDArray[np.int64]:
+    """Surface vertices seen by ``camera``: on a surface triangle that faces the camera
+    (outward normal towards the camera centre), in front of the camera and inside the frame.
+
+    Without ``depth_buffer`` this is exact for convex objects only. ``depth_buffer`` (H, W),
+    the rendered rest depth at the pixel centres (a sample's ``image/depth``, ``inf`` on the
+    background), also removes self-occluded vertices as the dataset's visibility ground truth
+    does: a vertex is kept when its depth is at most ``depth_tol`` times the bounding-box
+    diagonal behind the buffer at its (nearest) pixel. ``points`` are where the vertices
+    really are (the true object, also under a geometry mismatch).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(surface, dtype=np.int64)
+    p = pts[tri]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    to_cam = camera.center - p.mean(axis=1)
+    facing = np.einsum("ij,ij->i", n, to_cam) > 0
+    nodes = np.unique(tri[facing])
+    uv = camera.project(pts[nodes])
+    depth = camera.depth(pts[nodes])
+    inside = (
+        (depth > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= camera.width - 0.5)
+        & (uv[:, 1] >= -0.5) & (uv[:, 1] <= camera.height - 0.5)
+    )
+    nodes = nodes[inside]
+    if depth_buffer is not None and nodes.size:
+        buf = np.asarray(depth_buffer, dtype=float)
+        px = np.clip(np.rint(uv[inside]).astype(int), 0, [buf.shape[1] - 1, buf.shape[0] - 1])
+        diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+        nodes = nodes[depth[inside] <= buf[px[:, 1], px[:, 0]] + depth_tol * diag]
+    if exclude is not None and len(exclude):
+        nodes = np.setdiff1d(nodes, exclude)
+    return nodes
 
 
 def _visible_indices(visible: ArrayLike | None, q: int) -> NDArray[np.intp]:

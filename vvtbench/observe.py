@@ -1,0 +1,717 @@
+"""The observe stage: data -> the inverse problem a solver gets, and the truth kept apart.
+
+:func:`observe` is the one bridge from data to an :class:`~vvtbench.problem.InverseProblem`:
+
+* a **sample folder** written by ``vvtbench generate`` (or an opened
+  :class:`~vvtbench.dataset.Sample`), or an **entry of an exported dataset**
+  (:func:`vvtbench.open_dataset`): everything is read from the sample (mesh, modes, free DOFs,
+  per-element material, camera, rest depth buffer); the simulator is never run;
+* a **scene** (:class:`~vvtbench.scene.Scene`, a scene file or a shipped scene name): simulated
+  on the fly (modes only) -- the only source that simulates -- or a simulation already run
+  (:class:`~vvtbench.simulate.SimulationResult`); the rest depth buffer is rasterized;
+* a **real video** (:class:`RealVideo`): modes extracted from it, the object's mesh, and a
+  camera or clicked reference points; there is no truth.
+
+It returns ``(problem, truth)``. The problem holds only what an experimenter would have: the
+observed image-space modes and frequencies, the observation operator, the inference mesh and
+voxel grid, and priors. The :class:`Truth` (material per voxel, the true 3-D modes paired with
+the observed ones, the true image-space modes, the scene and sample it came from) is for the
+evaluator and for reference solvers that declare ``uses_truth`` (the oracle).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .fem.assembly import ParametricModel
+from .fem.interpolate import interpolate_nodal
+from .fem.mesh import Mesh, box_mesh
+from .fem.voxels import VoxelMap
+from .problem import InverseProblem
+
+__all__ = ["ObserveError", "ObserveOptions", "RealVideo", "Truth", "observe"]
+
+OBSERVATIONS = ("true", "extracted")
+VISIBILITY = ("depth", "normals")
+
+
+class ObserveError(ValueError):
+    """Bad observe options or a source that cannot be observed (one line, names the key)."""
+
+
+# --------------------------------------------------------------------------- options
+
+
+@dataclass(frozen=True)
+class ObserveOptions:
+    """How a source is turned into an inverse problem.
+
+    Attributes
+    ----------
+    observation : ``"true"`` (the true image-space modes at the visible vertices) or
+        ``"extracted"`` (modes extracted from the video, sampled at the visible vertices).
+    n_modes : number of observed modes (the lowest ones).
+    inference_shape : voxel grid of the unknowns (boxes: also the inference mesh's cells);
+        default (8, 8, 8), drums (20, 20).
+    inference_order : element order of a box inference mesh (1: hex8, 2: hex27).
+    geometry_scale : inference geometry = true geometry scaled by this (a float scales x only,
+        the paper's geometry-mismatch track; or (sx, sy, sz)).
+    nu : Poisson's ratio of the inference model (default: the scene's base material).
+    w0, v0, w_mean : priors: initial stiffness and density, and the anchor of mean(w)
+        (default: the scene's base material, the paper's choice).
+    visibility : ``"depth"`` (facing the camera and not occluded in the rest depth buffer) or
+        ``"normals"`` (facing the camera only; exact for convex objects).
+    extract : keyword arguments of :func:`vvtbench.modes.extract_modes` when modes are
+        extracted here.
+    modes : extracted mode sets to use instead of extracting: ModeSet objects or folders
+        written by ``vvtbench extract`` (several views of the object are merged).
+    merge_freq_tol, merge_min_mac : merging tolerances for several views.
+    clicks : a clicks file (vertex index of the inference mesh, u, v; see docs/modes.md):
+        the camera is estimated from it (DLT + refinement) instead of taken from the sample.
+    """
+
+    observation: str = "true"
+    n_modes: int = 10
+    inference_shape: tuple[int, ...] | None = None
+    inference_order: int = 1
+    geometry_scale: float | tuple[float, float, float] = 1.0
+    nu: float | None = None
+    w0: float | None = None
+    v0: float | None = None
+    w_mean: float | None = None
+    visibility: str = "depth"
+    extract: Mapping[str, Any] = field(default_factory=dict)
+    modes: tuple = ()
+    merge_freq_tol: float = 0.02
+    merge_min_mac: float = 0.8
+    clicks: str | None = None
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        _choice("observation", self.observation, OBSERVATIONS)
+        _choice("visibility", self.visibility, VISIBILITY)
+        _integer("n_modes", self.n_modes, 1)
+        _integer("inference_order", self.inference_order, 1, 2)
+        if self.inference_shape is not None:
+            shape = tuple(self.inference_shape)
+            if len(shape) not in (2, 3):
+                raise ObserveError(f"inference_shape must have 2 (drums) or 3 entries, "
+                                   f"got {list(shape)}")
+            for n in shape:
+                _integer("inference_shape", n, 1, 256)
+            set_(self, "inference_shape", tuple(int(n) for n in shape))
+        gs = self.geometry_scale
+        if isinstance(gs, Sequence) and not isinstance(gs, str):
+            if len(gs) != 3:
+                raise ObserveError(f"geometry_scale must be a number or 3 numbers, got {gs!r}")
+            set_(self, "geometry_scale", tuple(_number("geometry_scale", x, 0.0) for x in gs))
+        else:
+            set_(self, "geometry_scale", _number("geometry_scale", gs, 0.0))
+        if self.nu is not None:
+            nu = _number("nu", self.nu, -1.0)
+            if nu >= 0.5:
+                raise ObserveError(f"nu must be in (-1, 0.5), got {nu}")
+        for key in ("w0", "v0", "w_mean"):
+            if getattr(self, key) is not None:
+                _number(key, getattr(self, key), 0.0)
+        _number("merge_freq_tol", self.merge_freq_tol, 0.0)
+        if not 0.0 <= float(self.merge_min_mac) <= 1.0:
+            raise ObserveError(f"merge_min_mac must be in [0, 1], got {self.merge_min_mac}")
+        if not isinstance(self.extract, Mapping):
+            raise ObserveError("extract must be a table of extract_modes options")
+        set_(self, "extract", dict(self.extract))
+        modes = self.modes
+        if isinstance(modes, (str, Path)) or not isinstance(modes, Sequence):
+            modes = (modes,)
+        set_(self, "modes", tuple(modes))
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], where: str = "observe options"
+                     ) -> ObserveOptions:
+        """Options from a plain mapping (a suite's ``[defaults]``, JSON); unknown keys are an
+        error naming the allowed ones."""
+        allowed = [f.name for f in fields(cls)]
+        unknown = sorted(set(data) - set(allowed))
+        if unknown:
+            raise ObserveError(f"{where}: unknown key(s) {unknown}; allowed: "
+                               f"{', '.join(allowed)}")
+        try:
+            return cls(**dict(data))
+        except ObserveError as error:
+            raise ObserveError(f"{where}: {error}") from None
+
+    def replace(self, **changes: Any) -> ObserveOptions:
+        return ObserveOptions.from_mapping({**self.to_dict(raw=True), **changes})
+
+    def to_dict(self, raw: bool = False) -> dict[str, Any]:
+        """Plain data (JSON-ready unless ``raw``: mode sets are given as their folders)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        if not raw:
+            out["modes"] = [str(m) if isinstance(m, (str, Path)) else repr(m)
+                            for m in self.modes]
+            out["inference_shape"] = (None if self.inference_shape is None
+                                      else list(self.inference_shape))
+            if isinstance(self.geometry_scale, tuple):
+                out["geometry_scale"] = list(self.geometry_scale)
+        return out
+
+
+def _choice(key: str, value: Any, allowed: Sequence[str]) -> None:
+    if value not in allowed:
+        raise ObserveError(f"{key} must be one of {', '.join(allowed)}; got {value!r}")
+
+
+def _integer(key: str, value: Any, lo: int, hi: int | None = None) -> None:
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not ok or value < lo or (hi is not None and value > hi):
+        rng = f">= {lo}" if hi is None else f"in {lo}..{hi}"
+        raise ObserveError(f"{key} must be an integer {rng}, got {value!r}")
+
+
+def _number(key: str, value: Any, above: float) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ObserveError(f"{key} must be a number, got {value!r}") from None
+    if isinstance(value, bool) or not np.isfinite(x) or x <= above:
+        raise ObserveError(f"{key} must be a finite number > {above:g}, got {value!r}")
+    return x
+
+
+# --------------------------------------------------------------------------- truth
+
+
+@dataclass
+class Truth:
+    """What the evaluator knows and a solver never sees.
+
+    Attributes
+    ----------
+    w, v : (n_params,) true stiffness and density per active voxel of the problem's grid
+        (volume-weighted mean over the voxel of the simulation's per-element material).
+    modes_3d : (n_free, k) true 3-D modes on the inference mesh paired with the observed
+        modes, scaled so that ``P @ modes_3d[:, i]`` is the unit-length true image mode.
+    eigenvalues : (k,) exact eigenvalues of those true modes, (rad/s)^2.
+    matched : (k,) index of the true mode paired with each observed mode.
+    image_modes : (n_true, 2 n_visible) the true image-space modes at the visible vertices
+        (unit length), and ``true_eigenvalues`` (n_true,) theirs.
+    extraction_mac : (k,) MAC of each observed (extracted) mode with its pair; None for the
+        true observation.
+    meta : scene, sample, simulation mesh.
+    """
+
+    w: np.ndarray
+    v: np.ndarray
+    modes_3d: np.ndarray
+    eigenvalues: np.ndarray
+    matched: np.ndarray
+    image_modes: np.ndarray
+    true_eigenvalues: np.ndarray
+    extraction_mac: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def frequencies_hz(self) -> np.ndarray:
+        return np.sqrt(np.clip(self.eigenvalues, 0, None)) / (2 * np.pi)
+
+    def select_modes(self, index: Any) -> Truth:
+        """The truth of ``problem.select_modes(index)``."""
+        idx = np.arange(index) if np.isscalar(index) else np.asarray(index)
+        mac = None if self.extraction_mac is None else self.extraction_mac[idx]
+        return replace(self, modes_3d=self.modes_3d[:, idx], eigenvalues=self.eigenvalues[idx],
+                       matched=self.matched[idx], extraction_mac=mac, meta=dict(self.meta))
+
+    def save(self, folder: str | Path) -> None:
+        """``truth.npz`` + ``truth.json`` in ``folder`` (no pickle)."""
+        from .io import write_json, write_npz
+
+        folder = Path(folder)
+        arrays = {k: getattr(self, k) for k in ("w", "v", "modes_3d", "eigenvalues", "matched",
+                                                "image_modes", "true_eigenvalues")}
+        if self.extraction_mac is not None:
+            arrays["extraction_mac"] = self.extraction_mac
+        write_npz(folder / "truth.npz", arrays)
+        write_json(folder / "truth.json", {"meta": self.meta})
+
+    @classmethod
+    def load(cls, folder: str | Path) -> Truth:
+        folder = Path(folder)
+        with np.load(folder / "truth.npz", allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads((folder / "truth.json").read_text())["meta"]
+        return cls(**arrays, meta=meta)
+
+
+# --------------------------------------------------------------------------- sources
+
+
+@dataclass
+class RealVideo:
+    """A real recording: extracted modes, the object's inference mesh, a camera or clicks.
+
+    Attributes
+    ----------
+    modes : ModeSet objects or folders written by ``vvtbench extract`` (one per view).
+    mesh : the inference mesh of the object (metres; lowest corner at the origin).
+    camera : the camera of the video, or None with ``clicks``.
+    clicks : a clicks file pairing mesh vertices with pixels (>= 6, non-coplanar).
+    fixed_nodes : node indices of ``mesh`` held fixed (the clamped base).
+    width, height : the video's size in pixels (needed with ``clicks``).
+    nu, w0, v0 : the material priors (no scene gives them).
+    """
+
+    modes: Sequence[Any]
+    mesh: Mesh
+    camera: Any = None
+    clicks: str | Path | None = None
+    fixed_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    width: int | None = None
+    height: int | None = None
+    nu: float = 0.3
+    w0: float = 1e4
+    v0: float = 1000.0
+
+
+@dataclass
+class _Record:
+    """What observation reads from a sample: the simulation's mesh, modes and material."""
+
+    origin: str
+    scene: Any
+    camera: Any
+    mesh: Mesh
+    free_dofs: np.ndarray
+    eigenvalues: np.ndarray
+    vectors: np.ndarray
+    stiffness: np.ndarray
+    density: np.ndarray
+    depth: np.ndarray | None
+    video: Any = None            # (frames source, fps) for extraction, or None
+    packed_modes: list = field(default_factory=list)
+
+    @property
+    def fixed_nodes(self) -> np.ndarray:
+        d = self.mesh.dofs_per_node
+        free = np.zeros(self.mesh.n_nodes * d, bool)
+        free[self.free_dofs] = True
+        return np.flatnonzero(~free.reshape(-1, d).any(axis=1))
+
+
+def _read(sample: Any, name: str) -> np.ndarray:
+    require = getattr(sample, "require", None)
+    if require is not None:
+        return np.asarray(require(name))
+    try:
+        return np.asarray(sample[name])
+    except KeyError:
+        from .dataset import DatasetError
+
+        where = getattr(sample, "path", getattr(sample, "name", "sample"))
+        raise DatasetError(f"{where}: truth.zarr has no array '{name}'; regenerate the sample "
+                           "with this vvtbench") from None
+
+
+def _record_from_sample(sample: Any) -> _Record:
+    info = sample.info
+    mesh_info = info["mesh"]
+    mesh = Mesh(_read(sample, "mesh/points"), _read(sample, "mesh/cells"),
+                mesh_info["element"], {}, _read(sample, "mesh/surface"))
+    depth = None
+    try:
+        depth = _read(sample, "image/depth")
+    except (KeyError, ValueError):
+        depth = None
+    origin = str(getattr(sample, "path", None) or getattr(sample, "name", "sample"))
+    video = None
+    has_video = getattr(sample, "has_video", None)
+    if has_video is None:
+        has_video = bool(info.get("video", {}).get("frames"))
+    if has_video:
+        path = getattr(sample, "video_path", None)
+        video = (path, sample.fps) if path is not None else (sample.read_frames(), sample.fps)
+    packed = list(sample.extracted_modes()) if hasattr(sample, "extracted_modes") else []
+    return _Record(
+        origin=origin, scene=sample.scene, camera=sample.camera, mesh=mesh,
+        free_dofs=_read(sample, "modes/free_dofs"),
+        eigenvalues=_read(sample, "modes/eigenvalues").astype(float),
+        vectors=_read(sample, "modes/vectors"),
+        stiffness=_read(sample, "material/stiffness"),
+        density=_read(sample, "material/density"), depth=depth, video=video,
+        packed_modes=packed,
+    )
+
+
+def _record_from_result(result: Any) -> _Record:
+    """From a :class:`~vvtbench.simulate.SimulationResult` (its rest depth rasterized)."""
+    from .render import Camera
+    from .render.raster import rasterize
+
+    scene, mesh = result.scene, result.mesh
+    camera = Camera.from_spec(scene.camera)
+    nodes = mesh.surface_nodes
+    lut = np.full(mesh.n_nodes, -1, dtype=np.int64)
+    lut[nodes] = np.arange(len(nodes))
+    depth = rasterize(camera, mesh.points[nodes], lut[mesh.surface]).depth
+    return _Record(
+        origin=f"scene {scene.name} (simulated)", scene=scene, camera=camera, mesh=mesh,
+        free_dofs=result.model.free_dofs,
+        eigenvalues=np.asarray(result.modes.eigenvalues, dtype=float),
+        vectors=result.modes.vectors, stiffness=result.fields.stiffness,
+        density=result.fields.density, depth=depth,
+    )
+
+
+def _as_record(source: Any) -> _Record:
+    from .scene import Scene, load_scene
+    from .simulate import simulate
+
+    if isinstance(source, _Record):
+        return source
+    if isinstance(source, Scene):
+        return _record_from_result(simulate(source, transient=False))
+    if hasattr(source, "modes") and hasattr(source, "model") and hasattr(source, "scene"):
+        return _record_from_result(source)  # a SimulationResult
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if path.is_dir():
+            from .dataset import open_sample
+
+            return _record_from_sample(open_sample(path))
+        return _record_from_result(simulate(load_scene(source), transient=False))
+    if hasattr(source, "scene") and hasattr(source, "info"):
+        return _record_from_sample(source)
+    raise ObserveError(f"cannot observe a {type(source).__name__}: give a sample folder, a "
+                       "dataset entry, a scene (name, file or Scene) or a RealVideo")
+
+
+# --------------------------------------------------------------------------- observe
+
+
+def observe(source: Any, options: ObserveOptions | Mapping[str, Any] | None = None,
+            **overrides: Any) -> tuple[InverseProblem, Truth | None]:
+    """The inverse problem of ``source`` and its truth.
+
+    Parameters
+    ----------
+    source : a sample folder or :class:`~vvtbench.dataset.Sample`; an entry of an exported
+        dataset; a :class:`~vvtbench.scene.Scene`, scene file or shipped scene name
+        (simulated now); or a :class:`RealVideo`.
+    options : :class:`ObserveOptions` (or a mapping of its fields).
+    **overrides : fields of :class:`ObserveOptions` replacing those of ``options``.
+
+    Returns
+    -------
+    (InverseProblem, Truth)
+        The truth is None for a :class:`RealVideo`.
+
+    Examples
+    --------
+    >>> problem, truth = observe("jello_cube_defect_top", n_modes=4)  # doctest: +SKIP
+    >>> problem.gamma.shape[0], truth.w.shape == (problem.n_params,)  # doctest: +SKIP
+    (4, True)
+    """
+    if options is None:
+        opts = ObserveOptions.from_mapping(overrides)
+    else:
+        base = options if isinstance(options, ObserveOptions) else \
+            ObserveOptions.from_mapping(options)
+        opts = base.replace(**overrides) if overrides else base
+    if isinstance(source, RealVideo):
+        return _observe_real(source, opts), None
+    return _observe_record(_as_record(source), opts)
+
+
+def _scale_vector(geometry_scale: float | tuple[float, ...]) -> np.ndarray:
+    scale = np.ones(3)
+    if np.isscalar(geometry_scale):
+        scale[0] = float(geometry_scale)
+    else:
+        scale[:] = np.asarray(geometry_scale, dtype=float)
+    return scale
+
+
+def default_voxel_shape(kind: str) -> tuple[int, ...]:
+    """The paper's inference grids: 8x8x8 for solids, 20x20 for drums."""
+    return (20, 20) if kind == "drum" else (8, 8, 8)
+
+
+def _inference_model(rec: _Record, opts: ObserveOptions, scale: np.ndarray
+                     ) -> ParametricModel:
+    from .simulate import fixed_nodes as scene_fixed_nodes
+
+    scene = rec.scene
+    geom = scene.geometry
+    shape = opts.inference_shape or default_voxel_shape(geom.kind)
+    if geom.kind == "box":
+        if len(shape) != 3:
+            raise ObserveError(f"inference_shape must have 3 entries for a box, got {shape}")
+        size = tuple(float(s) for s in np.asarray(geom.size) * scale)
+        mesh = box_mesh(tuple(shape), size, opts.inference_order)
+        extra = {}
+        for name, region in scene.boundary.node_sets.items():
+            if name not in scene.fixed_sets:
+                continue
+            if region.indices is not None:
+                raise ObserveError(f"boundary node set {name!r} is given by node indices of "
+                                   "the simulation mesh; a box inference mesh cannot map it")
+            lo, hi = np.asarray(region.box_min) * scale, np.asarray(region.box_max) * scale
+            extra[name] = np.flatnonzero(np.all((mesh.points >= lo) & (mesh.points <= hi), 1))
+        if extra:
+            mesh = mesh.with_node_sets(extra)
+        fixed = scene_fixed_nodes(scene, mesh)
+    else:
+        if opts.inference_order != 1:
+            raise ObserveError("inference_order applies to box geometries only")
+        sim = rec.mesh
+        mesh = sim if np.allclose(scale, 1.0) else Mesh(
+            sim.points * scale, sim.cells, sim.element, dict(sim.node_sets), sim.surface)
+        fixed = rec.fixed_nodes
+    nu = float(scene.material.nu if opts.nu is None else opts.nu)
+    vmap = VoxelMap.from_mesh(mesh, tuple(shape))
+    return ParametricModel(mesh, vmap, nu=nu, fixed_nodes=fixed)
+
+
+def _true_modes(rec: _Record, model: ParametricModel, scale: np.ndarray, k: int) -> np.ndarray:
+    """(n_nodes, d, k) the simulation's first ``k`` modes at the inference nodes (fixed 0),
+    in inference coordinates (stretched with the geometry)."""
+    sim = rec.mesh
+    d = sim.dofs_per_node
+    full = np.zeros((sim.n_nodes * d, k))
+    full[rec.free_dofs] = rec.vectors[:, :k]
+    values = full.reshape(sim.n_nodes, d * k)
+    at_nodes = interpolate_nodal(sim, values, model.mesh.points / scale).reshape(-1, d, k)
+    at_nodes[model.fixed_nodes] = 0.0
+    if d == 3:
+        at_nodes = at_nodes * scale[None, :, None]
+    return at_nodes
+
+
+def _observed_view(rec: _Record, model: ParametricModel, opts: ObserveOptions,
+                   scale: np.ndarray):
+    """(camera, visible nodes, P, camera meta) of the inference mesh seen in the video."""
+    from .modes.sampling import camera_from_clicks, observation_operator, visible_vertices
+
+    mesh = model.mesh
+    true_points = mesh.points / scale
+    depth = rec.depth if opts.visibility == "depth" else None
+    if opts.visibility == "depth" and depth is None:
+        raise ObserveError(f"{rec.origin}: visibility 'depth' needs the rest depth buffer "
+                           "(image/depth), which this source lacks; use visibility='normals'")
+    camera = rec.camera
+    visible = visible_vertices(true_points, mesh.surface, camera, exclude=model.fixed_nodes,
+                               depth_buffer=depth)
+    meta: dict[str, Any] = {"camera_source": "sample", "visibility": opts.visibility}
+    if opts.clicks is not None:
+        camera, rms = camera_from_clicks(opts.clicks, true_points, camera.width, camera.height)
+        seen = true_points[visible]
+        uv = camera.project(seen)
+        inside = ((camera.depth(seen) > 0) & (uv[:, 0] >= -0.5)
+                  & (uv[:, 0] <= camera.width - 0.5) & (uv[:, 1] >= -0.5)
+                  & (uv[:, 1] <= camera.height - 0.5))
+        visible = visible[inside]
+        meta.update(camera_source="clicks", clicks_file=str(opts.clicks), clicks_rms_px=rms)
+    if visible.size == 0:
+        raise ObserveError(f"{rec.origin}: no inference-mesh vertex is visible from the camera")
+    d = mesh.dofs_per_node
+    P = observation_operator(camera, true_points, visible, dofs_per_node=d,
+                             dof_index=model.free_index, n_columns=model.n_free, scale=scale)
+    meta["camera"] = camera.to_dict()
+    return camera, np.asarray(visible, dtype=np.int64), P, meta
+
+
+def _observe_record(rec: _Record, opts: ObserveOptions) -> tuple[InverseProblem, Truth]:
+    scene = rec.scene
+    scale = _scale_vector(opts.geometry_scale)
+    n_true = len(rec.eigenvalues)
+    if opts.observation == "true" and opts.n_modes > n_true:
+        raise ObserveError(f"n_modes: asked for {opts.n_modes} modes; {rec.origin} holds "
+                           f"{n_true} (simulation.n_modes)")
+    k = n_true if opts.observation == "extracted" else opts.n_modes
+    model = _inference_model(rec, opts, scale)
+    camera, visible, P, cam_meta = _observed_view(rec, model, opts, scale)
+    U = _true_modes(rec, model, scale, k).reshape(-1, k)[model.free_dofs]
+    gamma = (P @ U).T
+    norms = np.linalg.norm(gamma, axis=1)
+    if np.any(norms == 0):
+        raise ObserveError(f"{rec.origin}: true modes {np.flatnonzero(norms == 0).tolist()} "
+                           "are invisible (zero image motion at every visible vertex)")
+    gamma = gamma / norms[:, None]
+    U = U / norms
+    lam = rec.eigenvalues[:k]
+
+    membrane = rec.mesh.dofs_per_node == 1
+    m = scene.material
+    base_w = m.tension if membrane else m.E
+    base_v = m.areal_density if membrane else m.rho
+    w_true, v_true = _voxel_truth(rec, model, scale)
+    meta = {
+        "observation": opts.observation,
+        "geometry_scale": scale.tolist(),
+        "inference_shape": list(opts.inference_shape or default_voxel_shape(scene.geometry.kind)),
+        "inference_element": model.mesh.element,
+        "nu": model.nu if np.isscalar(model.nu) else float(np.mean(model.nu)),
+        "n_visible": int(len(visible)),
+        **cam_meta,
+    }
+    truth_meta = {"scene": scene.name, "source": rec.origin,
+                  "simulation_element": rec.mesh.element,
+                  "simulation_cells": int(rec.mesh.n_elements)}
+    problem = InverseProblem(
+        model=model, gamma=gamma, eigenvalues=lam, P=P, visible_nodes=visible,
+        w0=float(base_w if opts.w0 is None else opts.w0),
+        v0=float(base_v if opts.v0 is None else opts.v0),
+        w_mean=float(base_w if opts.w_mean is None else opts.w_mean),
+        kind="membrane" if membrane else "solid", meta=meta)
+    truth = Truth(w=w_true, v=v_true, modes_3d=U, eigenvalues=lam, matched=np.arange(k),
+                  image_modes=gamma, true_eigenvalues=lam, meta=truth_meta)
+    if opts.observation == "true":
+        return problem, truth
+    return _with_extracted(problem, truth, _modesets(rec, opts), camera, opts)
+
+
+def _modesets(rec: _Record, opts: ObserveOptions) -> list:
+    from .modes import ModeSet, extract_modes
+
+    if opts.modes:
+        return [m if isinstance(m, ModeSet) else ModeSet.load(m) for m in opts.modes]
+    if rec.packed_modes:
+        return list(rec.packed_modes)
+    if rec.video is None:
+        raise ObserveError(f"{rec.origin}: observation 'extracted' needs a video or extracted "
+                           "modes (ObserveOptions.modes); this source has neither")
+    frames, fps = rec.video
+    return [extract_modes(frames, fps, **opts.extract)]
+
+
+def _with_extracted(problem: InverseProblem, truth: Truth, modesets: list, camera: Any,
+                    opts: ObserveOptions) -> tuple[InverseProblem, Truth]:
+    """The problem observing extracted modes; each is paired with a true mode by MAC."""
+    from scipy.optimize import linear_sum_assignment
+
+    from .metrics import mac_matrix
+
+    gamma, freqs, info = _sample_extracted(problem, modesets, camera, opts)
+    mac = mac_matrix(gamma, truth.image_modes)
+    rows, cols = linear_sum_assignment(-mac)
+    order = np.argsort(rows)
+    rows, cols = rows[order], cols[order]
+    sign = np.sign(np.einsum("ij,ij->i", gamma[rows], truth.image_modes[cols]) + 1e-300)
+    gamma, freqs = gamma[rows], freqs[rows]
+    true_f = np.sqrt(np.clip(truth.true_eigenvalues[cols], 0, None)) / (2 * np.pi)
+    meta = {**problem.meta, **info, "extracted_frequencies_hz": freqs.tolist()}
+    problem = replace(problem, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, meta=meta)
+    truth = replace(truth, modes_3d=truth.modes_3d[:, cols] * sign[None, :],
+                    eigenvalues=(2 * np.pi * true_f) ** 2, matched=cols,
+                    extraction_mac=mac[rows, cols], meta=dict(truth.meta))
+    return problem, truth
+
+
+def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
+                      opts: ObserveOptions):
+    """(gamma (k, 2 n_vis) unit rows, frequencies (k,), meta) of the lowest extracted modes
+    sampled at the visible vertices' pixels."""
+    from .modes import merge_modesets, sample_modes
+
+    sets = list(modesets)
+    if not sets:
+        raise ObserveError("no mode sets given")
+    if len(sets) == 1:
+        ms = sets[0].select(~sets[0].camera_shake)
+    else:
+        ms = merge_modesets(sets, freq_tol=opts.merge_freq_tol, min_mac=opts.merge_min_mac)
+    n_extracted = len(ms)
+    ms = ms.select(np.argsort(ms.frequencies_hz)[: opts.n_modes])
+    if len(ms) == 0:
+        raise ObserveError("no modes were extracted from the video")
+    scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
+    uv = camera.project(problem.mesh.points[problem.visible_nodes] / scale)
+    gamma = sample_modes(ms.shapes, uv)
+    norms = np.linalg.norm(gamma, axis=1)
+    keep = norms > 0
+    info = {"source": "extracted from the video", "n_modes_extracted": int(n_extracted)}
+    return gamma[keep] / norms[keep, None], ms.frequencies_hz[keep], info
+
+
+def _voxel_truth(rec: _Record, model: ParametricModel, scale: np.ndarray):
+    """Per parameter of ``model``: element-volume-weighted mean of the simulation's
+    per-element material over each voxel (the simulation mesh mapped onto the inference
+    geometry)."""
+    from .fem.elements import element_volumes
+
+    sim = rec.mesh
+    vmap = model.voxel_map
+    cent = sim.centroids * scale
+    vox = vmap.grid.voxel_of(cent)
+    param_of_voxel = np.full(vmap.grid.n_voxels, -1)
+    param_of_voxel[vmap.active] = np.arange(vmap.n_params)
+    param = param_of_voxel[vox]
+    vol = element_volumes(sim.element_type, sim.cell_coords)
+    keep = param >= 0
+    out = []
+    for values in (rec.stiffness, rec.density):
+        num = np.bincount(param[keep], vol[keep] * values[keep], minlength=vmap.n_params)
+        den = np.bincount(param[keep], vol[keep], minlength=vmap.n_params)
+        res = np.empty(vmap.n_params)
+        has = den > 0
+        res[has] = num[has] / den[has]
+        if not has.all():
+            from scipy.spatial import cKDTree
+
+            centers = vmap.grid.centers()[vmap.active[~has]]
+            _, nearest = cKDTree(cent).query(centers)
+            res[~has] = values[nearest]
+        out.append(res)
+    return out[0], out[1]
+
+
+# --------------------------------------------------------------------------- real videos
+
+
+def _observe_real(real: RealVideo, opts: ObserveOptions) -> InverseProblem:
+    """The problem of a real video: no truth, modes extracted, camera given or clicked."""
+    from .modes import ModeSet
+    from .modes.sampling import camera_from_clicks, observation_operator, visible_vertices
+
+    if opts.observation != "extracted":
+        raise ObserveError("a real video has no true modes: use observation='extracted'")
+    if not np.allclose(_scale_vector(opts.geometry_scale), 1.0):
+        raise ObserveError("geometry_scale applies to synthetic samples only")
+    mesh = real.mesh
+    kind = "membrane" if mesh.dofs_per_node == 1 else "solid"
+    shape = opts.inference_shape or default_voxel_shape("drum" if kind == "membrane" else "box")
+    vmap = VoxelMap.from_mesh(mesh, tuple(shape))
+    nu = float(real.nu if opts.nu is None else opts.nu)
+    model = ParametricModel(mesh, vmap, nu=nu, fixed_nodes=np.asarray(real.fixed_nodes))
+    camera = real.camera
+    meta: dict[str, Any] = {"camera_source": "given"}
+    clicks = opts.clicks or real.clicks
+    if clicks is not None:
+        if real.width is None or real.height is None:
+            raise ObserveError("RealVideo with clicks needs width and height (video pixels)")
+        camera, rms = camera_from_clicks(clicks, mesh.points, real.width, real.height)
+        meta.update(camera_source="clicks", clicks_file=str(clicks), clicks_rms_px=rms)
+    if camera is None:
+        raise ObserveError("RealVideo needs a camera or a clicks file")
+    visible = visible_vertices(mesh.points, mesh.surface, camera, exclude=model.fixed_nodes)
+    if visible.size == 0:
+        raise ObserveError("no mesh vertex is visible from the camera")
+    P = observation_operator(camera, mesh.points, visible, dofs_per_node=mesh.dofs_per_node,
+                             dof_index=model.free_index, n_columns=model.n_free)
+    sets = [m if isinstance(m, ModeSet) else ModeSet.load(m)
+            for m in (opts.modes or real.modes)]
+    stub = InverseProblem(model=model, gamma=np.zeros((1, P.shape[0])), eigenvalues=[1.0], P=P,
+                          visible_nodes=visible, meta={"geometry_scale": [1.0, 1.0, 1.0]})
+    gamma, freqs, info = _sample_extracted(stub, sets, camera, opts)
+    meta.update(info, observation="extracted", n_visible=int(len(visible)),
+                inference_shape=list(shape), inference_element=mesh.element, nu=nu,
+                camera=camera.to_dict(), geometry_scale=[1.0, 1.0, 1.0],
+                extracted_frequencies_hz=freqs.tolist())
+    return InverseProblem(model=model, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, P=P,
+                          visible_nodes=visible, w0=real.w0, v0=real.v0, w_mean=real.w0,
+                          kind=kind, meta=meta)
