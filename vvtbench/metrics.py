@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .mac import mac_matrix
+
 __all__ = [
     "normalized_correlation",
     "gaussian_blur",
@@ -82,15 +84,6 @@ def intrinsic_resolution(
     best = int(np.argmax(ncs))
     return {"sigma_star": float(sigmas[best]), "nc_at_sigma_star": float(ncs[best]),
             "sigmas": sigmas.tolist(), "nc": ncs.tolist()}
-
-
-def mac_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """MAC between rows of a (p, d) and rows of b (q, d): (a_i.b_j)^2 / (|a_i|^2 |b_j|^2)."""
-    a = np.atleast_2d(a)
-    b = np.atleast_2d(b)
-    num = (a @ b.T) ** 2
-    den = np.outer(np.einsum("ij,ij->i", a, a), np.einsum("ij,ij->i", b, b))
-    return np.divide(num, den, out=np.zeros_like(num), where=den > 0)
 
 
 def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10) -> dict:

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq, least_squares
 from scipy.signal import find_peaks
 
+from ..mac import mac
 from .spectrum import Window
 
 __all__ = [
@@ -653,23 +654,6 @@ def align_phase(
         real = -real
         theta += math.pi
     return real, theta, (abs(s2) / e if e > 0 else 0.0)
-
-
-def mac(a: ArrayLike, b: ArrayLike, weights: ArrayLike | None = None) -> float:
-    """Modal assurance criterion ``|<a, b>|**2 / (<a, a> <b, b>)`` (complex-safe).
-
-    ``weights`` (``(H, W)``) apply to ``(H, W, 2)`` fields.
-    """
-    x = np.asarray(a)
-    y = np.asarray(b)
-    if x.shape != y.shape:
-        raise ValueError(f"shapes differ: {x.shape} vs {y.shape}")
-    if weights is not None:
-        s = np.sqrt(np.asarray(weights, dtype=np.float64))[..., None]
-        x, y = x * s, y * s
-    x, y = x.ravel(), y.ravel()
-    den = float(np.vdot(x, x).real * np.vdot(y, y).real)
-    return float(abs(np.vdot(x, y)) ** 2 / den) if den > 0 else 0.0
 
 
 def translation_mac(z: ArrayLike, weights: ArrayLike | None = None) -> float:
