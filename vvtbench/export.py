@@ -198,7 +198,7 @@ def check_output(out: str | Path, inputs: list[Path], fmt: str, overwrite: bool)
     Returns the output path."""
     out = Path(out)
     if out.name in ("", ".", ".."):
-        raise ExportError(f"{out}: the output must name a new file or folder, not {out.name!r}")
+        raise ExportError(f"{out}: the output must name a new file or folder (not '.' or '..')")
     target = out.resolve()
     for p in inputs:
         src = Path(p).resolve()
