@@ -209,8 +209,8 @@ def check_output(out: str | Path, inputs: list[Path], fmt: str, overwrite: bool)
     for p in paths:
         if p.is_symlink():
             raise ExportError(f"{p}: is a symbolic link; export does not write through links")
-    if not out.parent.is_dir():
-        raise ExportError(f"{out.parent}: no such folder (the output's parent must exist)")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ExportError(f"{out.parent}: is not a folder")
     existing = [p for p in paths if p.exists()]
     if existing and not overwrite:
         raise ExportError(f"{existing[0]}: already exists; pass --overwrite (overwrite=True) "
@@ -754,6 +754,7 @@ def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = 
         if p.exists() or p.is_symlink():
             raise ExportError(f"{p}: a temporary path of this export already exists; remove "
                               "it (left by an interrupted export)")
+    out.parent.mkdir(parents=True, exist_ok=True)
     scopes = _Scopes()
     created = []
     try:
