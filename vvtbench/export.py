@@ -357,7 +357,11 @@ class _ZarrWriter:
         g.attrs.update(values)
 
     def create(self, path: str, shape, dtype, dims, chunks=None, attrs=None):
+        from zarr.codecs import BloscCodec
+
         kw = {"chunks": chunks} if chunks and all(shape) else {}
+        # byte shuffle + zstd: the video is ~20 % smaller than with zarr's default (zstd)
+        kw["compressors"] = BloscCodec(cname="zstd", clevel=5, shuffle="shuffle")
         a = self.root.create_array(path, shape=tuple(shape), dtype=dtype,
                                    dimension_names=list(dims), **kw)
         if attrs:
