@@ -1,10 +1,8 @@
-"""The benchmark runner: suites, cache, failures, results schema, Dask, export."""
+"""The benchmark runner: suites, cache, failures, results schema, Dask (export: test_export)."""
 
 from __future__ import annotations
 
-import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,43 +227,6 @@ def test_dask_local_cluster_gives_the_same_table(micro, tmp_path):
     assert _computed(df)["solve"] == 4 and _computed(df)["generate"] == 0
     cols = [c for c in df.columns if c not in ("runtime_s",)]
     pd.testing.assert_frame_equal(df0[cols], df[cols], check_exact=False, atol=1e-6)
-
-
-@pytest.mark.parametrize("fmt", ["zarr", "hdf5"])
-def test_export_round_trip(micro, tmp_path, fmt):
-    from vvtbench.dataset import open_sample
-    from vvtbench.export import main_export, open_dataset
-
-    _, out, _ = micro
-    target = tmp_path / ("ds.zarr" if fmt == "zarr" else "ds.h5")
-    assert main_export([str(out), "--format", fmt, "-o", str(target)]) == 0
-    sample_dir = next((out / "cache" / "generate").glob("*/sample"))
-    s = open_sample(sample_dir)
-    with open_dataset(target) as ds:
-        assert ds.names == ["jello_cube_defect_top"]
-        p = ds[ds.names[0]]
-        np.testing.assert_array_equal(p.video[...], s.read_frames())
-        np.testing.assert_array_equal(p["modes/frequencies_hz"], s.frequencies_hz)
-        np.testing.assert_array_equal(p["observation/jacobian"], s["observation/jacobian"])
-        assert p.truth_json == s.info and p.seed == 0
-        assert "Stanford 3D Scanning Repository" in ds.readme
-    # plain libraries
-    if fmt == "zarr":
-        import zarr
-
-        g = zarr.open_group(str(target), mode="r")
-        video = g["samples/jello_cube_defect_top/video"][:2]
-        truth = json.loads(g["samples/jello_cube_defect_top"].attrs["truth"])
-        assert (target / "README.md").is_file()
-    else:
-        import h5py
-
-        with h5py.File(target, "r") as f:
-            video = f["samples/jello_cube_defect_top/video"][:2]
-            truth = json.loads(f["samples/jello_cube_defect_top"].attrs["truth"])
-        assert Path(str(target) + ".README.md").is_file()
-    np.testing.assert_array_equal(video, s.read_frames(0, 2))
-    assert truth["video"]["frames"] == s.n_frames
 
 
 def test_shipped_suites_parse():

@@ -117,7 +117,7 @@ DELEGATED = {
                       "validate a results table (Parquet/CSV) against the schema"),
     "leaderboard": ("vvtbench.leaderboard:main_leaderboard",
                     "Markdown + static HTML leaderboard from a results table"),
-    "export": ("vvtbench.export:main_export",
+    "export": ("vvtbench.cli_export:main",
                "pack generated samples into one zarr/hdf5 dataset with a dataset card"),
     "solvers": ("vvtbench.plugins:main_solvers", "list the installed inverse solvers"),
     "solve": ("vvtbench.plugins:main_solve",

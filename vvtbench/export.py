@@ -1,32 +1,52 @@
-"""Pack generated samples into one portable dataset file: Zarr (v3) or HDF5.
+"""Pack generated samples into one portable dataset: Zarr (v3) or HDF5, xarray-ready.
 
-Layout (the same in both formats; docs/results.md, "Exported datasets")::
+Layout (the same in both formats; docs/dataset.md, "Exported datasets")::
 
-    /                      attrs: format, vvtbench, created_from, samples, licence, README
-    samples/<name>/        attrs: scene_toml, truth (truth.json), camera (camera.json),
-                                  manifest (manifest.json), seed, sample_revision
-    samples/<name>/video   (T, H, W) uint16 (or uint8) DN, chunks of 64 frames
-    samples/<name>/truth/  every array of the sample's truth.zarr, same paths
+    /                          attrs: format, format_version, vvtbench, samples, README
+    samples/<name>/            attrs: scene_toml, truth, camera, manifest (JSON strings), seed,
+                                      sample_revision, truth_arrays, extracted
+                               coords: time (s), row, col (px), mode, voxel_x/y/z (m)
+    samples/<name>/video       (time, row, col) uint16 DN, chunks of 64 frames
+    samples/<name>/truth/...   every array of the sample's truth.zarr, same paths, named dims
+    samples/<name>/extracted/<i>/  one extracted ModeSet: shapes (extracted_mode, row, col,
+                               component), per-mode scalars, power (frequency), coords
+                               extracted_mode, frequency (Hz); attrs modes_json, key
 
-JSON documents are stored as JSON strings in attributes, so plain ``zarr``/``h5py`` read them
-with ``json.loads``. ``open_dataset(path)`` wraps either file.
+Every array has named dimensions (zarr v3 ``dimension_names``; HDF5 dimension scales, the
+netCDF-4 convention) and a ``units`` attribute where it has a unit, so
+``xarray.open_datatree(path, engine="zarr")`` and ``engine="h5netcdf"`` open the file with
+named dimensions and coordinates. ``open_dataset(path)[name]`` gives a :class:`PackedSample`
+with the read interface of :class:`vvtbench.dataset.Sample`.
+
+Safety: :func:`pack` never writes into or through a path it did not create. The output may
+not be, contain or lie inside an input; an existing output is replaced only with
+``overwrite=True`` and only when it is a dataset written by this module; writing goes into a
+temporary sibling ``.NAME.partial-<pid>`` renamed over the output at the end. Every sample is
+checked against its manifest (sha256 of every file) before anything is written.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
-import sys
+import os
+import shutil
 import tomllib
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from . import __version__
 
+__all__ = ["ExportError", "FORMAT", "FORMAT_VERSION", "PackedDataset", "PackedSample",
+           "find_extracted", "find_samples", "is_packed_dataset", "open_dataset", "pack"]
+
 FORMAT = "vvtbench.dataset-pack"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+LICENSE_URL = "https://creativecommons.org/licenses/by/4.0/"
 LICENCE = """\
 * Generated data (videos, ground truth): CC BY 4.0, produced by vvtbench {version} (MIT).
 * Stanford bunny (scene `bunny_defect`): from the Stanford 3D Scanning Repository
@@ -36,8 +56,16 @@ LICENCE = """\
   the bunny commercially without permission.
 * All other geometry is procedural (boxes, drum heads).
 """
+#: Files a Zarr dataset folder written by :func:`pack` holds at its top level.
+_ZARR_TOP = {"zarr.json", "samples", "README.md", "croissant.json"}
+_VIDEO_CHUNK = 64
 
 
+class ExportError(ValueError):
+    """Export refused or failed for a reason the user can fix (the message says which path)."""
+
+
+# --------------------------------------------------------------------------- finding inputs
 def find_samples(src: str | Path) -> list[Path]:
     """Sample folders (with truth.json and manifest.json) under ``src``."""
     src = Path(src)
@@ -53,13 +81,45 @@ def find_samples(src: str | Path) -> list[Path]:
     return out
 
 
-def _samples_from_suite(spec: str, run_dir: Path) -> list[Path]:
-    from .bench import load_suite, run_suite
+def find_extracted(sample: str | Path) -> list[Path]:
+    """Mode folders (modes.json + modes.npz) extracted from ``sample`` by a suite run.
 
-    suite = load_suite(spec)
-    run_suite(suite, [], run_dir, until="generate", progress=True)
-    info = json.loads((run_dir / "run.json").read_text())
-    return [run_dir / "cache" / k / "sample" for k in info["generated_samples"]]
+    A run folder keeps a sample at ``cache/generate/<key>/sample`` and each extraction of it at
+    ``cache/extract/<key2>/`` whose ``task.json`` names ``generate/<key>`` as its input.
+    """
+    sample = Path(sample)
+    gen = sample.parent
+    cache = gen.parent.parent
+    if sample.name != "sample" or gen.parent.name != "generate":
+        return []
+    want = f"generate/{gen.name}"
+    out = []
+    for task in sorted((cache / "extract").glob("*/task.json")):
+        try:
+            deps = json.loads(task.read_text()).get("deps", [])
+        except (OSError, ValueError):
+            continue
+        d = task.parent
+        if deps and deps[0] == want and (d / "modes.json").is_file() \
+                and (d / "modes.npz").is_file():
+            out.append(d)
+    return out
+
+
+def verify_sample(sample: Path) -> None:
+    """Raise :class:`ExportError` naming the first file of ``sample`` that is missing,
+    modified or not listed in its manifest.json."""
+    from .dataset import DatasetError, open_sample
+
+    try:
+        s = open_sample(sample)
+    except (DatasetError, OSError, ValueError) as error:
+        raise ExportError(f"{sample}: cannot open sample: {error}") from None
+    bad = s.verify()
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise ExportError(f"{sample / bad[0].split(': ')[0]}: {bad[0].split(': ', 1)[1]} "
+                          f"(manifest.json of sample {sample}){more}; regenerate the sample")
 
 
 def _revision(sample: Path) -> str:
@@ -67,7 +127,7 @@ def _revision(sample: Path) -> str:
 
 
 def _names(samples: list[Path]) -> list[str]:
-    names = []
+    names: list[str] = []
     for s in samples:
         base = s.name if s.name != "sample" else json.loads((s / "truth.json").read_text())[
             "scene"]
@@ -78,6 +138,317 @@ def _names(samples: list[Path]) -> list[str]:
     return names
 
 
+# --------------------------------------------------------------------------- output safety
+def _sidecars(out: Path, fmt: str) -> dict[str, Path]:
+    """Where the dataset card and the Croissant file go."""
+    if fmt == "zarr":
+        return {"readme": out / "README.md", "croissant": out / "croissant.json"}
+    return {"readme": out.with_name(out.name + ".README.md"),
+            "croissant": out.with_name(out.name + ".croissant.json")}
+
+
+def is_packed_dataset(path: str | Path) -> bool:
+    """True when ``path`` is a dataset written by :func:`pack` and holds nothing else."""
+    path = Path(path)
+    if path.is_symlink():
+        return False
+    if path.is_dir():
+        meta = path / "zarr.json"
+        if meta.is_symlink() or not meta.is_file():
+            return False
+        try:
+            attrs = json.loads(meta.read_text()).get("attributes", {})
+        except (OSError, ValueError):
+            return False
+        return attrs.get("format") == FORMAT and all(
+            p.name in _ZARR_TOP for p in path.iterdir())
+    if path.is_file():
+        try:
+            import h5py
+
+            with h5py.File(path, "r") as f:
+                fmt = f.attrs.get("format")
+        except (OSError, ValueError):
+            return False
+        return (fmt.decode() if isinstance(fmt, bytes) else fmt) == FORMAT
+    return False
+
+
+def _ours_sidecar(path: Path) -> bool:
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return False
+    if path.suffix == ".md":
+        return text.startswith("# vvtbench dataset")
+    try:
+        return json.loads(text).get("vvtbench:format") == FORMAT
+    except ValueError:
+        return False
+
+
+def _inside(a: Path, b: Path) -> bool:
+    """``a`` is ``b`` or lies inside it (both resolved)."""
+    return a == b or b in a.parents
+
+
+def check_output(out: str | Path, inputs: list[Path], fmt: str, overwrite: bool) -> Path:
+    """Refuse an output path that is, contains or lies in an input, that is (or has) a symbolic
+    link, or that exists (unless ``overwrite`` and it is a dataset written by :func:`pack`).
+    Returns the output path."""
+    out = Path(out)
+    if out.name in ("", ".", ".."):
+        raise ExportError(f"{out}: the output must name a new file or folder (not '.' or '..')")
+    target = out.resolve()
+    for p in inputs:
+        src = Path(p).resolve()
+        if _inside(target, src) or _inside(src, target):
+            raise ExportError(f"{out}: the output may not be, contain or lie inside the input "
+                              f"{p}")
+    paths = [out, *(_sidecars(out, fmt).values() if fmt == "hdf5" else [])]
+    for p in paths:
+        if p.is_symlink():
+            raise ExportError(f"{p}: is a symbolic link; export does not write through links")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise ExportError(f"{out.parent}: is not a folder")
+    existing = [p for p in paths if p.exists()]
+    if existing and not overwrite:
+        raise ExportError(f"{existing[0]}: already exists; pass --overwrite (overwrite=True) "
+                          "to replace a dataset written by vvtbench export")
+    if out.exists():
+        kind_ok = out.is_dir() if fmt == "zarr" else out.is_file()
+        if not kind_ok or not is_packed_dataset(out):
+            raise ExportError(f"{out}: exists and is not a {fmt} dataset written by vvtbench "
+                              "export; not replacing it (choose another output path)")
+    for p in paths[1:]:
+        if p.exists() and not (p.is_file() and _ours_sidecar(p)):
+            raise ExportError(f"{p}: exists and was not written by vvtbench export; not "
+                              "replacing it")
+    return out
+
+
+# --------------------------------------------------------------------------- dims and units
+def _truth_dims(name: str, kind: str) -> dict[str, tuple[str, ...]]:
+    """Dimension names of the known truth.zarr arrays (others get ``<array>_dim_<i>``)."""
+    del kind
+    vox = ("voxel_x", "voxel_y", "voxel_z")
+    return {
+        "mesh/points": ("node", "xyz"),
+        "mesh/cells": ("element", "element_node"),
+        "mesh/surface": ("surface_triangle", "triangle_vertex"),
+        "mesh/surface_nodes": ("surface_node",),
+        "mesh/element_volumes": ("element",),
+        "mesh/fixed_nodes": ("fixed_node",),
+        "material/stiffness": ("element",),
+        "material/density": ("element",),
+        "material/nu": ("element",),
+        "voxels/stiffness": vox,
+        "voxels/density": vox,
+        "voxels/nu": vox,
+        "voxels/element_voxel": ("element",),
+        "modes/eigenvalues": ("mode",),
+        "modes/frequencies_hz": ("mode",),
+        "modes/damping_ratios": ("mode",),
+        "modes/vectors": ("free_dof", "mode"),
+        "modes/free_dofs": ("free_dof",),
+        "modes/surface": ("mode", "surface_node", "xyz"),
+        "observation/rest_uv": ("surface_node", "uv"),
+        "observation/rest_depth": ("surface_node",),
+        "observation/visible": ("surface_node",),
+        "observation/visible_index": ("visible_node",),
+        "observation/visible_nodes": ("visible_node",),
+        "observation/jacobian": ("visible_node", "uv", "xyz"),
+        "observation/image_modes": ("mode", "visible_node", "uv"),
+        "observation/image_modes_surface": ("mode", "surface_node", "uv"),
+        "image/rest": ("row", "col"),
+        "image/depth": ("row", "col"),
+        "image/triangle": ("row", "col"),
+        "image/barycentric": ("row", "col", "triangle_vertex"),
+        "image/modes": ("mode", "row", "col", "uv"),
+        "transient/displacements": ("time", "surface_node", "xyz"),
+        "transient/times": ("time",),
+    }.get(name, ())
+
+
+def _truth_units(name: str, drum: bool) -> str | None:
+    mode = "px m-1 kg-1/2"
+    return {
+        "mesh/points": "m",
+        "mesh/element_volumes": "m2" if drum else "m3",
+        "material/stiffness": "N/m" if drum else "Pa",
+        "material/density": "kg/m2" if drum else "kg/m3",
+        "material/nu": "1",
+        "voxels/stiffness": "N/m" if drum else "Pa",
+        "voxels/density": "kg/m2" if drum else "kg/m3",
+        "voxels/nu": "1",
+        "modes/eigenvalues": "rad2 s-2",
+        "modes/frequencies_hz": "Hz",
+        "modes/damping_ratios": "1",
+        "modes/vectors": "kg-1/2",
+        "modes/surface": "kg-1/2",
+        "observation/rest_uv": "px",
+        "observation/rest_depth": "m",
+        "observation/jacobian": "px/m",
+        "observation/image_modes": mode,
+        "observation/image_modes_surface": mode,
+        "image/rest": "1",
+        "image/depth": "m",
+        "image/barycentric": "1",
+        "image/modes": mode,
+        "transient/displacements": "m",
+        "transient/times": "s",
+    }.get(name)
+
+
+_MODESET_ARRAYS = {  # name -> (dims, units)
+    "frequencies_hz": (("extracted_mode",), "Hz"),
+    "damping": (("extracted_mode",), "1"),
+    "damping_half_power": (("extracted_mode",), "1"),
+    "amplitudes_px": (("extracted_mode",), "px"),
+    "peak_bins": (("extracted_mode",), None),
+    "prominences": (("extracted_mode",), "decades"),
+    "collinearity": (("extracted_mode",), "1"),
+    "shake_mac": (("extracted_mode",), "1"),
+    "camera_shake": (("extracted_mode",), None),
+    "shapes": (("extracted_mode", "row", "col", "component"), "1"),
+    "power": (("frequency",), "px2"),
+    "confidence": (("row", "col"), "1"),
+}
+
+
+# --------------------------------------------------------------------------- writers
+class _Scopes:
+    """Dimension sizes per group; a dimension is visible in its group and every subgroup."""
+
+    def __init__(self) -> None:
+        self.sizes: dict[str, dict[str, int]] = {}
+
+    def lookup(self, group: str, dim: str) -> tuple[str, int] | None:
+        parts = group.split("/") if group else []
+        for i in range(len(parts), -1, -1):
+            g = "/".join(parts[:i])
+            if dim in self.sizes.get(g, {}):
+                return g, self.sizes[g][dim]
+        return None
+
+    def resolve(self, group: str, name: str, shape: tuple[int, ...],
+                proposal: tuple[str, ...]) -> tuple[str, ...]:
+        """``proposal`` when it fits ``shape`` and every dimension's size in scope, else
+        dimensions named after the array."""
+        dims = proposal
+        if len(dims) != len(shape) or any(
+                (f := self.lookup(group, d)) is not None and f[1] != n
+                for d, n in zip(dims, shape, strict=True)) or len(set(dims)) != len(dims):
+            dims = tuple(f"{name}_dim_{i}" for i in range(len(shape)))
+        for d, n in zip(dims, shape, strict=True):
+            if self.lookup(group, d) is None:
+                self.sizes.setdefault(group, {})[d] = int(n)
+        return dims
+
+
+class _ZarrWriter:
+    def __init__(self, path: Path):
+        import zarr
+
+        self.root = zarr.open_group(str(path), mode="w-", zarr_format=3)
+
+    def attrs(self, path: str, values: dict) -> None:
+        g = self.root.require_group(path) if path else self.root
+        g.attrs.update(values)
+
+    def create(self, path: str, shape, dtype, dims, chunks=None, attrs=None):
+        from zarr.codecs import BloscCodec
+
+        kw = {"chunks": chunks} if chunks and all(shape) else {}
+        # byte shuffle + zstd: the video is ~20 % smaller than with zarr's default (zstd)
+        kw["compressors"] = BloscCodec(cname="zstd", clevel=5, shuffle="shuffle")
+        a = self.root.create_array(path, shape=tuple(shape), dtype=dtype,
+                                   dimension_names=list(dims), **kw)
+        if attrs:
+            a.attrs.update(attrs)
+        return a
+
+    def array(self, path: str, data, dims, chunks=None, attrs=None):
+        data = np.asarray(data)
+        a = self.create(path, data.shape, data.dtype, dims, chunks, attrs)
+        if data.size:
+            a[...] = data
+        return a
+
+    def coord(self, group: str, name: str, values, attrs=None) -> None:
+        self.array(f"{group}/{name}", values, (name,), attrs=attrs)
+
+    def close(self) -> None:
+        import zarr
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "consolidated metadata is not in the v3 spec"
+            zarr.consolidate_metadata(self.root.store)
+
+
+class _H5Writer:
+    """h5py with netCDF-4 style dimension scales, so h5netcdf/xarray see named dimensions."""
+
+    NOT_A_VARIABLE = "This is a netCDF dimension but not a netCDF variable."
+
+    def __init__(self, path: Path, scopes: _Scopes):
+        import h5py
+
+        self.root = h5py.File(path, "w-")
+        self.scopes = scopes
+
+    def attrs(self, path: str, values: dict) -> None:
+        g = self.root.require_group(path) if path else self.root
+        for k, v in values.items():
+            g.attrs[k] = v
+
+    @staticmethod
+    def _filters(shape, chunks) -> dict:
+        if not all(shape) or not shape:
+            return {}
+        return {"chunks": tuple(chunks) if chunks else True, "compression": "gzip",
+                "compression_opts": 4, "shuffle": True}
+
+    def _scale(self, group: str, dim: str):
+        found = self.scopes.lookup(group, dim)
+        g_path, n = found if found else (group, None)
+        key = f"{g_path}/{dim}" if g_path else dim
+        if key not in self.root:
+            ds = self.root.create_dataset(key, shape=(n,), dtype="f4")
+            ds.make_scale(f"{self.NOT_A_VARIABLE}{n:10d}")
+        return self.root[key]
+
+    def create(self, path: str, shape, dtype, dims, chunks=None, attrs=None):
+        a = self.root.create_dataset(path, shape=tuple(shape), dtype=dtype,
+                                     **self._filters(shape, chunks))
+        group = path.rsplit("/", 1)[0] if "/" in path else ""
+        for i, d in enumerate(dims):
+            a.dims[i].attach_scale(self._scale(group, d))
+        for k, v in (attrs or {}).items():
+            a.attrs[k] = v
+        return a
+
+    def array(self, path: str, data, dims, chunks=None, attrs=None):
+        data = np.asarray(data)
+        if data.dtype.kind == "U":
+            data = data.astype("S")
+        a = self.create(path, data.shape, data.dtype, dims, chunks, attrs)
+        if data.size:
+            a[...] = data
+        return a
+
+    def coord(self, group: str, name: str, values, attrs=None) -> None:
+        values = np.asarray(values)
+        a = self.root.create_dataset(f"{group}/{name}", data=values)
+        a.make_scale(name)
+        for k, v in (attrs or {}).items():
+            a.attrs[k] = v
+
+    def close(self) -> None:
+        self.root.close()
+
+
+# --------------------------------------------------------------------------- dataset card
 def dataset_card(samples: list[Path], names: list[str], fmt: str, source: str) -> str:
     rows = []
     for s, n in zip(samples, names, strict=True):
@@ -89,7 +460,7 @@ def dataset_card(samples: list[Path], names: list[str], fmt: str, source: str) -
     return f"""# vvtbench dataset
 
 Packed by vvtbench {__version__} from `{source}` ({len(samples)} samples, format `{fmt}`,
-layout version {FORMAT_VERSION}).
+layout version {FORMAT_VERSION}). A Croissant (JSON-LD) description is beside this card.
 
 ## Samples
 
@@ -98,31 +469,37 @@ layout version {FORMAT_VERSION}).
 {table}
 
 `revision` = first 16 hex digits of the sha256 of the sample's manifest.json (which holds the
-sha256 of every file of the sample folder).
+sha256 of every file of the sample folder; every file was checked against it when packing).
 
 ## Schema
 
 ```
-/                      attrs: format, format_version, vvtbench, samples (JSON list), README
-samples/<name>/        attrs (JSON strings): scene_toml (text), truth, camera, manifest;
-                       seed (int), sample_revision
-samples/<name>/video   (T, H, W) uint16 DN (8-bit consumer videos: uint8), 64 frames/chunk
-samples/<name>/truth/  the sample's truth.zarr arrays under the same paths: mesh/, material/,
-                       voxels/, modes/, observation/, image/, transient/
+/                            attrs: format, format_version, vvtbench, samples (JSON), README
+samples/<name>/              attrs (JSON strings): scene_toml (text), truth, camera, manifest,
+                             truth_arrays, extracted; seed (int), sample_revision
+                             coords: time (s), row, col (px), mode, voxel_x/y/z (m, centres)
+samples/<name>/video         (time, row, col) uint16 DN (8-bit consumer videos: uint8)
+samples/<name>/truth/        the sample's truth.zarr arrays under the same paths: mesh/,
+                             material/, voxels/, modes/, observation/, image/, transient/
+samples/<name>/extracted/<i> extracted modes (if any): shapes (extracted_mode, row, col,
+                             component), frequencies_hz, damping, ...; power (frequency, Hz)
 ```
 
-Units, conventions and every truth array: vvtbench docs/dataset.md (SI units, pixels with
-(0, 0) at the centre of the top-left pixel, P = K[R|t]).
+Every array has named dimensions and a `units` attribute where it has a unit. Units and
+conventions of every truth array: vvtbench docs/dataset.md (SI units, pixels with (0, 0) at
+the centre of the top-left pixel, P = K[R|t]).
 
 ## Loading
 
 ```python
 import vvtbench.export as ex
-ds = ex.open_dataset("{'FILE'}")
-s = ds[ds.names[0]]; s.video[:10]; s["modes/frequencies_hz"]; s.truth_json; s.scene
-# plain zarr:  g = zarr.open_group(FILE, mode="r"); g["samples/<name>/video"][:10]
-# plain h5py:  f = h5py.File(FILE); f["samples/<name>/video"][:10];
-#              json.loads(f["samples/<name>"].attrs["truth"])
+ds = ex.open_dataset(PATH)
+s = ds[ds.names[0]]                  # the interface of vvtbench.dataset.Sample
+s.scene, s.camera, s.info, s.read_frames(0, 10), s["modes/frequencies_hz"]
+s.extracted_modes()                  # list of vvtbench.modes.ModeSet
+import xarray as xr                  # zarr: engine="zarr"; HDF5: engine="h5netcdf"
+tree = xr.open_datatree(PATH, engine="zarr")
+tree["samples/<name>"].ds.video      # dims (time, row, col), coords in s and px
 ```
 
 ## Generator
@@ -136,10 +513,103 @@ machine (see docs/dataset.md, "Reproducible").
 {LICENCE.format(version=__version__)}"""
 
 
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
+              source: str) -> dict:
+    """A Croissant 1.0 JSON-LD description of the dataset written at ``partial`` (to be
+    renamed ``out``)."""
+    ctx = {
+        "@language": "en", "@vocab": "https://schema.org/", "sc": "https://schema.org/",
+        "cr": "http://mlcommons.org/croissant/", "rai": "http://mlcommons.org/croissant/RAI/",
+        "dct": "http://purl.org/dc/terms/", "citeAs": "cr:citeAs", "column": "cr:column",
+        "conformsTo": "dct:conformsTo", "data": {"@id": "cr:data", "@type": "@json"},
+        "dataType": {"@id": "cr:dataType", "@type": "@vocab"}, "examples":
+        {"@id": "cr:examples", "@type": "@json"}, "extract": "cr:extract", "field": "cr:field",
+        "fileProperty": "cr:fileProperty", "fileObject": "cr:fileObject",
+        "fileSet": "cr:fileSet", "format": "cr:format", "includes": "cr:includes",
+        "isLiveDataset": "cr:isLiveDataset", "jsonPath": "cr:jsonPath", "key": "cr:key",
+        "md5": "cr:md5", "parentField": "cr:parentField", "path": "cr:path",
+        "recordSet": "cr:recordSet", "references": "cr:references", "regex": "cr:regex",
+        "repeated": "cr:repeated", "replace": "cr:replace", "samplingRate": "cr:samplingRate",
+        "separator": "cr:separator", "source": "cr:source", "subField": "cr:subField",
+        "transform": "cr:transform",
+    }
+    if fmt == "zarr":
+        meta = partial / "zarr.json"
+        dist: list[dict] = [
+            {"@type": "cr:FileObject", "@id": "zarr-metadata", "name": "zarr-metadata",
+             "description": "root metadata of the Zarr v3 store (consolidated: it lists every "
+                            "array, its dimension names and attributes)",
+             "contentUrl": "zarr.json", "encodingFormat": "application/json",
+             "sha256": _sha256_file(meta)},
+            {"@type": "cr:FileSet", "@id": "zarr-store", "name": "zarr-store",
+             "description": "every group, array and chunk of the Zarr v3 store",
+             "encodingFormat": "application/x-zarr", "includes": "samples/**"},
+        ]
+        src = {"fileSet": {"@id": "zarr-store"}}
+    else:
+        dist = [{"@type": "cr:FileObject", "@id": out.name, "name": out.name,
+                 "description": "HDF5 file (netCDF-4 style dimension scales)",
+                 "contentUrl": out.name, "encodingFormat": "application/x-hdf5",
+                 "sha256": _sha256_file(partial)}]
+        src = {"fileObject": {"@id": out.name}}
+
+    def field(fid: str, path: str, dtype: str, desc: str) -> dict:
+        return {"@type": "cr:Field", "@id": f"samples/{fid}", "name": fid,
+                "description": desc, "dataType": dtype,
+                "source": {**src, "extract": {"column": path}}}
+
+    fields = [
+        field("name", "samples/<name>", "sc:Text", "sample name (group under samples/)"),
+        field("video", "samples/<name>/video", "sc:Integer",
+              "(time, row, col) uint16 video frames in DN"),
+        field("scene_toml", "samples/<name>@scene_toml", "sc:Text",
+              "the resolved scene (TOML) the sample was generated from"),
+        field("frequencies_hz", "samples/<name>/truth/modes/frequencies_hz", "sc:Float",
+              "natural frequencies (Hz) of the simulated modes"),
+        field("image_modes", "samples/<name>/truth/image/modes", "sc:Float",
+              "(mode, row, col, uv) true image-space modes"),
+        field("stiffness", "samples/<name>/truth/material/stiffness", "sc:Float",
+              "Young's modulus per element (Pa; drums: tension N/m)"),
+        field("density", "samples/<name>/truth/material/density", "sc:Float",
+              "density per element (kg/m3; drums kg/m2)"),
+        field("points", "samples/<name>/truth/mesh/points", "sc:Float",
+              "mesh node coordinates (m)"),
+    ]
+    return {
+        "@context": ctx,
+        "@type": "sc:Dataset",
+        "name": name,
+        "description": (f"vvtbench visual vibration tomography dataset: {len(names)} "
+                        "simulated videos of vibrating objects with their ground truth "
+                        f"(mesh, material, modes, camera), packed from {source}."),
+        "conformsTo": "http://mlcommons.org/croissant/1.0",
+        "license": LICENSE_URL,
+        "url": "https://github.com/vvtbench/vvtbench",
+        "version": f"{FORMAT_VERSION}.0.0",
+        "creator": {"@type": "sc:Organization", "name": "vvtbench"},
+        "keywords": ["visual vibration tomography", "modal analysis", "video"],
+        "vvtbench:format": FORMAT,
+        "vvtbench:samples": names,
+        "distribution": dist,
+        "recordSet": [{"@type": "cr:RecordSet", "@id": "samples", "name": "samples",
+                       "description": "one record per sample (group samples/<name>)",
+                       "field": fields}],
+    }
+
+
+# --------------------------------------------------------------------------- pack
 def _walk_zarr(group, prefix=""):
     import zarr
 
-    for name, obj in group.members():
+    for name, obj in sorted(group.members(), key=lambda m: m[0]):
         path = f"{prefix}{name}"
         if isinstance(obj, zarr.Array):
             yield path, obj
@@ -147,167 +617,359 @@ def _walk_zarr(group, prefix=""):
             yield from _walk_zarr(obj, path + "/")
 
 
-def _frames(sample: Path):
+def _json_attr(doc: Any) -> str:
+    return json.dumps(doc, sort_keys=True)
+
+
+def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
+                  extracted: list[Path]) -> None:
+    import zarr
+
     from .dataset import open_sample
+    from .modes import ModeSet
 
     s = open_sample(sample)
-    return s, s.frames()
-
-
-class _ZarrWriter:
-    def __init__(self, path: Path):
-        import zarr
-
-        self.root = zarr.open_group(str(path), mode="w")
-
-    def group(self, path: str):
-        return self.root.require_group(path)
-
-    def array(self, path: str, data=None, shape=None, dtype=None, chunks=None):
-        kw = {"chunks": chunks} if chunks else {}
-        if data is not None:
+    drum = s.scene.geometry.kind == "drum"
+    base = f"samples/{name}"
+    T, (H, W) = s.n_frames, s.shape
+    truth = zarr.open_group(str(sample / "truth.zarr"), mode="r")
+    arrays = list(_walk_zarr(truth))
+    names = [p for p, _ in arrays]
+    # ---- coordinates of the sample group (inherited by every subgroup)
+    times = np.arange(T) / s.fps
+    if "transient/times" in names and truth["transient/times"].shape == (T,):
+        times = np.asarray(truth["transient/times"][...], dtype=np.float64)
+    coords: dict[str, tuple[np.ndarray, dict]] = {
+        "time": (times, {"units": "s", "long_name": "frame time (exposure centre)"}),
+        "row": (np.arange(H, dtype=np.int64), {"units": "px", "long_name": "pixel row "
+                                                "(0 = centre of the top row)"}),
+        "col": (np.arange(W, dtype=np.int64), {"units": "px", "long_name": "pixel column"}),
+    }
+    if "modes/frequencies_hz" in names:
+        m = int(truth["modes/frequencies_hz"].shape[0])
+        coords["mode"] = (np.arange(m, dtype=np.int64), {"long_name": "mode index"})
+    vox = s.info.get("voxels")
+    if vox and len(vox.get("shape", [])) == len(vox.get("origin", [])):
+        for ax, o, size, n in zip("xyz", vox["origin"], vox["size"], vox["shape"],
+                                  strict=False):
+            centres = o + (np.arange(n) + 0.5) * (size / n)
+            coords[f"voxel_{ax}"] = (centres, {"units": "m",
+                                               "long_name": f"voxel centre {ax}"})
+    for c, (values, attrs) in coords.items():
+        scopes.sizes.setdefault(base, {})[c] = len(values)
+        w.coord(base, c, values, attrs)
+    # ---- video
+    dtype = np.uint16 if s.info["video"]["pixel_format"] == "gray16le" else np.uint8
+    ch = (min(_VIDEO_CHUNK, max(T, 1)), H, W)
+    video = w.create(f"{base}/video", (T, H, W), dtype, ("time", "row", "col"), ch,
+                     {"units": "DN", "long_name": "video frames (digital numbers)",
+                      "bit_depth": int(s.bit_depth)})
+    buf: list[np.ndarray] = []
+    start = 0
+    for f in s.frames():
+        buf.append(f.astype(dtype))
+        if len(buf) == ch[0]:
+            video[start:start + len(buf)] = np.stack(buf)
+            start += len(buf)
+            buf = []
+    if buf:
+        video[start:start + len(buf)] = np.stack(buf)
+        start += len(buf)
+    if start != T:
+        raise ExportError(f"{s.video_path}: holds {start} frames, truth.json says {T}; "
+                          "regenerate the sample")
+    # ---- truth arrays (all of them, whatever their name)
+    for path, arr in arrays:
+        data = arr[...]
+        group, _, leaf = f"{base}/truth/{path}".rpartition("/")
+        dims = scopes.resolve(group, leaf, data.shape, _truth_dims(path, s.scene.geometry.kind))
+        attrs = {}
+        unit = _truth_units(path, drum)
+        if unit:
+            attrs["units"] = unit
+        chunks = tuple(int(c) for c in arr.chunks) if data.ndim else None
+        w.array(f"{group}/{leaf}", data, dims, chunks, attrs)
+    # ---- extracted modes
+    keys = []
+    for i, d in enumerate(extracted):
+        ms = ModeSet.load(d)
+        g = f"{base}/extracted/{i}"
+        k, F = len(ms), len(ms.freqs_hz)
+        for c, values, attrs in (
+                ("extracted_mode", np.arange(k, dtype=np.int64), {"long_name": "mode index"}),
+                ("frequency", ms.freqs_hz, {"units": "Hz", "long_name": "spectrum frequency"})):
+            scopes.sizes.setdefault(g, {})[c] = len(values)
+            w.coord(g, c, values, attrs)
+        del F
+        for a, (dims, unit) in _MODESET_ARRAYS.items():
+            data = getattr(ms, a)
+            if data is None:
+                continue
             data = np.asarray(data)
-            a = self.root.create_array(path, shape=data.shape, dtype=data.dtype,
-                                       **({"chunks": chunks} if chunks else {}))
-            if data.size:
-                a[...] = data
-            return a
-        return self.root.create_array(path, shape=shape, dtype=dtype, **kw)
-
-    def attrs(self, obj, values: dict):
-        obj.attrs.update(values)
-
-    def close(self):
-        pass
-
-
-class _H5Writer:
-    def __init__(self, path: Path):
-        import h5py
-
-        self.root = h5py.File(path, "w")
-
-    def group(self, path: str):
-        return self.root.require_group(path)
-
-    def array(self, path: str, data=None, shape=None, dtype=None, chunks=None):
-        if data is not None:
-            data = np.asarray(data)
-            if data.dtype.kind == "U":
-                data = data.astype("S")
-            return self.root.create_dataset(path, data=data,
-                                            chunks=chunks if data.ndim and data.size else None)
-        return self.root.create_dataset(path, shape=shape, dtype=dtype, chunks=chunks)
-
-    def attrs(self, obj, values: dict):
-        for k, v in values.items():
-            obj.attrs[k] = v
-
-    def close(self):
-        self.root.close()
+            dims = scopes.resolve(g, a, data.shape, dims)
+            w.array(f"{g}/{a}", data, dims, None, {"units": unit} if unit else None)
+        key = f"{d.parent.name}/{d.name}"
+        w.attrs(g, {"modes_json": (d / "modes.json").read_text(), "key": key,
+                    "fps": float(ms.fps), "n_frames": int(ms.n_frames)})
+        keys.append(key)
+    w.attrs(base, {
+        "scene_toml": (sample / "scene.toml").read_text(),
+        "truth": (sample / "truth.json").read_text(),
+        "camera": (sample / "camera.json").read_text(),
+        "manifest": (sample / "manifest.json").read_text(),
+        "seed": int(s.info["seed"]),
+        "sample_revision": _revision(sample),
+        "truth_arrays": _json_attr(names),
+        "extracted": _json_attr(keys),
+    })
 
 
-def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = "") -> Path:
-    """Write ``samples`` into one Zarr or HDF5 dataset at ``out`` (+ a README dataset card)."""
+def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = "", *,
+         overwrite: bool = False, extracted: dict[Path, list[Path]] | None = None,
+         inputs: list[Path] | tuple = ()) -> Path:
+    """Write ``samples`` into one Zarr or HDF5 dataset at ``out``, plus a README dataset card
+    and a Croissant JSON-LD file (inside a Zarr folder; beside an HDF5 file as
+    ``OUT.README.md`` and ``OUT.croissant.json``).
+
+    ``extracted`` maps a sample folder to its mode folders (default: :func:`find_extracted`).
+    ``inputs`` are further paths the output must stay clear of (e.g. the folder the samples
+    were found in). Raises :class:`ExportError` (nothing written) for an unsafe output path or
+    a sample that does not match its manifest.
+    """
     if fmt not in ("zarr", "hdf5"):
-        raise ValueError(f"format must be 'zarr' or 'hdf5', got {fmt!r}")
+        raise ExportError(f"format must be 'zarr' or 'hdf5', got {fmt!r}")
+    samples = [Path(s) for s in samples]
     if not samples:
-        raise ValueError("no samples to export")
-    out = Path(out)
+        raise ExportError("no samples to export")
+    if extracted is None:
+        extracted = {s: find_extracted(s) for s in samples}
+    mode_dirs = [d for s in samples for d in extracted.get(s, [])]
+    out = check_output(out, [*samples, *mode_dirs, *map(Path, inputs)], fmt, overwrite)
+    for s in samples:
+        verify_sample(s)
     names = _names(samples)
     card = dataset_card(samples, names, fmt, source or "samples")
-    w = _ZarrWriter(out) if fmt == "zarr" else _H5Writer(out)
+    tag = f"partial-{os.getpid()}"
+    partial = out.with_name(f".{out.name}.{tag}")
+    side = _sidecars(out, fmt)
+    side_tmp = {k: p.with_name(f".{p.name}.{tag}") for k, p in side.items()} \
+        if fmt == "hdf5" else {k: partial / p.name for k, p in side.items()}
+    for p in [partial, *side_tmp.values()]:
+        if p.exists() or p.is_symlink():
+            raise ExportError(f"{p}: a temporary path of this export already exists; remove "
+                              "it (left by an interrupted export)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    scopes = _Scopes()
+    created = []
     try:
-        w.attrs(w.root, {"format": FORMAT, "format_version": FORMAT_VERSION,
+        w = _ZarrWriter(partial) if fmt == "zarr" else _H5Writer(partial, scopes)
+        created.append(partial)
+        try:
+            w.attrs("", {"format": FORMAT, "format_version": FORMAT_VERSION,
                          "vvtbench": __version__, "samples": json.dumps(names),
                          "README": card})
-        for sample, name in zip(samples, names, strict=True):
-            import zarr
-
-            base = f"samples/{name}"
-            g = w.group(base)
-            truth_json = (sample / "truth.json").read_text()
-            w.attrs(g, {
-                "scene_toml": (sample / "scene.toml").read_text(),
-                "truth": truth_json, "camera": (sample / "camera.json").read_text(),
-                "manifest": (sample / "manifest.json").read_text(),
-                "seed": int(json.loads(truth_json)["seed"]),
-                "sample_revision": _revision(sample),
-            })
-            s, frames = _frames(sample)
-            T, (H, W) = s.n_frames, s.shape
-            dtype = np.uint16 if s.info["video"]["pixel_format"] == "gray16le" else np.uint8
-            ch = (min(64, max(T, 1)), H, W)
-            video = w.array(f"{base}/video", shape=(T, H, W), dtype=dtype, chunks=ch)
-            buf, start = [], 0
-            for f in frames:
-                buf.append(f.astype(dtype))
-                if len(buf) == ch[0]:
-                    video[start:start + len(buf)] = np.stack(buf)
-                    start += len(buf)
-                    buf = []
-            if buf:
-                video[start:start + len(buf)] = np.stack(buf)
-            truth = zarr.open_group(str(sample / "truth.zarr"), mode="r")
-            for path, arr in _walk_zarr(truth):
-                data = arr[...]
-                chunks = tuple(int(c) for c in arr.chunks) if data.ndim else None
-                w.array(f"{base}/truth/{path}", data=data, chunks=chunks)
-    finally:
-        w.close()
-    readme = out / "README.md" if fmt == "zarr" else out.with_name(out.name + ".README.md")
-    readme.write_text(card)
+            for sample, name in zip(samples, names, strict=True):
+                _write_sample(w, scopes, sample, name, extracted.get(sample, []))
+        finally:
+            w.close()
+        meta = croissant(out.stem, out, fmt, partial, names, source or "samples")
+        for key, text in (("readme", card), ("croissant", json.dumps(meta, indent=2) + "\n")):
+            p = side_tmp[key]
+            with open(p, "x", encoding="utf-8") as f:  # exclusive: never through a link
+                f.write(text)
+            created.append(p)
+        _replace(partial, out)
+        created.remove(partial)
+        if fmt == "hdf5":
+            for key in side:
+                os.replace(side_tmp[key], side[key])
+                created.remove(side_tmp[key])
+    except BaseException:
+        for p in created:
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+        raise
     return out
 
 
-class PackedSample:
-    """One sample of a packed dataset: ``video`` (lazy array), ``truth_json``, ``camera``,
-    ``manifest``, ``scene`` (dict), ``s["modes/frequencies_hz"]`` reads a truth array."""
+def _replace(partial: Path, out: Path) -> None:
+    """Rename ``partial`` to ``out``, atomically replacing an existing dataset of ours."""
+    if partial.is_dir() and out.exists():
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        os.rename(out, old)
+        try:
+            os.rename(partial, out)
+        except OSError:
+            os.rename(old, out)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(partial, out)
 
-    def __init__(self, group, name: str):
-        self.group, self.name = group, name
+
+# --------------------------------------------------------------------------- reading
+def _text(v: Any) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
+class PackedSample:
+    """One sample of a packed dataset, with the read interface of
+    :class:`vvtbench.dataset.Sample`: ``scene`` (Scene), ``camera`` (Camera), ``info``
+    (truth.json), ``manifest``, ``s["modes/frequencies_hz"]`` (a truth array by its
+    truth.zarr name), ``frames()`` / ``read_frames()``, ``extracted_modes()``."""
+
+    def __init__(self, group, name: str, dataset_path: Path | None = None):
+        from .render import Camera
+        from .scene import parse_scene
+
+        self.group, self.name, self.dataset_path = group, name, dataset_path
         a = group.attrs
-        self.truth_json = json.loads(a["truth"])
-        self.camera = json.loads(a["camera"])
-        self.manifest = json.loads(a["manifest"])
-        self.scene_toml = str(a["scene_toml"])
-        self.scene = tomllib.loads(self.scene_toml)
+        self.info: dict = json.loads(_text(a["truth"]))
+        self.manifest: dict = json.loads(_text(a["manifest"]))
+        self.scene_toml = _text(a["scene_toml"])
+        self.scene = parse_scene(tomllib.loads(self.scene_toml),
+                                 f"{dataset_path or 'dataset'}:samples/{name}/scene_toml")
+        self.camera = Camera.from_dict(json.loads(_text(a["camera"])))
         self.seed = int(a["seed"])
-        self.revision = str(a["sample_revision"])
+        self.revision = _text(a["sample_revision"])
+        self.truth_arrays: list[str] = json.loads(_text(a.get("truth_arrays", "[]")))
+        self._extracted: list[str] = json.loads(_text(a.get("extracted", "[]")))
+
+    # ---- the Sample interface
+    @property
+    def path(self) -> Path | None:
+        """The dataset file or folder this sample was read from."""
+        return self.dataset_path
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.info["video"]["frames"])
+
+    @property
+    def fps(self) -> float:
+        return float(self.info["video"]["fps"])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.info["video"]["height"]), int(self.info["video"]["width"]))
+
+    @property
+    def bit_depth(self) -> int:
+        return int(self.info["video"]["bit_depth"])
+
+    @property
+    def has_video(self) -> bool:
+        return "video" in self.group
 
     @property
     def video(self):
+        """The lazy (time, row, col) video array (slice it)."""
         return self.group["video"]
 
-    def __getitem__(self, path: str) -> np.ndarray:
-        return np.asarray(self.group["truth"][path][...])
+    @property
+    def frequencies_hz(self) -> np.ndarray:
+        return self["modes/frequencies_hz"]
+
+    @property
+    def damping_ratios(self) -> np.ndarray:
+        return self["modes/damping_ratios"]
+
+    @property
+    def times(self) -> np.ndarray:
+        return self["transient/times"]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return np.asarray(self.array(name)[...])
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.truth_arrays
+
+    def array(self, name: str):
+        """The lazy array ``name`` of the truth (slice it to read part of it)."""
+        if name not in self.truth_arrays:
+            raise KeyError(f"{self.name}: no truth array {name!r}; arrays: "
+                           f"{', '.join(self.truth_arrays)}")
+        return self.group["truth"][name]
+
+    def frames(self, start: int = 0, stop: int | None = None, *,
+               normalize: bool = False) -> Iterator[np.ndarray]:
+        """Video frames ``start:stop`` one at a time: (H, W) uint16 DN, or float32 in [0, 1]
+        with ``normalize``."""
+        n = self.n_frames
+        stop = n if stop is None else min(stop, n)
+        if not 0 <= start <= stop:
+            raise IndexError(f"frames {start}:{stop} out of range 0:{n}")
+        if not self.has_video:
+            raise ValueError(f"{self.name}: the dataset holds no video for this sample")
+        v = self.video
+        scale = np.float32(1.0 / (2 ** self.bit_depth - 1))
+        for k0 in range(start, stop, _VIDEO_CHUNK):
+            block = np.asarray(v[k0:min(k0 + _VIDEO_CHUNK, stop)])
+            for f in block:
+                yield f.astype(np.float32) * scale if normalize else f.astype(np.uint16)
+
+    def read_frames(self, start: int = 0, stop: int | None = None, *,
+                    normalize: bool = False) -> np.ndarray:
+        """Frames ``start:stop`` as one (T, H, W) array."""
+        out = list(self.frames(start, stop, normalize=normalize))
+        dtype = np.float32 if normalize else np.uint16
+        return np.stack(out) if out else np.zeros((0, *self.shape), dtype)
+
+    def extracted_modes(self) -> list:
+        """The extracted :class:`vvtbench.modes.ModeSet` packed with this sample (may be [])."""
+        from .modes import ModeSet
+
+        out = []
+        for i in range(len(self._extracted)):
+            g = self.group["extracted"][str(i)]
+            doc = json.loads(_text(g.attrs["modes_json"]))
+            arrays = {a: np.asarray(g[a][...]) for a in _MODESET_ARRAYS if a in g}
+            out.append(ModeSet(**arrays, freqs_hz=np.asarray(g["frequency"][...]),
+                               fps=float(g.attrs["fps"]), n_frames=int(g.attrs["n_frames"]),
+                               metadata=doc.get("metadata", {})))
+        return out
 
     def __repr__(self) -> str:
-        return f"PackedSample({self.name!r}, video {tuple(self.video.shape)})"
+        H, W = self.shape
+        return (f"PackedSample({self.name!r}: {self.n_frames} frames at {self.fps:g} FPS, "
+                f"{H}x{W}, {len(self.truth_arrays)} truth arrays, "
+                f"{len(self._extracted)} extracted mode sets)")
 
 
 class PackedDataset:
+    """A dataset written by :func:`pack`: ``names``, ``ds[name]`` -> :class:`PackedSample`."""
+
     def __init__(self, root, path: Path, closer=None):
         self.root, self.path, self._closer = root, path, closer
-        self.attrs = dict(root.attrs)
-        self.names = json.loads(self.attrs["samples"])
+        self.attrs = {k: _text(v) if isinstance(v, bytes) else v
+                      for k, v in root.attrs.items()}
+        self.names: list[str] = json.loads(_text(self.attrs["samples"]))
 
     def __getitem__(self, name: str) -> PackedSample:
-        return PackedSample(self.root["samples"][name], name)
+        if name not in self.names:
+            raise KeyError(f"{self.path}: no sample {name!r}; samples: {', '.join(self.names)}")
+        return PackedSample(self.root["samples"][name], name, self.path)
 
     def __iter__(self):
         return (self[n] for n in self.names)
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.names)
 
     @property
     def readme(self) -> str:
-        return str(self.attrs.get("README", ""))
+        return _text(self.attrs.get("README", ""))
 
-    def close(self):
+    def __repr__(self) -> str:
+        shown = ", ".join(self.names[:3]) + (", ..." if len(self.names) > 3 else "")
+        return f"PackedDataset({str(self.path)!r}: {len(self)} samples: {shown})"
+
+    def close(self) -> None:
         if self._closer:
             self._closer()
+            self._closer = None
 
     def __enter__(self):
         return self
@@ -322,43 +984,21 @@ def open_dataset(path: str | Path) -> PackedDataset:
     if path.is_dir():
         import zarr
 
-        root = zarr.open_group(str(path), mode="r")
+        try:
+            root = zarr.open_group(str(path), mode="r")
+        except (FileNotFoundError, ValueError) as error:
+            raise ExportError(f"{path}: not a vvtbench dataset ({error})") from None
+        if root.attrs.get("format") != FORMAT:
+            raise ExportError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} "
+                              "attribute)")
         return PackedDataset(root, path)
     import h5py
 
-    f = h5py.File(path, "r")
-    if f.attrs.get("format") != FORMAT:
-        f.close()
-        raise ValueError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} attribute)")
-    return PackedDataset(f, path, f.close)
-
-
-def main_export(argv: list[str] | None = None) -> int:
-    """``vvtbench export SUITE_OR_DIR --format zarr|hdf5 -o FILE``."""
-    p = argparse.ArgumentParser(prog="vvtbench export", description=(
-        "pack generated samples (a folder of samples, a run folder, or a suite, which is "
-        "generated first) into one Zarr or HDF5 dataset with a dataset card"))
-    p.add_argument("source", help="sample folder, folder of samples / run folder, or suite")
-    p.add_argument("--format", choices=("zarr", "hdf5"), default="zarr")
-    p.add_argument("-o", "--output", required=True, help="output .zarr folder or .h5 file")
-    p.add_argument("--run-dir", default=None,
-                   help="where a suite's samples are generated (default runs/SUITE)")
-    args = p.parse_args(argv)
-    src = Path(args.source)
     try:
-        if src.is_dir():
-            samples = find_samples(src)
-        else:
-            from .bench import find_suite
-
-            suite_path = find_suite(args.source)
-            samples = _samples_from_suite(str(suite_path),
-                                          Path(args.run_dir or f"runs/{suite_path.stem}"))
-        if not samples:
-            raise ValueError(f"{src}: no generated samples found")
-        out = pack(samples, args.output, args.format, str(args.source))
-    except (ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(f"{len(samples)} sample(s) -> {out}")
-    return 0
+        f = h5py.File(path, "r")
+    except OSError as error:
+        raise ExportError(f"{path}: cannot open as HDF5: {error}") from None
+    if _text(f.attrs.get("format", "")) != FORMAT:
+        f.close()
+        raise ExportError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} attribute)")
+    return PackedDataset(f, path, f.close)

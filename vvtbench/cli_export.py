@@ -1,0 +1,79 @@
+"""``vvtbench export``: pack generated samples (a folder, a run folder, or a suite, generated
+first) into one Zarr or HDF5 dataset with a dataset card and a Croissant file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from vvtbench.export import ExportError, check_output, find_samples, pack
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    p = parser or argparse.ArgumentParser(prog="vvtbench export")
+    p.description = (
+        "pack generated samples (a sample folder, a folder of samples such as a run folder, "
+        "or a suite, whose samples are generated first) into one Zarr or HDF5 dataset with a "
+        "dataset card and a Croissant JSON-LD file; extracted modes found in a run folder are "
+        "included")
+    p.add_argument("source", help="sample folder, folder of samples / run folder, or suite")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output .zarr folder or .h5 file (must not exist; see --overwrite)")
+    p.add_argument("--format", choices=("zarr", "hdf5"), default=None,
+                   help="default: hdf5 for an output ending in .h5/.hdf5/.nc, else zarr")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the output if it is a dataset written by vvtbench export "
+                        "(never another file or folder)")
+    p.add_argument("--run-dir", default=None, type=Path,
+                   help="where a suite's samples are generated (default runs/SUITE)")
+    return p
+
+
+def _format(args: argparse.Namespace) -> str:
+    if args.format:
+        return args.format
+    return "hdf5" if args.output.suffix.lower() in (".h5", ".hdf5", ".nc") else "zarr"
+
+
+def _suite_samples(suite_path: Path, run_dir: Path) -> list[Path]:
+    """Generate a suite's samples into ``run_dir`` (cached) and return their folders."""
+    from vvtbench.bench import run_suite
+
+    run_suite(str(suite_path), [], run_dir, until="generate", progress=sys.stderr.isatty())
+    info = json.loads((run_dir / "run.json").read_text())
+    return [run_dir / "cache" / k / "sample" for k in info["generated_samples"]]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Exit code: 0 written, 2 refused or bad input (one line on stderr)."""
+    args = build_parser().parse_args(argv)
+    src = Path(args.source)
+    fmt = _format(args)
+    try:
+        if src.is_dir():
+            samples = find_samples(src)
+            inputs = [src]
+        else:
+            from vvtbench.bench import find_suite
+
+            suite_path = find_suite(args.source)
+            run_dir = args.run_dir or Path("runs") / suite_path.stem
+            inputs = [run_dir]
+            # refuse an unsafe output before spending time on generating
+            check_output(args.output, inputs, fmt, args.overwrite)
+            samples = _suite_samples(suite_path, run_dir)
+        if not samples:
+            raise ExportError(f"{src}: no generated samples found")
+        out = pack(samples, args.output, fmt, str(args.source), overwrite=args.overwrite,
+                   inputs=inputs)
+    except (ValueError, OSError) as error:  # ExportError, SuiteError, SceneError are ValueError
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"{len(samples)} sample(s) -> {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
