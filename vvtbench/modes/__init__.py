@@ -24,7 +24,7 @@ from .sampling import (
     sample_modes,
 )
 from .spectrum import DisplacementStore, bin_fields, motion_power_spectrum
-from .video import open_video
+from ..video import open_video
 
 __all__ = [
     "DisplacementStore",

@@ -43,7 +43,7 @@ from .spectrum import (
     motion_power_spectrum,
     window_gain,
 )
-from .video import VIDEO_SUFFIXES, average_frames, open_video
+from ..video import VIDEO_SUFFIXES, average_frames, open_video
 
 __all__ = ["confidence_weights", "extract_modes", "main_extract", "modes_from_displacements"]
 
