@@ -42,8 +42,9 @@ print(json.dumps({
 
 
 def render_fps(size: int, frames: int, mesh: str) -> float:
-    from vvtbench.dataset import _surface_geometry, scene_renderer, with_overrides
     from vvtbench.render._bench import subdivided_cube
+
+    from vvtbench.dataset import _surface_geometry, scene_renderer, with_overrides
     from vvtbench.scene import load_scene
     from vvtbench.simulate import build_mesh
 
