@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench import dataset as ds
 from vvtbench import cli_generate
+from vvtbench import dataset as ds
 from vvtbench import generate as gen
 from vvtbench.render.camera import Camera
-from vvtbench.video import VideoWriter, concat_videos, probe_video, read_frames
 from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
+from vvtbench.video import VideoWriter, concat_videos, probe_video, read_frames
 
 TINY = {
     "name": "tiny",
@@ -36,6 +36,10 @@ def tiny_scene(**render) -> object:
     data = json.loads(json.dumps(TINY))
     data["render"].update(render)
     return parse_scene(data, "tiny")
+
+
+def _png8(img: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(np.asarray(img, dtype=np.float64) * 255.0), 0, 255)
 
 
 def _tree(path: Path) -> dict[str, bytes]:
@@ -372,7 +376,7 @@ def test_preview_clip_magnifies_motion(tiny, sample):
     disp = sample.array("transient/displacements")
     k = int(ks[0])  # the pluck's largest deflection
     with gen.scene_renderer(sample.scene, rest, tris) as r:
-        err = {g: np.abs(clip[0].astype(float) - np.clip(np.rint(r.render(g * disp[k]) * 255), 0, 255)).mean()
+        err = {g: np.abs(clip[0].astype(float) - _png8(r.render(g * disp[k]))).mean()
                for g in (1.0, gain, 2.0 * gain)}
     assert err[gain] < 3.0 and err[gain] < 0.5 * min(err[1.0], err[2.0 * gain]), err
 
