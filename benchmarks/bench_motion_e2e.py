@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from vvtbench import dataset as ds
+from vvtbench import generate as gen
 from vvtbench.modes import extract_modes
 from vvtbench.modes.validate import compare_to_truth, format_table
 from vvtbench.scene import load_scene, parse_scene
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         sample = out / scene.name
         if not (sample / "manifest.json").is_file():
-            sample = ds.generate(scene, out, progress=False)
+            sample = gen.generate(scene, out, progress=False)
         t_gen = time.perf_counter() - t0
     try:
         s = ds.open_sample(sample)

@@ -1,4 +1,5 @@
-"""Tests for the dataset generator and loader (vvtbench.dataset).
+"""Tests for the dataset generator (vvtbench.generate), loader (vvtbench.dataset) and video
+I/O (vvtbench.video).
 
 Rendering needs headless EGL (Mesa llvmpipe is fine); see tests/test_render.py.
 """
@@ -11,9 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vvtbench import cli_generate
 from vvtbench import dataset as ds
+from vvtbench import generate as gen
 from vvtbench.render.camera import Camera
 from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
+from vvtbench.video import VideoWriter, concat_videos, probe_video, read_frames
 
 TINY = {
     "name": "tiny",
@@ -34,6 +38,10 @@ def tiny_scene(**render) -> object:
     return parse_scene(data, "tiny")
 
 
+def _png8(img: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(np.asarray(img, dtype=np.float64) * 255.0), 0, 255)
+
+
 def _tree(path: Path) -> dict[str, bytes]:
     return {p.relative_to(path).as_posix(): p.read_bytes()
             for p in sorted(path.rglob("*")) if p.is_file()}
@@ -41,7 +49,7 @@ def _tree(path: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Path:
-    return ds.generate(tiny_scene(), tmp_path_factory.mktemp("a"), progress=False,
+    return gen.generate(tiny_scene(), tmp_path_factory.mktemp("a"), progress=False,
                        segment_frames=SEGMENT)
 
 
@@ -85,6 +93,8 @@ def test_open_sample_shapes(sample):
         "mesh/points": ((64, 3), np.float64),
         "mesh/cells": ((27, 8), np.int64),
         "mesh/surface_nodes": ((S,), np.int64),
+        "mesh/fixed_nodes": ((16,), np.int64),
+        "mesh/node_sets/bottom": ((16,), np.int64),
         "material/stiffness": ((27,), np.float64),
         "voxels/stiffness": ((8, 8, 8), np.float64),
         "voxels/density": ((8, 8, 8), np.float64),
@@ -107,10 +117,10 @@ def test_open_sample_shapes(sample):
     for name, (shape, dtype) in expect.items():
         a = sample[name]
         assert a.shape == shape and a.dtype == dtype, (name, a.shape, a.dtype)
-    # 3 x 3 x 3 cells in an 8^3 grid: 27 active voxels, the rest NaN
-    assert np.isfinite(sample["voxels/stiffness"]).sum() == 27
-    np.testing.assert_allclose(sample["voxels/stiffness"][np.isfinite(sample["voxels/stiffness"])],
-                               9000.0)
+    # 3 x 3 x 3 cells on an 8^3 grid: every voxel overlaps the body (volume-weighted)
+    assert np.isfinite(sample["voxels/stiffness"]).all()
+    np.testing.assert_allclose(sample["voxels/stiffness"], 9000.0)
+    np.testing.assert_allclose(sample["voxels/volume"].sum(), sample["mesh/element_volumes"].sum())
     assert 0 < V < S
     frames = sample.read_frames(5, 8)
     assert frames.shape == (3, H, W) and frames.dtype == np.uint16
@@ -128,16 +138,16 @@ def test_ffv1_roundtrip_is_bit_exact(tmp_path):
     frames[4] = 65535
     segs = []
     for i, part in enumerate((frames[:13], frames[13:])):
-        w = ds._VideoWriter(tmp_path / f"s{i}.mkv", 24, 40, 2000.0)
-        for f in part:
-            w.write(f)
-        w.close()
+        with VideoWriter(tmp_path / f"s{i}.mkv", 24, 40, capture_fps=2000.0) as w:
+            for f in part:
+                w.write(f)
         segs.append(tmp_path / f"s{i}.mkv")
-    ds._concat(segs, tmp_path / "v.mkv", tmp_path, None, 2000.0)
-    back = np.stack(list(ds.read_video(tmp_path / "v.mkv", 24, 40)))
+    concat_videos(segs, tmp_path / "v.mkv", capture_fps=2000.0)
+    back = np.stack(list(read_frames(tmp_path / "v.mkv")))
     np.testing.assert_array_equal(back, frames)
-    np.testing.assert_array_equal(np.stack(list(ds.read_video(tmp_path / "v.mkv", 24, 40,
-                                                              start=11, stop=17))), frames[11:17])
+    np.testing.assert_array_equal(np.stack(list(read_frames(tmp_path / "v.mkv", start=11,
+                                                            stop=17))), frames[11:17])
+    assert probe_video(tmp_path / "v.mkv").frame_rate == 2000
 
 
 def test_video_frames_are_the_rendered_frames(sample):
@@ -145,15 +155,15 @@ def test_video_frames_are_the_rendered_frames(sample):
     from vvtbench.simulate import build_mesh
 
     mesh = build_mesh(sample.scene)
-    nodes, rest, tris = ds._surface_geometry(mesh)
+    nodes, rest, tris = gen.surface_geometry(mesh)
     np.testing.assert_array_equal(nodes, sample["mesh/surface_nodes"])
     disp = sample.array("transient/displacements")
     frames = sample.read_frames()
-    with ds.scene_renderer(sample.scene, rest, tris) as r:
+    with gen.scene_renderer(sample.scene, rest, tris) as r:
         np.testing.assert_array_equal(r.render(), sample["image/rest"])
         for k in (0, 37, 99):
             img = r.render(disp[k])
-            want = ds.sensor_dn(img[None], 16, 0.0, False, 1e4, None)
+            want = gen.sensor_dn(img[None], 16, 0.0, False, 1e4, None)
             np.testing.assert_array_equal(frames[k], want)
     assert np.abs(frames[0].astype(int) - frames[99]).max() > 0  # it moves
 
@@ -203,7 +213,7 @@ def _raster_depth(sample):
 
 
 def test_rerun_is_byte_identical(tiny, tmp_path):
-    again = ds.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT)
+    again = gen.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT)
     assert _tree(again) == _tree(tiny)
 
 
@@ -216,7 +226,7 @@ def test_interrupted_run_resumes(tiny, tmp_path):
             raise Stop
 
     with pytest.raises(Stop):
-        ds.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT,
+        gen.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT,
                     callback=interrupt)
     partial = tmp_path / ".tiny.partial"
     assert not (tmp_path / "tiny").exists()
@@ -227,7 +237,7 @@ def test_interrupted_run_resumes(tiny, tmp_path):
         if stage == "render video" and not starts:
             starts.append(done)
 
-    out = ds.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT,
+    out = gen.generate(tiny_scene(), tmp_path, progress=False, segment_frames=SEGMENT,
                       callback=record)
     assert starts == [SEGMENT]  # resumed after the finished segment
     assert not partial.exists()
@@ -240,7 +250,7 @@ def noisy_scene():
 
 @pytest.fixture(scope="module")
 def noisy(tmp_path_factory) -> Path:
-    return ds.generate(noisy_scene(), tmp_path_factory.mktemp("noisy"), progress=False)
+    return gen.generate(noisy_scene(), tmp_path_factory.mktemp("noisy"), progress=False)
 
 
 def test_camera_noise_bit_depth_and_frame_average(noisy):
@@ -253,9 +263,9 @@ def test_camera_noise_bit_depth_and_frame_average(noisy):
     # the noise-free, quantized rest image differs from the video by sensor noise only
     from vvtbench.simulate import build_mesh
 
-    _, rest, tris = ds._surface_geometry(build_mesh(s.scene))
+    _, rest, tris = gen.surface_geometry(build_mesh(s.scene))
     disp = s["transient/displacements"]
-    with ds.scene_renderer(s.scene, rest, tris) as r:
+    with gen.scene_renderer(s.scene, rest, tris) as r:
         clean = r.render(disp[50]) * 4095.0
     diff = frames[50] - clean
     bg = s["image/triangle"] == -1
@@ -270,7 +280,7 @@ def test_camera_noise_bit_depth_and_frame_average(noisy):
 
 def test_rerun_with_sensor_noise_is_byte_identical(noisy, tmp_path):
     """Read and shot noise are drawn per frame from the scene seed: same bytes again."""
-    again = ds.generate(noisy_scene(), tmp_path, progress=False)
+    again = gen.generate(noisy_scene(), tmp_path, progress=False)
     assert _tree(again) == _tree(noisy)
 
 
@@ -278,11 +288,11 @@ def _requantized(sample, ks, bits: int) -> list[np.ndarray]:
     """Noise-free DN of fresh renders of the stored displacements of frames ``ks``."""
     from vvtbench.simulate import build_mesh
 
-    _, rest, tris = ds._surface_geometry(build_mesh(sample.scene))
+    _, rest, tris = gen.surface_geometry(build_mesh(sample.scene))
     disp = sample.array("transient/displacements")
     scale = sample.info["video"]["motion_scale"]
-    with ds.scene_renderer(sample.scene, rest, tris) as r:
-        return [ds.sensor_dn(r.render(scale * disp[k])[None], bits, 0.0, False, 1e4, None)
+    with gen.scene_renderer(sample.scene, rest, tris) as r:
+        return [gen.sensor_dn(r.render(scale * disp[k])[None], bits, 0.0, False, 1e4, None)
                 for k in ks]
 
 
@@ -299,8 +309,8 @@ def _stream_pix_fmt(path: Path) -> str:
 @pytest.mark.parametrize("bits", [8, 12, 16])
 def test_lossless_video_holds_lsb_aligned_dn(bits, tmp_path):
     """Every lossless bit depth is gray16le with DN in [0, 2^bits - 1], decoded bit-exactly."""
-    scene = ds.with_overrides(tiny_scene(bit_depth=bits), frames=6)
-    s = ds.open_sample(ds.generate(scene, tmp_path, progress=False))
+    scene = gen.with_overrides(tiny_scene(bit_depth=bits), frames=6)
+    s = ds.open_sample(gen.generate(scene, tmp_path, progress=False))
     dn_max = 2**bits - 1
     assert s.info["video"]["pixel_format"] == "gray16le" == _stream_pix_fmt(s.video_path)
     assert s.info["video"]["dn_max"] == dn_max
@@ -315,11 +325,12 @@ def test_lossless_video_holds_lsb_aligned_dn(bits, tmp_path):
 
 
 def test_video_pixel_format_mismatch_is_an_error(tmp_path):
-    w = ds._VideoWriter(tmp_path / "v.mkv", 8, 8, 2000.0, "gray")
-    w.write(np.full((8, 8), 200, np.uint8))
-    w.close()
+    scene = gen.with_overrides(tiny_scene(), frames=2)
+    path = gen.generate(scene, tmp_path, progress=False)
+    with VideoWriter(path / "video.mkv", 64, 64, capture_fps=2000.0, pix_fmt="gray") as w:
+        w.write(np.full((64, 64), 200, np.uint8))
     with pytest.raises(ds.DatasetError, match="video stream is gray, but truth.json"):
-        list(ds.read_video(tmp_path / "v.mkv", 8, 8, stored_pix_fmt="gray16le"))
+        list(ds.open_sample(path).frames())
 
 
 def test_motion_scale_scales_image_motion_linearly(tmp_path):
@@ -327,17 +338,17 @@ def test_motion_scale_scales_image_motion_linearly(tmp_path):
     from the rest frame inside the object doubles; the physical displacements do not change."""
     out = []
     for scale in (0.02, 0.04):
-        scene = ds.with_overrides(tiny_scene(motion_scale=scale), frames=4)
-        out.append(ds.open_sample(ds.generate(scene, tmp_path / str(scale), progress=False)))
+        scene = gen.with_overrides(tiny_scene(motion_scale=scale), frames=4)
+        out.append(ds.open_sample(gen.generate(scene, tmp_path / str(scale), progress=False)))
     a, b = out
     np.testing.assert_array_equal(a["transient/displacements"], b["transient/displacements"])
     assert b.info["peak_image_motion_px"] == pytest.approx(2 * a.info["peak_image_motion_px"])
     assert 0.005 < b.info["peak_image_motion_px"] < 0.05
-    rest = ds.sensor_dn(a["image/rest"][None], 16, 0.0, False, 1e4, None).astype(np.float64)
+    rest = gen.sensor_dn(a["image/rest"][None], 16, 0.0, False, 1e4, None).astype(np.float64)
     from vvtbench.render.raster import rasterize
     from vvtbench.simulate import build_mesh
 
-    _, V, F = ds._surface_geometry(build_mesh(a.scene))
+    _, V, F = gen.surface_geometry(build_mesh(a.scene))
     inner = _smooth_pixels(rasterize(a.camera, V, F), V, F, 2)  # no edges: sub-samples flip
     assert inner.sum() > 300
     da = (a.read_frames().astype(np.float64) - rest)[:, inner]
@@ -359,13 +370,13 @@ def test_preview_clip_magnifies_motion(tiny, sample):
     ks = np.arange(0, sample.n_frames, stride)[: info["generator"]["preview_frames"]]
     gain = max(3.0 / (info["peak_image_motion_px"] / info["video"]["motion_scale"]), 1.0)
     assert len(ks) > 1 and gain > 2
-    clip = np.stack(list(ds.read_video(tiny / "preview.mp4", 64, 64, bpp=1)))
+    clip = np.stack(list(read_frames(tiny / "preview.mp4", bpp=1)))
     assert clip.shape == (len(ks), 64, 64)
-    _, rest, tris = ds._surface_geometry(build_mesh(sample.scene))
+    _, rest, tris = gen.surface_geometry(build_mesh(sample.scene))
     disp = sample.array("transient/displacements")
     k = int(ks[0])  # the pluck's largest deflection
-    with ds.scene_renderer(sample.scene, rest, tris) as r:
-        err = {g: np.abs(clip[0].astype(float) - ds._to_png8(r.render(g * disp[k]))).mean()
+    with gen.scene_renderer(sample.scene, rest, tris) as r:
+        err = {g: np.abs(clip[0].astype(float) - _png8(r.render(g * disp[k]))).mean()
                for g in (1.0, gain, 2.0 * gain)}
     assert err[gain] < 3.0 and err[gain] < 0.5 * min(err[1.0], err[2.0 * gain]), err
 
@@ -381,7 +392,7 @@ def test_top_level_open_sample(tiny, tmp_path):
 
 
 def test_consumer_camera_variant(tiny, tmp_path):
-    s = ds.open_sample(ds.generate(tiny_scene(), tmp_path, progress=False, consumer_crf=18))
+    s = ds.open_sample(gen.generate(tiny_scene(), tmp_path, progress=False, consumer_crf=18))
     assert (s.path / "video.mp4").is_file() and not (s.path / "video.mkv").exists()
     assert s.bit_depth == 8 and s.info["video"]["lossless"] is False
     lossy = s.read_frames(normalize=True)
@@ -399,30 +410,30 @@ def test_cli_suite_with_overrides(tmp_path, capsys):
     suite = tmp_path / "suite.toml"
     suite.write_text('scenes = ["tiny.toml"]\n')
     out = tmp_path / "out"
-    code = ds.main_generate([str(suite), "-o", str(out), "--frames", "6",
+    code = cli_generate.main([str(suite), "-o", str(out), "--frames", "6",
                              "--resolution", "32x48", "--no-progress"])
     assert code == 0
     s = ds.open_sample(out / "tiny")
     assert s.n_frames == 6 and s.shape == (32, 48)
-    assert ds.main_generate([str(suite), "-o", str(out), "--frames", "6", "--no-progress"]) == 2
+    assert cli_generate.main([str(suite), "-o", str(out), "--frames", "6", "--no-progress"]) == 2
     assert "already exists" in capsys.readouterr().err
-    assert ds.main_generate([str(scene_file), "-o", str(out), "--frames", "6", "--overwrite",
+    assert cli_generate.main([str(scene_file), "-o", str(out), "--frames", "6", "--overwrite",
                              "--no-progress"]) == 0
 
 
 def test_bad_input_gives_clear_errors(tmp_path, capsys):
     with pytest.raises(SceneError, match="no such scene file"):
-        ds.resolve_scenes("no_such_scene_xyz")
-    assert ds.main_generate(["no_such_scene_xyz", "-o", str(tmp_path), "--no-progress"]) == 2
+        gen.resolve_scenes("no_such_scene_xyz")
+    assert cli_generate.main(["no_such_scene_xyz", "-o", str(tmp_path), "--no-progress"]) == 2
     assert "no such scene file" in capsys.readouterr().err
     blocker = tmp_path / "a_file"
     blocker.write_text("")
     with pytest.raises(ds.DatasetError, match="cannot write to output folder"):
-        ds.generate(tiny_scene(), blocker / "sub", progress=False)
+        gen.generate(tiny_scene(), blocker / "sub", progress=False)
     bad_suite = tmp_path / "suite.toml"
     bad_suite.write_text("scenes = [1, 2]\n")
     with pytest.raises(SceneError, match="list of scene names"):
-        ds.resolve_scenes(bad_suite)
+        gen.resolve_scenes(bad_suite)
 
 
 # --------------------------------------------------------------------------- shipped scenes
@@ -474,7 +485,7 @@ def _rendered_surface(scene):
     the tetrahedralization's, cached on disk after the first build)."""
     from vvtbench.simulate import build_mesh
 
-    return ds._surface_geometry(build_mesh(scene))[1:]
+    return gen.surface_geometry(build_mesh(scene))[1:]
 
 
 @pytest.mark.parametrize("name", _shipped_views())
@@ -482,7 +493,7 @@ def test_rigid_subpixel_shift_with_shipped_scene_defaults(name):
     """A rigid 0.01 px shift is recovered as a 2-D shift within 5 % with each shipped scene's
     surface, camera, resolution, texture, supersampling, lighting and bit depth.
 
-    The surface is the one ``generate`` renders (``ds._surface_geometry`` of the simulation
+    The surface is the one ``generate`` renders (``gen.surface_geometry`` of the simulation
     mesh). The object moves parallel to the image plane (camera x, then camera y) by 0.01 px
     at the look-at depth ``z0``; a surface point at camera depth ``z`` then moves by exactly
     ``0.01 px * z0 / z`` along that image axis and not at all along the other. Both renders
@@ -509,9 +520,9 @@ def test_rigid_subpixel_shift_with_shipped_scene_defaults(name):
     w = np.where(raster.mask, cam.depth(look) / raster.depth.astype(np.float64), 0.0)
 
     def quantize(img: np.ndarray) -> np.ndarray:
-        return ds.sensor_dn(img[None], bits, 0.0, False, 1.0, None).astype(np.float64)
+        return gen.sensor_dn(img[None], bits, 0.0, False, 1.0, None).astype(np.float64)
 
-    with ds.scene_renderer(scene, V, F) as r:
+    with gen.scene_renderer(scene, V, F) as r:
         I0 = quantize(r.render())
         for c, direction in enumerate((cam.R[0], cam.R[1])):  # image right, image down
             d = direction * 0.01 / np.linalg.norm(cam.jacobian(look) @ direction)
@@ -521,3 +532,95 @@ def test_rigid_subpixel_shift_with_shipped_scene_defaults(name):
             est = np.linalg.lstsq(A, -(I1 - I0)[mask], rcond=None)[0]
             assert abs(est[c] / 0.01 - 1.0) < 0.05, (c, est)
             assert abs(est[1 - c]) < 0.05 * 0.01, (c, est)
+
+
+# --------------------------------------------------------------------------- format 2
+def test_sample_is_self_sufficient(sample):
+    """Boundary, node sets and element name are in the truth: no simulation needed."""
+    from vvtbench.simulate import build_mesh, fixed_nodes
+
+    mesh = build_mesh(sample.scene)
+    np.testing.assert_array_equal(sample.require("mesh/fixed_nodes"),
+                                  fixed_nodes(sample.scene, mesh))
+    for name, ids in mesh.node_sets.items():
+        np.testing.assert_array_equal(sample.require(f"mesh/node_sets/{name}"), ids)
+    assert sample.truth["mesh"].attrs["element"] == mesh.element == sample.element
+    assert sample.format == ds.FORMAT_VERSION == 2 and sample.has_video
+    # free DOFs are exactly the DOFs of the nodes that are not fixed
+    d = sample.info["mesh"]["dofs_per_node"]
+    fixed = np.zeros(sample.info["mesh"]["n_nodes"] * d, bool)
+    fixed[(sample["mesh/fixed_nodes"][:, None] * d + np.arange(d)).ravel()] = True
+    np.testing.assert_array_equal(np.flatnonzero(~fixed), sample["modes/free_dofs"])
+
+
+def test_require_names_file_and_array_of_old_samples(tiny, tmp_path):
+    import shutil
+
+    import zarr
+
+    old = tmp_path / "old"
+    shutil.copytree(tiny, old)
+    info = json.loads((old / "truth.json").read_text())
+    info["format"] = 1
+    (old / "truth.json").write_text(json.dumps(info))
+    g = zarr.open_group(str(old / "truth.zarr"), mode="a")
+    del g["mesh/fixed_nodes"]
+    s = ds.open_sample(old)
+    assert s["mesh/points"].shape == (64, 3)  # what is there still reads
+    with pytest.raises(ds.DatasetError, match=r"truth\.zarr: no array 'mesh/fixed_nodes'.*"
+                                              r"format 1.*regenerate"):
+        s.require("mesh/fixed_nodes")
+
+
+def test_modes_only_sample(tmp_path):
+    import time
+
+    from vvtbench.scene import load_scene
+
+    t0 = time.perf_counter()
+    path = gen.generate(load_scene("jello_cube_defect_top"), tmp_path, video=False,
+                        progress=False)
+    elapsed = time.perf_counter() - t0
+    s = ds.open_sample(path)
+    names = {p.name for p in path.iterdir()}
+    assert names == {"scene.toml", "camera.json", "truth.json", "truth.zarr", "rest.png",
+                     "depth.png", "manifest.json"}
+    assert s.verify() == [] and not s.has_video
+    assert s.info["video"]["file"] is None and s.n_frames == 0
+    assert s.info["peak_image_motion_px"] is None
+    with pytest.raises(ds.DatasetError, match="modes-only"):
+        next(s.frames())
+    with pytest.raises(ds.DatasetError, match="modes-only"):
+        s.require("transient/displacements")
+    assert "image/modes" not in s
+    for name in ("mesh/points", "mesh/cells", "mesh/surface", "mesh/fixed_nodes",
+                 "material/stiffness", "modes/eigenvalues", "modes/vectors", "modes/free_dofs",
+                 "image/depth", "observation/visible", "observation/jacobian"):
+        assert s.require(name).size > 0
+    assert np.isfinite(s["voxels/stiffness"]).all()
+    assert s["observation/visible"].sum() > 0
+    assert elapsed < 20  # about 1-2 s on 2 cores; generous for loaded CI machines
+
+
+@pytest.mark.parametrize("rate", ["2000", "1200", "30000/1001"])
+def test_frame_rate_is_read_exactly_from_the_container(rate, tmp_path):
+    """ffmpeg prints 2000 FPS as "2k fps"; the rate comes back as an exact fraction."""
+    from fractions import Fraction
+
+    from vvtbench.video import open_video
+
+    path = tmp_path / "v.mkv"
+    with VideoWriter(path, 8, 8, playback_fps=Fraction(rate)) as w:
+        for k in range(5):
+            w.write(np.full((8, 8), 1000 * k, np.uint16))
+    info = probe_video(path)
+    assert info.container_rate == Fraction(rate) and info.frame_rate == Fraction(rate)
+    vs = open_video(path)
+    assert vs.rate == Fraction(rate) and vs.fps == float(Fraction(rate))
+    assert len(list(vs.frames)) == 5
+    # the capture-rate tag of vvtbench's own videos wins over the nominal playback rate
+    tagged = tmp_path / "t.mkv"
+    with VideoWriter(tagged, 8, 8, capture_fps=Fraction(rate)) as w:
+        w.write(np.zeros((8, 8), np.uint16))
+    assert probe_video(tagged).frame_rate == Fraction(rate)
+    assert probe_video(tagged).container_rate == 30

@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_motion_e2e import make_scene, run  # noqa: E402
 
 from vvtbench import dataset as ds  # noqa: E402
+from vvtbench import generate as gen  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,7 @@ def cube_sample(tmp_path_factory: pytest.TempPathFactory) -> Path:
     scene = make_scene(
         "jello_cube_defect_top", duration=1.5, fps=200.0, resolution=256, cells=6, n_modes=12
     )
-    return ds.generate(scene, tmp_path_factory.mktemp("cube"), progress=False)
+    return gen.generate(scene, tmp_path_factory.mktemp("cube"), progress=False)
 
 
 def test_rendered_cube_frequencies_and_mode_shapes(cube_sample: Path) -> None:

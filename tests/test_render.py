@@ -186,14 +186,14 @@ def test_camera_spec_focal_lengths_and_principal_point():
 
 def test_shifted_principal_point_shifts_the_rendered_rest_pose(gl):
     """cx + 5, cy - 3 (px) moves the rest-pose render by 5 columns right and 3 rows up."""
-    from vvtbench import dataset as ds
+    from vvtbench import generate as gen
     from vvtbench.simulate import build_mesh
 
     imgs = []
     for pp in ({}, {"cx": 36.5, "cy": 20.5}):
         scene = _camera_scene(fx=80.0, **pp)
-        _, V, F = ds._surface_geometry(build_mesh(scene))
-        with ds.scene_renderer(scene, V, F) as r:
+        _, V, F = gen.surface_geometry(build_mesh(scene))
+        with gen.scene_renderer(scene, V, F) as r:
             imgs.append(r.render().astype(np.float64))
     base, moved = imgs
     assert base[3:, :-5].sum() > 0.9 * base.sum()  # the object stays inside both frames

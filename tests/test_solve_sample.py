@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from vvtbench import dataset as ds
+from vvtbench import generate as gen
 from vvtbench.plugins import main_solve
 from vvtbench.problem import InverseProblem
 from vvtbench.scene import parse_scene
@@ -31,7 +32,7 @@ SAMPLE = {
 @pytest.fixture(scope="module")
 def sample(tmp_path_factory) -> Path:
     scene = parse_scene(json.loads(json.dumps(SAMPLE)), "tiny_solve")
-    return ds.generate(scene, tmp_path_factory.mktemp("s"), progress=False)
+    return gen.generate(scene, tmp_path_factory.mktemp("s"), progress=False)
 
 
 def test_from_sample_true_modes_match_the_sample(sample):

@@ -11,9 +11,9 @@ import textwrap
 import numpy as np
 import pytest
 
+from vvtbench.fem.interpolate import interpolate_nodal
 from vvtbench.fem.mesh import box_mesh
 from vvtbench.metrics import mode_match, normalized_correlation
-from vvtbench.fem.interpolate import interpolate_nodal
 from vvtbench.observe import observe
 from vvtbench.plugins import (
     PluginError,

@@ -532,7 +532,7 @@ def _track_solvers(track: Track, solvers: list[str], info):
 
 
 def _stage_generate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
-    from .dataset import generate
+    from .generate import generate
     from .scene import parse_scene
 
     scene = parse_scene(task.payload["scene"], task.payload["scene"]["name"])

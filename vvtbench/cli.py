@@ -96,11 +96,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--transient", action="store_true", help="also run the transient response")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=_simulate)
-    from .dataset import build_generate_parser, run_generate
+    from . import cli_generate
 
     p = sub.add_parser("generate", help="render scenes into sample folders (video + ground truth)")
-    build_generate_parser(p)
-    p.set_defaults(func=run_generate)
+    cli_generate.build_parser(p)
+    p.set_defaults(func=cli_generate.run)
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=_scenes)
     for name, (_, help_text) in DELEGATED.items():

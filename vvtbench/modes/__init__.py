@@ -3,6 +3,7 @@
 See ``docs/modes.md`` for the pipeline and the file format.
 """
 
+from ..video import open_video
 from .extract import confidence_weights, extract_modes, main_extract, modes_from_displacements
 from .modeset import ModeSet, merge_modesets
 from .peaks import (
@@ -24,7 +25,6 @@ from .sampling import (
     sample_modes,
 )
 from .spectrum import DisplacementStore, bin_fields, motion_power_spectrum
-from .video import open_video
 
 __all__ = [
     "DisplacementStore",

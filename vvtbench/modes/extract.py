@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..motion.phase import PhaseMotion, upsample_periodic
+from ..video import VIDEO_SUFFIXES, average_frames, open_video
 from .modeset import ModeSet
 from .peaks import (
     align_phase,
@@ -43,7 +44,6 @@ from .spectrum import (
     motion_power_spectrum,
     window_gain,
 )
-from .video import VIDEO_SUFFIXES, average_frames, open_video
 
 __all__ = ["confidence_weights", "extract_modes", "main_extract", "modes_from_displacements"]
 

@@ -1,4 +1,4 @@
-"""Speed of the motion extraction (frames/s); run ``python -m vvtbench.motion._bench``.
+"""Speed of the pyramid and phase motion (frames/s): ``python benchmarks/bench_pyramid.py``.
 
 Compares, in the same run, our batched pyramid / full displacement pipeline with building a
 ``pyrtools.pyramids.SteerablePyramidFreq`` per frame (if pyrtools is installed).
@@ -12,8 +12,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .phase import PhaseMotion
-from .pyramid import get_pyramid
+from vvtbench.motion.phase import PhaseMotion
+from vvtbench.motion.pyramid import get_pyramid
 
 
 def _rate(fn: Callable[[], object], n_frames: int, min_time: float = 1.0) -> float:

@@ -1,0 +1,768 @@
+"""Dataset generator: a scene becomes one sample folder (video + ground truth + manifest).
+
+``generate(scene, out_dir)`` simulates the scene, renders every frame through the scene's
+camera, streams the frames to a lossless 16-bit FFV1 video chunk by chunk, and writes the ground
+truth a solver or a metric could need; ``generate(scene, out_dir, video=False)`` writes a
+*modes-only* sample (the truth without the video and the transient response) in about a
+second. :func:`vvtbench.dataset.open_sample` reads either back. The folder layout, every
+array's shape, dtype and unit, and the conventions are in ``docs/dataset.md``.
+
+Properties
+----------
+* Memory: frames are rendered and encoded in segments of ``segment_frames`` video frames; the
+  simulation keeps only modal coordinates, so peak memory does not grow with video length.
+* Atomic: everything is written into ``out_dir/.NAME.partial/`` and renamed to ``out_dir/NAME``
+  at the end; an existing sample is replaced only with ``overwrite=True``.
+* Resumable: each finished video segment is recorded in ``.NAME.partial/checkpoint.json``; a
+  rerun with the same scene and options continues after the last finished segment.
+* Reproducible: the same scene (and seed) gives byte-identical files (ffmpeg bit-exact flags,
+  no timestamps, per-frame seeded noise).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import __version__
+from .dataset import FORMAT_VERSION, DatasetError, sha256_file
+from .scene import SCENES_DIR, Scene, SceneError, find_scene, load_scene, parse_scene
+from .video import PLAYBACK_FPS, VideoWriter, concat_videos
+
+__all__ = [
+    "FULL_WELL_ELECTRONS",
+    "generate",
+    "default_voxel_shape",
+    "mode_vectors_3d",
+    "n_video_frames",
+    "resolve_scenes",
+    "scene_renderer",
+    "sensor_dn",
+    "surface_geometry",
+    "with_overrides",
+]
+
+#: Default full-well capacity (electrons) of the simulated sensor, used by shot noise.
+FULL_WELL_ELECTRONS = 10000.0
+_NOISE_STREAM = 0x5EED_0001
+
+ProgressCallback = Callable[[str, int, int], None]
+
+
+# --------------------------------------------------------------------------- small helpers
+def _write_json(path: Path, data: Any) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+
+
+def default_voxel_shape(scene: Scene) -> tuple[int, ...]:
+    """The paper's inference grids: 20 x 20 for drums, 8 x 8 x 8 for solids."""
+    return (20, 20) if scene.geometry.kind == "drum" else (8, 8, 8)
+
+
+def _as_scene(scene: Scene | str | Path) -> Scene:
+    if isinstance(scene, Scene):
+        return scene
+    return load_scene(scene)
+
+
+def with_overrides(
+    scene: Scene,
+    *,
+    frames: int | None = None,
+    duration: float | None = None,
+    resolution: tuple[int, int] | None = None,
+) -> Scene:
+    """The scene with a different length (frames or seconds) or resolution (height, width)."""
+    if frames is not None and duration is not None:
+        raise SceneError("give either frames or duration, not both")
+    data = scene.to_toml_dict()
+    if frames is not None:
+        if frames < 1:
+            raise SceneError(f"frames must be >= 1, got {frames}")
+        data["simulation"]["duration"] = frames / scene.simulation.fps
+    if duration is not None:
+        data["simulation"]["duration"] = float(duration)
+    if resolution is not None:
+        data["camera"]["resolution"] = [int(resolution[0]), int(resolution[1])]
+    return parse_scene(data, scene.source or scene.name)
+
+
+def resolve_scenes(spec: str | Path) -> list[Scene]:
+    """Scenes named by a scene path or name, a folder of scene TOMLs, or a suite TOML
+    (``scenes = ["name", ...]``, names or paths relative to the suite file)."""
+    p = Path(spec)
+    if p.is_dir():
+        files = sorted(p.glob("*.toml"))
+        if not files:
+            raise SceneError(f"{p}: folder holds no scene files (*.toml)")
+        return [s for f in files for s in resolve_scenes(f)]
+    if p.is_file() or (SCENES_DIR / "suites" / f"{spec}.toml").is_file():
+        if not p.is_file():
+            p = SCENES_DIR / "suites" / f"{spec}.toml"
+        try:
+            data = tomllib.loads(p.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+            raise SceneError(f"{p}: not valid TOML: {error}") from None
+        if "scenes" in data and "geometry" not in data:
+            names = data["scenes"]
+            if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                raise SceneError(f"{p}: key 'scenes' must be a list of scene names or paths")
+            out = []
+            for name in names:
+                q = p.parent / name
+                out.append(load_scene(q if q.is_file() else name))
+            return out
+        return [load_scene(p)]
+    return [load_scene(find_scene(spec))]
+
+
+class _Progress:
+    """Per-stage progress bars (rich) plus an optional callback(stage, done, total)."""
+
+    def __init__(self, enabled: bool, callback: ProgressCallback | None, label: str) -> None:
+        self.callback = callback
+        self.bar = None
+        self.label = label
+        if enabled:
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            self.bar = Progress(
+                TextColumn("{task.description:<28}"), BarColumn(), MofNCompleteColumn(),
+                TimeElapsedColumn(), TimeRemainingColumn(), transient=False,
+            )
+            self.bar.start()
+        self._task = None
+        self._stage = ""
+        self._total = 0
+        self._done = 0
+
+    def stage(self, name: str, total: int, done: int = 0) -> None:
+        self._stage, self._total, self._done = name, max(int(total), 1), int(done)
+        if self.bar is not None:
+            self._task = self.bar.add_task(f"{self.label} {name}", total=self._total,
+                                           completed=self._done)
+        self._report()
+
+    def advance(self, n: int = 1) -> None:
+        self._done += n
+        if self.bar is not None and self._task is not None:
+            self.bar.update(self._task, completed=self._done)
+        self._report()
+
+    def _report(self) -> None:
+        if self.callback is not None:
+            self.callback(self._stage, self._done, self._total)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+            self.bar = None
+
+
+# --------------------------------------------------------------------------- camera model
+def _noise_rng(seed: int, frame: int) -> np.random.Generator:
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, _NOISE_STREAM, int(frame)])
+
+
+def sensor_dn(
+    subframes: np.ndarray, bit_depth: int, read_noise_dn: float, shot_noise: bool,
+    full_well: float, rng: np.random.Generator | None,
+) -> np.ndarray:
+    """Average sub-frame intensities in [0, 1] (each with its own noise) into one frame of DN.
+
+    Per sub-frame: electrons = I * full_well, Poisson when ``shot_noise``; DN = electrons *
+    (2^bits - 1) / full_well + N(0, read_noise_dn^2). The sub-frames are averaged, then rounded
+    and clipped to [0, 2^bits - 1].
+    """
+    dn_max = float(2**bit_depth - 1)
+    x = np.asarray(subframes, dtype=np.float64)
+    if shot_noise:
+        x = rng.poisson(np.clip(x, 0.0, None) * full_well) / full_well
+    x = x * dn_max
+    if read_noise_dn > 0:
+        x = x + rng.normal(0.0, read_noise_dn, size=x.shape)
+    frame = x.mean(axis=0)
+    return np.clip(np.rint(frame), 0, dn_max).astype(np.uint16)
+
+# --------------------------------------------------------------------------- truth helpers
+def surface_geometry(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(surface node ids, their rest points, triangles indexing the surface nodes)."""
+    nodes = mesh.surface_nodes
+    lut = np.full(mesh.n_nodes, -1, dtype=np.int64)
+    lut[nodes] = np.arange(len(nodes))
+    return nodes, mesh.points[nodes], lut[mesh.surface]
+
+
+def mode_vectors_3d(result, nodes: np.ndarray) -> np.ndarray:
+    """(n_modes, n_nodes, 3) 3-D mode shapes at ``nodes`` (drums: (0, 0, w)); fixed DOFs 0."""
+    mesh, model, modes = result.mesh, result.model, result.modes
+    d = mesh.dofs_per_node
+    rows = model.free_index[mesh.dofs_of(nodes)]
+    phi = np.zeros((len(rows), len(modes)))
+    ok = rows >= 0
+    phi[ok] = modes.vectors[rows[ok]]
+    phi = phi.reshape(len(nodes), d, len(modes)).transpose(2, 0, 1)
+    if d == 3:
+        return phi
+    out = np.zeros((len(modes), len(nodes), 3))
+    out[:, :, 2] = phi[:, :, 0]
+    return out
+
+
+def _as_3d(u: np.ndarray) -> np.ndarray:
+    """(..., n, d) displacements to (..., n, 3): membranes move along z."""
+    if u.shape[-1] == 3:
+        return u
+    out = np.zeros(u.shape[:-1] + (3,), dtype=u.dtype)
+    out[..., 2] = u[..., 0]
+    return out
+
+
+def _fine_scene(scene: Scene) -> Scene:
+    """The scene simulated at fps * frame_average (sub-frames of the averaged video)."""
+    a = scene.render.frame_average
+    if a == 1:
+        return scene
+    sim = scene.simulation.model_copy(update={"fps": scene.simulation.fps * a})
+    return scene.model_copy(update={"simulation": sim})
+
+
+def n_video_frames(scene: Scene) -> int:
+    """Number of video frames of ``scene``: round(duration * fps)."""
+    return int(round(scene.simulation.duration * scene.simulation.fps))
+
+
+def _to_png8(img: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(np.asarray(img, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def _depth_png(depth: np.ndarray) -> np.ndarray:
+    """16-bit depth image: near = bright, 0 = background."""
+    finite = np.isfinite(depth)
+    out = np.zeros(depth.shape, dtype=np.uint16)
+    if finite.any():
+        lo, hi = float(depth[finite].min()), float(depth[finite].max())
+        span = hi - lo if hi > lo else 1.0
+        out[finite] = np.rint(1000 + 64535 * (hi - depth[finite]) / span).astype(np.uint16)
+    return out
+
+
+_DESCRIPTIONS = {
+    "scene.toml": "resolved scene (every default filled in), generating vvtbench version "
+                  "in the header comment",
+    "camera.json": "pinhole camera (model, convention): K (3x3 px), R (3x3), t (3, m), "
+                   "P = K[R|t] (3x4), width, height (px), fov_y_deg",
+    "truth.json": "small ground truth: modal frequencies (Hz), damping ratios, Rayleigh "
+                  "coefficients, video/camera-model settings, voxel grid, array index",
+    "video.mkv": "lossless video, FFV1 gray16le, DN stored LSB-aligned in "
+                 "[0, 2^bit_depth - 1] (truth.json video.bit_depth)",
+    "video.mp4": "consumer-camera video, 8-bit gray H.264 (lossy, CRF in truth.json)",
+    "rest.png": "rest-pose frame, noise-free, 8-bit (for viewing)",
+    "depth.png": "rest-pose depth, 16-bit, near = bright, 0 = background (for viewing)",
+    "preview.mp4": "small H.264 preview with magnified motion (for viewing)",
+}
+
+
+def _describe(rel: str) -> str:
+    if rel in _DESCRIPTIONS:
+        return _DESCRIPTIONS[rel]
+    if rel.startswith("truth.zarr/"):
+        parts = rel.split("/")
+        name = "/".join(parts[1:-1]) if parts[-1] in ("zarr.json",) else "/".join(parts[1:])
+        if parts[-1] == "zarr.json":
+            return f"Zarr metadata of {name or 'the root group'}"
+        arr = "/".join(p for p in parts[1:] if p != "c" and not p.isdigit())
+        return f"Zarr chunk of array {arr}"
+    return ""
+
+
+# --------------------------------------------------------------------------- generate
+@dataclass
+class _Options:
+    consumer_crf: int | None
+    full_well: float
+    voxel_shape: tuple[int, ...]
+    segment_frames: int
+    preview_frames: int
+    video: bool = True
+
+    def to_dict(self) -> dict:
+        return {
+            "consumer_crf": self.consumer_crf,
+            "full_well_electrons": self.full_well,
+            "voxel_shape": list(self.voxel_shape),
+            "segment_frames": self.segment_frames,
+            "preview_frames": self.preview_frames,
+            "video": self.video,
+        }
+
+
+def generate(
+    scene: Scene | str | Path,
+    out_dir: str | Path,
+    *,
+    video: bool = True,
+    progress: bool = True,
+    overwrite: bool = False,
+    consumer_crf: int | None = None,
+    full_well: float | None = None,
+    voxel_shape: tuple[int, ...] | None = None,
+    segment_frames: int = 500,
+    preview_frames: int = 240,
+    callback: ProgressCallback | None = None,
+) -> Path:
+    """Generate the sample of ``scene`` as the folder ``out_dir / scene.name``; return its path.
+
+    Parameters
+    ----------
+    scene : a Scene, a scene file path, or a shipped scene name.
+    out_dir : parent folder (created if missing).
+    video : render the video (default). False writes a *modes-only* sample: the truth
+        without ``video.*``, ``preview.mp4``, ``transient/*`` and ``image/modes``, and without
+        running the transient simulation (docs/dataset.md, "Modes-only samples").
+    progress : show progress bars per stage.
+    overwrite : replace an existing sample folder (otherwise an error).
+    consumer_crf : if given (default: the scene's ``render.consumer_crf``), the video is 8-bit
+        gray H.264 at this CRF (``video.mp4``, lossy: the "consumer camera" track) instead of
+        the lossless 16-bit ``video.mkv``.
+    full_well : sensor full-well capacity in electrons, the shot-noise scale (default: the
+        scene's ``render.full_well_electrons``).
+    voxel_shape : grid of the voxel material fields (default 8^3, drums 20x20).
+    segment_frames : video frames per checkpointed segment (resume granularity).
+    preview_frames : number of frames in ``preview.mp4``.
+    callback : called as ``callback(stage, done, total)`` on every progress step.
+    """
+    scene = _as_scene(scene)
+    if consumer_crf is None:
+        consumer_crf = scene.render.consumer_crf
+    if full_well is None:
+        full_well = scene.render.full_well_electrons
+    if consumer_crf is not None and not 0 <= consumer_crf <= 51:
+        raise DatasetError(f"consumer_crf must be in 0..51 (H.264 CRF), got {consumer_crf}")
+    opts = _Options(
+        consumer_crf, float(full_well),
+        tuple(int(n) for n in (voxel_shape or default_voxel_shape(scene))),
+        int(segment_frames), int(preview_frames), bool(video),
+    )
+    out_dir = Path(out_dir)
+    final = out_dir / scene.name
+    if final.exists() and not overwrite:
+        raise DatasetError(f"{final} already exists; pass overwrite=True (--overwrite) to "
+                           "replace it")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / f".{scene.name}.write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as error:
+        raise DatasetError(f"cannot write to output folder {out_dir}: {error.strerror or error}"
+                           ) from None
+    partial = out_dir / f".{scene.name}.partial"
+    scene_text = _scene_toml(scene)
+    fingerprint = hashlib.sha256(
+        json.dumps({"scene": scene_text, "options": opts.to_dict(), "vvtbench": __version__,
+                    "format": FORMAT_VERSION}, sort_keys=True).encode()
+    ).hexdigest()
+    checkpoint = partial / "checkpoint.json"
+    state = _load_checkpoint(checkpoint, fingerprint)
+    if state is None:
+        shutil.rmtree(partial, ignore_errors=True)
+        (partial / "segments").mkdir(parents=True)
+        state = {"fingerprint": fingerprint, "segments_done": 0}
+        _write_json(checkpoint, state)
+    bar = _Progress(progress, callback, scene.name)
+    try:
+        _generate_into(scene, scene_text, partial, opts, state, checkpoint, bar)
+    finally:
+        bar.close()
+    shutil.rmtree(partial / "segments", ignore_errors=True)
+    checkpoint.unlink()
+    _write_manifest(partial, scene)
+    if final.exists():
+        trash = out_dir / f".{scene.name}.old"
+        shutil.rmtree(trash, ignore_errors=True)
+        final.rename(trash)
+        partial.rename(final)
+        shutil.rmtree(trash, ignore_errors=True)
+    else:
+        partial.rename(final)
+    return final
+
+
+def _load_checkpoint(checkpoint: Path, fingerprint: str) -> dict | None:
+    if not checkpoint.is_file():
+        return None
+    try:
+        state = json.loads(checkpoint.read_text())
+    except (OSError, ValueError):
+        return None
+    return state if state and state.get("fingerprint") == fingerprint else None
+
+
+def _scene_toml(scene: Scene) -> str:
+    import tomli_w
+
+    header = (f"# Resolved scene written by vvtbench {__version__} "
+              f"(dataset format {FORMAT_VERSION}); seed = {scene.seed}\n")
+    return header + tomli_w.dumps(scene.to_toml_dict())
+
+
+def scene_renderer(scene: Scene, vertices: np.ndarray, triangles: np.ndarray):
+    """The :class:`Renderer` a sample of ``scene`` is filmed with (camera, texture, settings)."""
+    from .render import Camera
+    from .render.pyrender_backend import Renderer
+    from .render.texture import speckle_texture
+
+    rs = scene.render
+    texture = speckle_texture(1024, grain=4.0, density=rs.texture_density,
+                              contrast=rs.texture_contrast, seed=rs.texture_seed)
+    try:
+        return Renderer(vertices, triangles, Camera.from_spec(scene.camera), texture=texture,
+                        supersample=rs.supersample, lighting=rs.lighting)
+    except ValueError as error:
+        raise DatasetError(f"scene {scene.name}: cannot render with key 'camera': {error}"
+                           ) from None
+
+
+# --------------------------------------------------------------------------- the stages
+@dataclass
+class _Context:
+    """What the stages of one sample share."""
+
+    scene: Scene
+    work: Path
+    opts: _Options
+    result: Any  # SimulationResult
+    nodes: np.ndarray  # surface node ids
+    rest: np.ndarray  # their rest points
+    tris: np.ndarray  # triangles indexing the surface nodes
+    camera: Any
+    n_frames: int
+
+    @property
+    def frame_average(self) -> int:
+        return self.scene.render.frame_average
+
+    @property
+    def bit_depth(self) -> int:
+        return 8 if self.opts.consumer_crf is not None else self.scene.render.bit_depth
+
+
+def _generate_into(scene: Scene, scene_text: str, work: Path, opts: _Options, state: dict,
+                   checkpoint: Path, bar: _Progress) -> None:
+    (work / "scene.toml").write_text(scene_text)
+    ctx = _simulate(scene, work, opts, bar)
+    renderer = scene_renderer(scene, ctx.rest, ctx.tris)
+    with renderer:
+        if opts.video:
+            _render_video(ctx, renderer, state, checkpoint, bar)
+        bar.stage("ground truth", 6)
+        rest_view = _rest_views(ctx, renderer)
+        bar.advance()
+        truth = _write_truth(ctx, rest_view, bar)
+        _write_info(ctx, truth)
+        bar.advance()
+        if opts.video:
+            _preview(ctx, renderer, work / "preview.mp4", truth["peak_px"], bar)
+
+
+def _simulate(scene: Scene, work: Path, opts: _Options, bar: _Progress) -> _Context:
+    """Simulate (modes; the transient at fps * frame_average only when filming)."""
+    from .render import Camera
+    from .simulate import simulate
+
+    A = scene.render.frame_average
+    n_frames = n_video_frames(scene) if opts.video else 0
+    if opts.video and n_frames < 1:
+        raise DatasetError(f"scene {scene.name}: simulation.duration * fps gives no frame")
+    bar.stage("simulate", 1)
+    result = simulate(_fine_scene(scene), transient=opts.video)
+    if opts.video:
+        if not result.has_transient:
+            raise DatasetError(f"scene {scene.name}: excitation kind 'none' gives no motion "
+                               "to film (generate a modes-only sample with video=False, "
+                               "--no-video)")
+        n_frames = min(n_frames, len(result.times) // A)  # rounding of duration * fps * A
+    bar.advance()
+    nodes, rest, tris = surface_geometry(result.mesh)
+    return _Context(scene, work, opts, result, nodes, rest, tris, Camera.from_spec(scene.camera),
+                    n_frames)
+
+
+def _render_video(ctx: _Context, renderer, state: dict, checkpoint: Path,
+                  bar: _Progress) -> None:
+    """Render, quantize and encode the video in checkpointed segments, then join them."""
+    scene, opts, result, A = ctx.scene, ctx.opts, ctx.result, ctx.frame_average
+    rs = scene.render
+    H, W = ctx.camera.height, ctx.camera.width
+    seg_len = max(1, opts.segment_frames)
+    n_seg = math.ceil(ctx.n_frames / seg_len)
+    seg_dir = ctx.work / "segments"
+    seg_dir.mkdir(exist_ok=True)
+    done = int(state.get("segments_done", 0))
+    bar.stage("render video", ctx.n_frames, min(done * seg_len, ctx.n_frames))
+    seg_pix = "gray" if opts.consumer_crf is not None else "gray16le"
+    noisy = rs.shot_noise or rs.read_noise_dn > 0
+    for s in range(done, n_seg):
+        a, b = s * seg_len, min((s + 1) * seg_len, ctx.n_frames)
+        tmp = seg_dir / f"seg_{s:05d}.tmp.mkv"
+        with VideoWriter(tmp, H, W, capture_fps=scene.simulation.fps, pix_fmt=seg_pix) as writer:
+            for k0 in range(a, b, 64):
+                k1 = min(k0 + 64, b)
+                u = _as_3d(result.displacement_frames(k0 * A, k1 * A))
+                for k in range(k0, k1):
+                    subs = np.stack([renderer.render(rs.motion_scale * u[(k - k0) * A + j])
+                                     for j in range(A)])
+                    rng = _noise_rng(scene.seed, k) if noisy else None
+                    writer.write(sensor_dn(subs, ctx.bit_depth, rs.read_noise_dn,
+                                           rs.shot_noise, opts.full_well, rng))
+                    bar.advance()
+        os.replace(tmp, seg_dir / f"seg_{s:05d}.mkv")
+        state["segments_done"] = s + 1
+        _write_json(checkpoint, state)
+    segments = [seg_dir / f"seg_{s:05d}.mkv" for s in range(n_seg)]
+    bar.stage("join video", 1)
+    name = "video.mkv" if opts.consumer_crf is None else "video.mp4"
+    concat_videos(segments, ctx.work / f"{name}.tmp{Path(name).suffix}",
+                  capture_fps=scene.simulation.fps, crf=opts.consumer_crf)
+    os.replace(ctx.work / f"{name}.tmp{Path(name).suffix}", ctx.work / name)
+    bar.advance()
+
+
+def _rest_views(ctx: _Context, renderer) -> dict:
+    """Rest render, depth buffer and visibility (one frame), and the viewing PNGs."""
+    import imageio.v3 as iio
+
+    rest_img = renderer.render()
+    depth = renderer.depth()
+    visible = renderer.visible_vertices()
+    iio.imwrite(ctx.work / "rest.png", _to_png8(rest_img))
+    iio.imwrite(ctx.work / "depth.png", _depth_png(depth))
+    return {"rest": rest_img, "depth": depth, "visible": visible}
+
+
+def _write_truth(ctx: _Context, view: dict, bar: _Progress) -> dict:
+    """Write ``truth.zarr``; returns the numbers ``truth.json`` reports."""
+    import zarr
+
+    from .fem.elements import element_volumes
+    from .fem.voxels import VoxelMap, overlap_matrix, voxel_average
+    from .render.raster import interpolate, rasterize
+
+    result, mesh, nodes, camera = ctx.result, ctx.result.mesh, ctx.nodes, ctx.camera
+    rest, tris = ctx.rest, ctx.tris
+    H, W = camera.height, camera.width
+    root = zarr.open_group(str(ctx.work / "truth.zarr"), mode="w", zarr_format=3)
+    root.attrs.update({"vvtbench": __version__, "format": FORMAT_VERSION,
+                       "scene": ctx.scene.name, "video": ctx.opts.video})
+
+    def put(name: str, data: np.ndarray, chunks=None) -> None:
+        data = np.asarray(data)
+        if chunks is None:  # small arrays: one chunk (one file); large: ~16 MB chunks
+            chunks = data.shape if data.nbytes <= 16 << 20 else "auto"
+        arr = root.create_array(name, shape=data.shape, dtype=data.dtype,
+                                chunks=chunks, overwrite=True)
+        arr[...] = data
+
+    # mesh
+    put("mesh/points", mesh.points)
+    put("mesh/cells", mesh.cells)
+    root["mesh"].attrs.update({"element": mesh.element, "dofs_per_node": mesh.dofs_per_node})
+    put("mesh/surface", mesh.surface)
+    put("mesh/surface_nodes", nodes)
+    vols = element_volumes(mesh.element_type, mesh.cell_coords)
+    put("mesh/element_volumes", vols)
+    d = mesh.dofs_per_node
+    put("mesh/fixed_nodes", np.unique(np.asarray(result.model.fixed_dofs, np.int64) // d))
+    for set_name, ids in sorted(mesh.node_sets.items()):
+        put(f"mesh/node_sets/{set_name}", np.asarray(ids, dtype=np.int64))
+    # material, per element and on the voxel grid (volume-weighted overlap)
+    f = result.fields
+    put("material/stiffness", f.stiffness)
+    put("material/density", f.density)
+    put("material/nu", f.nu)
+    vmap = VoxelMap.from_mesh(mesh, ctx.opts.voxel_shape)
+    grid_shape = tuple(ctx.opts.voxel_shape)
+    overlap = overlap_matrix(mesh, vmap.grid)
+    for key, values in (("stiffness", f.stiffness), ("density", f.density), ("nu", f.nu)):
+        put(f"voxels/{key}", voxel_average(overlap, values).reshape(grid_shape))
+    voxel_volume = np.asarray(overlap.sum(axis=1)).ravel()
+    put("voxels/volume", voxel_volume.reshape(grid_shape))
+    put("voxels/element_voxel", vmap.element_voxel)
+    bar.advance()
+    # modes
+    modes = result.modes
+    phi3 = mode_vectors_3d(result, nodes)  # (m, S, 3)
+    put("modes/eigenvalues", np.asarray(modes.eigenvalues, dtype=np.float64))
+    put("modes/frequencies_hz", result.frequencies_hz)
+    put("modes/damping_ratios", np.asarray(result.damping_ratios, dtype=np.float64))
+    put("modes/vectors", modes.vectors)
+    put("modes/free_dofs", result.model.free_dofs)
+    put("modes/surface", phi3)
+    # observation
+    visible = view["visible"]
+    vis_idx = np.flatnonzero(visible)
+    J = camera.jacobian(rest)  # (S, 2, 3)
+    img_modes = np.einsum("sij,msj->msi", J, phi3)  # (m, S, 2)
+    put("observation/rest_uv", camera.project(rest))
+    put("observation/rest_depth", camera.depth(rest))
+    put("observation/visible", visible)
+    put("observation/visible_index", vis_idx)
+    put("observation/visible_nodes", nodes[vis_idx])
+    put("observation/jacobian", J[vis_idx])
+    put("observation/image_modes", img_modes[:, vis_idx])
+    put("observation/image_modes_surface", img_modes)
+    bar.advance()
+    # image-space fields
+    raster = rasterize(camera, rest, tris)
+    put("image/rest", view["rest"])
+    put("image/depth", view["depth"])
+    put("image/triangle", raster.triangle)
+    put("image/barycentric", raster.barycentric)
+    if ctx.opts.video:
+        dense = root.create_array("image/modes", shape=(len(modes), H, W, 2), dtype=np.float32,
+                                  chunks=(1, H, W, 2), fill_value=np.nan, overwrite=True)
+        for m in range(len(modes)):
+            dense[m] = interpolate(raster, tris, img_modes[m]).astype(np.float32)
+    bar.advance()
+    peak_px = _write_transient(ctx, root, put, J[vis_idx], vis_idx) if ctx.opts.video else None
+    bar.advance()
+    return {"vmap": vmap, "grid_shape": grid_shape, "n_visible": int(len(vis_idx)),
+            "n_occupied": int((voxel_volume > 0).sum()), "peak_px": peak_px}
+
+
+def _write_transient(ctx: _Context, root, put, J_vis: np.ndarray, vis_idx: np.ndarray) -> float:
+    """Surface-node displacements at the video frame times (sub-frames averaged); returns the
+    peak single-axis image motion (px, unscaled)."""
+    result, A, n_frames = ctx.result, ctx.frame_average, ctx.n_frames
+    S = len(ctx.nodes)
+    tchunk = max(1, min(n_frames, (8 << 20) // (S * 12)))
+    disp = root.create_array("transient/displacements", shape=(n_frames, S, 3),
+                             dtype=np.float32, chunks=(tchunk, S, 3), overwrite=True)
+    times = result.times[: n_frames * A].reshape(n_frames, A).mean(axis=1)
+    put("transient/times", times)
+    peak_px = 0.0
+    for k0 in range(0, n_frames, tchunk):
+        k1 = min(k0 + tchunk, n_frames)
+        u = _as_3d(result.displacement_frames(k0 * A, k1 * A))
+        u = u.reshape(k1 - k0, A, S, 3).mean(axis=1, dtype=np.float64)
+        disp[k0:k1] = u.astype(np.float32)
+        px = np.einsum("vij,tvj->tvi", J_vis, u[:, vis_idx])
+        peak_px = max(peak_px, float(np.abs(px).max(initial=0.0)))
+    return peak_px
+
+
+def _write_info(ctx: _Context, truth: dict) -> None:
+    """Write ``truth.json`` and ``camera.json``."""
+    scene, opts, result, camera = ctx.scene, ctx.opts, ctx.result, ctx.camera
+    rs, mesh = scene.render, result.mesh
+    A = ctx.frame_average
+    H, W = camera.height, camera.width
+    consumer = opts.consumer_crf is not None
+    filmed = opts.video
+    info = {
+        "format": FORMAT_VERSION,
+        "vvtbench": __version__,
+        "scene": scene.name,
+        "seed": scene.seed,
+        "video": {
+            "file": None if not filmed else ("video.mp4" if consumer else "video.mkv"),
+            "codec": None if not filmed else ("h264" if consumer else "ffv1"),
+            "lossless": not consumer,
+            "crf": opts.consumer_crf,
+            "pixel_format": "gray" if consumer else "gray16le",
+            "frames": ctx.n_frames,
+            "fps": scene.simulation.fps,
+            "playback_fps": PLAYBACK_FPS,
+            "height": H,
+            "width": W,
+            "bit_depth": ctx.bit_depth,
+            "dn_max": 2**ctx.bit_depth - 1,
+            "frame_average": A,
+            "subframe_fps": scene.simulation.fps * A,
+            "read_noise_dn": rs.read_noise_dn,
+            "shot_noise": rs.shot_noise,
+            "full_well_electrons": opts.full_well,
+            "noise_seed": scene.seed,
+            "noise_rng": "numpy default_rng([seed & 0xFFFFFFFF, 0x5EED0001, frame])",
+            "motion_scale": rs.motion_scale,
+            "supersample": rs.supersample,
+            "lighting": rs.lighting,
+        },
+        "mesh": {"element": mesh.element, "n_nodes": mesh.n_nodes,
+                 "n_elements": mesh.n_elements, "dofs_per_node": mesh.dofs_per_node,
+                 "n_surface_nodes": len(ctx.nodes), "n_surface_triangles": len(ctx.tris),
+                 "n_visible": truth["n_visible"],
+                 "node_sets": sorted(mesh.node_sets)},
+        "modes": {"n": len(result.modes), "frequencies_hz": result.frequencies_hz.tolist(),
+                  "damping_ratios": [float(z) for z in result.damping_ratios],
+                  "rayleigh_alpha": result.alpha, "rayleigh_beta": result.beta},
+        "voxels": {**truth["vmap"].grid.to_dict(), "shape": list(truth["grid_shape"]),
+                   "n_active": int(truth["vmap"].n_params), "n_occupied": truth["n_occupied"]},
+        "peak_image_motion_px": (None if truth["peak_px"] is None
+                                 else truth["peak_px"] * rs.motion_scale),
+        "truncation_error": result.truncation_error,
+        "generator": opts.to_dict(),
+    }
+    _write_json(ctx.work / "truth.json", info)
+    cam = camera.to_dict()
+    cam["P"] = camera.P.tolist()
+    cam["fov_y_deg"] = float(np.degrees(2 * np.arctan((H / 2) / camera.fy)))
+    _write_json(ctx.work / "camera.json", cam)
+
+
+def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: _Progress) -> None:
+    """A short H.264 clip with the motion magnified to ~3 px peak, for people to watch."""
+    result, A = ctx.result, ctx.frame_average
+    fps = ctx.scene.simulation.fps
+    f1 = float(result.frequencies_hz[0]) if len(result.frequencies_hz) else 1.0
+    stride = max(1, int(fps / (10.0 * max(f1, 1e-6))))  # ~10 frames per lowest-mode period
+    ks = np.arange(0, ctx.n_frames, stride)[: max(1, ctx.opts.preview_frames)]
+    gain = max(3.0 / peak_px if peak_px > 0 else 1.0, 1.0)
+    H, W = renderer.shape
+    tmp = path.with_name(path.stem + ".tmp.mp4")
+    bar.stage("preview", len(ks))
+    with VideoWriter(tmp, H, W, pix_fmt="gray", codec="h264", crf=23) as writer:
+        for k in ks:
+            u = _as_3d(result.displacement_frames(k * A, k * A + 1))[0]
+            writer.write(_to_png8(renderer.render(gain * u)))
+            bar.advance()
+    os.replace(tmp, path)
+
+
+def _write_manifest(work: Path, scene: Scene) -> None:
+    files = {}
+    for p in sorted(work.rglob("*")):
+        if p.is_file():
+            rel = p.relative_to(work).as_posix()
+            if rel == "manifest.json":
+                continue
+            files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size,
+                          "description": _describe(rel)}
+    _write_json(work / "manifest.json", {
+        "format": "vvtbench-sample",
+        "format_version": FORMAT_VERSION,
+        "vvtbench": __version__,
+        "scene": scene.name,
+        "seed": scene.seed,
+        "files": files,
+    })

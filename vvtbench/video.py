@@ -1,0 +1,556 @@
+"""Video I/O for the whole package: one ffmpeg probe, one reader, one writer.
+
+* :func:`probe_video` reads a file's size, pixel format, codec and its **exact** frame rate
+  (a :class:`fractions.Fraction`, e.g. ``30000/1001`` or ``2000``).
+* :func:`read_frames` decodes frames ``start:stop`` as integer ``(H, W)`` arrays (uint16 or
+  uint8), frame-exactly (``-fps_mode passthrough``: no frame is dropped or duplicated because
+  of time stamps).
+* :class:`VideoWriter` encodes integer gray frames: lossless FFV1 (``gray16le`` or ``gray``)
+  in Matroska, or H.264 (the consumer track and previews); :func:`concat_videos` joins
+  segments.
+* :func:`open_video` opens any frame source for motion extraction as float32 gray frames.
+
+Frame sources of :func:`open_video`: any container/codec that the ``imageio-ffmpeg`` binary
+decodes (avi, mp4, mkv, ...) is read through ffmpeg's own grayscale conversion (luma): sources
+with more than 8 bits per channel (e.g. ``gray16le``, ``yuv420p10le``, ``rgb48le``) are
+decoded as 16-bit ``gray16le`` and scaled by ``1 / 65535``, the others as 8-bit ``gray``
+scaled by ``1 / 255``.  ``.npy`` files ``(T, H, W)`` or ``(T, H, W, C)`` are memory-mapped;
+arrays and iterables of frames are accepted as they are.  Colour frames given as arrays use
+Rec. 601 luma weights.
+
+Frame rates.  ffmpeg prints rates of 1000 FPS and more as ``"2k fps"``, so parsing its
+banner (as ``imageio_ffmpeg`` does) reads them as 0.  :func:`probe_video` instead takes the
+exact rational rate that ffmpeg's filter graph receives (``showinfo``'s ``frame_rate: N/D``)
+when it agrees with the stream's printed average rate, and the printed average rate
+(``2k`` = 2000) otherwise (Matroska's 1 ms time base caps the former at 1000 FPS).  Videos
+written by :class:`VideoWriter` carry the capture rate as the stream tag ``CAPTURE_FPS``
+(an exact ``N`` or ``N/D``), which takes precedence over the container's nominal rate.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "PLAYBACK_FPS",
+    "VIDEO_SUFFIXES",
+    "VideoError",
+    "VideoInfo",
+    "VideoStream",
+    "VideoWriter",
+    "average_frames",
+    "concat_videos",
+    "open_video",
+    "probe_video",
+    "read_frames",
+    "to_gray",
+]
+
+VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".npy")
+#: Nominal playback rate of the videos :class:`VideoWriter` writes. Matroska time stamps have
+#: 1 ms resolution, so capture rates above 1000 FPS cannot be stored as time stamps; the
+#: capture rate is the stream tag ``CAPTURE_FPS``.
+PLAYBACK_FPS = 30
+_LUMA = np.array([0.299, 0.587, 0.114])
+_HIGH_DEPTH = re.compile(r"(p9|p10|p12|p14|p16|9le|9be|1[0246]le|1[0246]be|48|64|f16|f32)")
+BITEXACT = ["-fflags", "+bitexact", "-flags:v", "+bitexact", "-map_metadata", "-1"]
+_FFV1 = ["-level", "3", "-g", "1", "-slices", "4", "-slicecrc", "1", "-threads", "2"]
+
+
+class VideoError(ValueError):
+    """A video cannot be decoded or encoded, or is not what the caller expects."""
+
+
+def ffmpeg_exe() -> str:
+    """Path of the ffmpeg binary bundled with ``imageio-ffmpeg``."""
+    import imageio_ffmpeg
+
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+# --------------------------------------------------------------------------- frame rates
+def rate_fraction(fps: float | Fraction | str) -> Fraction:
+    """A frame rate as an exact fraction: ``"30000/1001"``, ``2000``, ``29.97002997...``.
+
+    Floats are rounded to the nearest fraction with denominator at most 1001 * 1000 (so
+    ``30000 / 1001`` comes back as ``Fraction(30000, 1001)``).
+    """
+    if isinstance(fps, Fraction):
+        return fps
+    if isinstance(fps, str):
+        return Fraction(fps.strip())
+    return Fraction(float(fps)).limit_denominator(1_001_000)
+
+
+def _printed_rate(text: str) -> float | None:
+    """ffmpeg's ``print_fps`` text (``"29.97"``, ``"1200"``, ``"2k"``) as a number."""
+    m = re.fullmatch(r"([0-9]+(?:\.[0-9]+)?)(k?)", text.strip())
+    if not m:
+        return None
+    return float(m.group(1)) * (1000.0 if m.group(2) else 1.0)
+
+
+def _exact_rate(printed: float | None, graph: Fraction | None) -> Fraction | None:
+    """The exact rate: the filter graph's rational if it matches the printed average rate
+    (printed to 0.01), else the printed rate (integers exact, x.xx as N*1000/1001 if so)."""
+    if graph is not None and graph > 0:
+        if printed is None or printed <= 0 or abs(float(graph) - printed) <= 0.0051:
+            return graph
+    if printed is None or printed <= 0:
+        return None
+    if abs(printed - round(printed)) < 0.0051:
+        return Fraction(round(printed))
+    ntsc = round(printed * 1.001)
+    if abs(ntsc * 1000 / 1001 - printed) < 0.0051:
+        return Fraction(ntsc * 1000, 1001)
+    return Fraction(str(printed))
+
+
+# --------------------------------------------------------------------------- probe
+@dataclass(frozen=True)
+class VideoInfo:
+    """What :func:`probe_video` found out about the first video stream of a file.
+
+    Attributes
+    ----------
+    path : the file.
+    width, height : frame size (px).
+    pix_fmt : the stream's pixel format (e.g. ``"gray16le"``, ``"yuv420p"``).
+    codec : codec name (e.g. ``"ffv1"``, ``"h264"``).
+    container_rate : exact frame rate of the container's time stamps, or None.
+    capture_rate : the ``CAPTURE_FPS`` stream tag (videos written by vvtbench), or None.
+    duration : container duration (s), or None.
+    """
+
+    path: Path
+    width: int
+    height: int
+    pix_fmt: str
+    codec: str
+    container_rate: Fraction | None
+    capture_rate: Fraction | None
+    duration: float | None
+
+    @property
+    def frame_rate(self) -> Fraction | None:
+        """The capture rate if tagged, else the container rate."""
+        return self.capture_rate if self.capture_rate is not None else self.container_rate
+
+    @property
+    def high_depth(self) -> bool:
+        """More than 8 bits per sample (decode as ``gray16le``)."""
+        return bool(_HIGH_DEPTH.search(self.pix_fmt))
+
+    @property
+    def n_frames(self) -> int | None:
+        """Frame count estimated from duration x container rate (exact for our videos)."""
+        if self.duration and self.container_rate:
+            return int(round(self.duration * float(self.container_rate)))
+        return None
+
+
+def _split_top(text: str) -> list[str]:
+    """Split at commas outside parentheses."""
+    parts, depth, cur = [], 0, ""
+    for ch in text:
+        depth += ch == "("
+        depth -= ch == ")"
+        if ch == "," and depth == 0:
+            parts.append(cur.strip())
+            cur = ""
+        else:
+            cur += ch
+    parts.append(cur.strip())
+    return parts
+
+
+def probe_video(path: str | Path) -> VideoInfo:
+    """Size, pixel format, codec and exact frame rate of the first video stream of ``path``.
+
+    Runs ffmpeg once, decoding one frame (``-vf showinfo``). Raises :class:`VideoError`
+    when the file has no decodable video stream.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"video file not found: {path}")
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-nostats", "-v", "verbose", "-i", str(path),
+           "-map", "0:v:0", "-frames:v", "1", "-vf", "showinfo", "-f", "null", "-"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    err = proc.stderr
+    lines = err.splitlines()
+    idx = next((i for i, ln in enumerate(lines) if re.search(r"Stream #\d+:\d+.*: Video: ", ln)),
+               None)
+    if proc.returncode != 0 or idx is None:
+        tail = "; ".join(lines[-3:]) if lines else "no output"
+        raise VideoError(f"{path}: cannot be decoded by ffmpeg: {tail}")
+    parts = _split_top(lines[idx].split(": Video: ", 1)[1])
+    codec = parts[0].split()[0]
+    pix_fmt = next((q.split("(")[0] for q in parts[1:]
+                    if re.fullmatch(r"[a-z][a-z0-9_]*(\(.*\))?", q)), "")
+    width = height = 0
+    printed = None
+    for part in parts[1:]:
+        m = re.match(r"(\d+)x(\d+)", part)
+        if m and not width:
+            width, height = int(m.group(1)), int(m.group(2))
+        m = re.fullmatch(r"(\S+) fps", part)
+        if m:
+            printed = _printed_rate(m.group(1))
+    graph = None
+    m = re.search(r"config in time_base: \d+/\d+, frame_rate: (\d+)/(\d+)", err)
+    if m and int(m.group(2)) > 0 and int(m.group(1)) > 0:
+        graph = Fraction(int(m.group(1)), int(m.group(2)))
+    capture = None
+    for ln in lines[idx + 1:]:
+        if re.match(r"\s*(Stream|Output|Input) ", ln):
+            break
+        m = re.match(r"\s*CAPTURE_FPS\s*:\s*(\S+)", ln, re.IGNORECASE)
+        if m:
+            try:
+                capture = rate_fraction(m.group(1))
+            except (ValueError, ZeroDivisionError):
+                capture = None
+            break
+    duration = None
+    m = re.search(r"Duration: (\d+):(\d+):(\d+(?:\.\d+)?)", err)
+    if m:
+        duration = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
+    if not width:
+        raise VideoError(f"{path}: ffmpeg reports no frame size for the video stream")
+    return VideoInfo(path, width, height, pix_fmt, codec, _exact_rate(printed, graph), capture,
+                     duration)
+
+
+# --------------------------------------------------------------------------- reader
+def read_frames(
+    path: str | Path,
+    *,
+    bpp: int = 2,
+    start: int = 0,
+    stop: int | None = None,
+    info: VideoInfo | None = None,
+) -> Iterator[np.ndarray]:
+    """Decode frames ``start:stop`` of ``path`` as ``(H, W)`` gray integer arrays.
+
+    Parameters
+    ----------
+    path : video file.
+    bpp : 2 decodes to ``gray16le`` (uint16), 1 to ``gray`` (uint8), through ffmpeg's luma.
+    start, stop : frame range (``stop`` None: to the end). Frames before ``start`` are
+        skipped by a time seek to half a frame before it when the container's time stamps
+        resolve frames, otherwise by decoding and dropping them (frame-exact either way).
+    info : the file's :func:`probe_video` result (probed if not given).
+    """
+    if bpp not in (1, 2):
+        raise ValueError(f"bpp must be 1 or 2, got {bpp}")
+    info = info or probe_video(path)
+    pix, dtype = ("gray16le", np.dtype("<u2")) if bpp == 2 else ("gray", np.dtype(np.uint8))
+    h, w = info.height, info.width
+    pre: list[str] = []
+    filters: list[str] = []
+    if start > 0:
+        rate = info.container_rate
+        if rate is not None and rate <= 250:  # time stamps (>= 1 ms) separate the frames
+            pre = ["-ss", f"{(start - 0.5) / float(rate):.6f}"]
+        else:
+            filters = ["-vf", f"select=gte(n\\,{int(start)})"]
+    limit = ["-frames:v", str(int(stop) - int(start))] if stop is not None else []
+    if stop is not None and stop <= start:
+        return
+    cmd = [ffmpeg_exe(), "-v", "error", "-nostdin", *pre, "-i", str(path), "-map", "0:v:0",
+           *filters, "-fps_mode", "passthrough", *limit, "-f", "rawvideo", "-pix_fmt", pix, "-"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    size = h * w * dtype.itemsize
+    try:
+        while True:
+            buf = proc.stdout.read(size)
+            if not buf:
+                break
+            if len(buf) < size:
+                raise VideoError(f"{path}: truncated frame from ffmpeg ({len(buf)} of {size} B)")
+            yield np.frombuffer(buf, dtype=dtype).reshape(h, w)
+    finally:
+        proc.stdout.close()
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        msg = proc.stderr.read().decode(errors="replace").strip()
+        proc.stderr.close()
+    if proc.returncode not in (0, None) and msg:
+        raise VideoError(f"{path}: ffmpeg failed decoding: {msg}")
+
+
+# --------------------------------------------------------------------------- writer
+class VideoWriter:
+    """Encoder of integer gray frames (context manager).
+
+    Parameters
+    ----------
+    path : output file (``.mkv`` for FFV1, ``.mp4`` for H.264).
+    height, width : frame size (px).
+    capture_fps : stored exactly in the stream tag ``CAPTURE_FPS`` (None: no tag).
+    pix_fmt : frames given as ``"gray16le"`` (uint16) or ``"gray"`` (uint8).
+    codec : ``"ffv1"`` (lossless; stored in ``pix_fmt``) or ``"h264"`` (libx264, 8-bit;
+        ``yuv420p`` output, odd sizes padded with zeros to even at the bottom/right).
+    crf : H.264 constant rate factor (``codec="h264"``).
+    playback_fps : the container's nominal rate (see :data:`PLAYBACK_FPS`).
+
+    Output is bit-exact (``+bitexact`` flags, fixed threads, no time stamps in metadata).
+    """
+
+    def __init__(self, path: str | Path, height: int, width: int, *,
+                 capture_fps: float | Fraction | str | None = None, pix_fmt: str = "gray16le",
+                 codec: str = "ffv1", crf: int = 23, playback_fps: float = PLAYBACK_FPS) -> None:
+        import imageio_ffmpeg
+
+        if pix_fmt not in ("gray16le", "gray"):
+            raise ValueError(f"pix_fmt must be 'gray16le' or 'gray', got {pix_fmt!r}")
+        if codec not in ("ffv1", "h264"):
+            raise ValueError(f"codec must be 'ffv1' or 'h264', got {codec!r}")
+        tag = [] if capture_fps is None else [
+            "-metadata:s:v:0", f"CAPTURE_FPS={rate_fraction(capture_fps)}"]
+        self._dtype = np.dtype("<u2") if pix_fmt == "gray16le" else np.dtype(np.uint8)
+        self.shape = (int(height), int(width))
+        self._pad = (0, 0)
+        if codec == "ffv1":
+            out_fmt, vcodec, params = pix_fmt, "ffv1", _FFV1 + BITEXACT + tag
+        else:
+            if pix_fmt != "gray":
+                raise ValueError("codec 'h264' takes 8-bit frames (pix_fmt='gray')")
+            self._pad = (height % 2, width % 2)
+            out_fmt, vcodec = "yuv420p", "libx264"
+            params = ["-crf", str(int(crf)), "-preset", "medium", "-threads", "1",
+                      *BITEXACT, *tag]
+        size = (width + self._pad[1], height + self._pad[0])
+        self._gen = imageio_ffmpeg.write_frames(
+            str(path), size, pix_fmt_in=pix_fmt, pix_fmt_out=out_fmt, codec=vcodec,
+            quality=None, fps=playback_fps, macro_block_size=1, output_params=params,
+            ffmpeg_log_level="error",
+        )
+        self._gen.send(None)
+
+    def write(self, frame: np.ndarray) -> None:
+        """Append one ``(H, W)`` frame of DN."""
+        a = np.asarray(frame, dtype=self._dtype)
+        if a.shape != self.shape:
+            raise ValueError(f"frame shape {a.shape} != writer shape {self.shape}")
+        if any(self._pad):
+            a = np.pad(a, ((0, self._pad[0]), (0, self._pad[1])))
+        self._gen.send(np.ascontiguousarray(a))
+
+    def close(self) -> None:
+        self._gen.close()
+
+    def __enter__(self) -> VideoWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def concat_videos(segments: list[Path], out: Path, *, capture_fps: float | Fraction | None = None,
+                  crf: int | None = None) -> None:
+    """Join video segments into ``out``: stream copy, or (``crf``) re-encode as 8-bit gray
+    H.264 at that CRF. The listing file is written next to ``out`` and removed."""
+    listing = out.with_name(out.name + ".segments.txt")
+    listing.write_text("".join(f"file '{Path(p).resolve()}'\n" for p in segments))
+    codec = ["-c", "copy"] if crf is None else [
+        "-c:v", "libx264", "-preset", "medium", "-crf", str(int(crf)), "-pix_fmt", "gray",
+        "-threads", "2", "-r", str(PLAYBACK_FPS)]
+    tag = [] if capture_fps is None else [
+        "-metadata:s:v:0", f"CAPTURE_FPS={rate_fraction(capture_fps)}"]
+    cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "concat", "-safe", "0", "-i",
+           str(listing), *codec, *BITEXACT, *tag, str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    listing.unlink()
+    if proc.returncode != 0:
+        raise VideoError(f"ffmpeg failed joining the video segments: {proc.stderr.strip()}")
+
+
+# --------------------------------------------------------------------------- float frames
+
+
+def to_gray(frame: ArrayLike) -> NDArray[np.float32]:
+    """``(H, W)`` or ``(H, W, C)`` frame to float32 gray.
+
+    Integer frames are scaled to ``[0, 1]`` by their dtype's maximum; ``C = 3`` or ``4``
+    (alpha ignored) uses Rec. 601 luma weights, ``C = 1`` is squeezed.
+    """
+    a = np.asarray(frame)
+    scale = 1.0
+    if np.issubdtype(a.dtype, np.integer):
+        scale = 1.0 / float(np.iinfo(a.dtype).max)
+    elif a.dtype == np.bool_:
+        a = a.astype(np.float32)
+    if a.ndim == 3:
+        if a.shape[-1] == 1:
+            a = a[..., 0]
+        elif a.shape[-1] in (3, 4):
+            a = a[..., :3].astype(np.float32) @ _LUMA.astype(np.float32)
+        else:
+            raise ValueError(f"colour frames must have 1, 3 or 4 channels, got {a.shape}")
+    if a.ndim != 2:
+        raise ValueError(f"frames must be (H, W) or (H, W, C), got {a.shape}")
+    out = a.astype(np.float32)
+    if scale != 1.0:
+        out *= np.float32(scale)
+    return out
+
+
+def average_frames(frames: Iterable[NDArray], n: int) -> Iterator[NDArray[np.float32]]:
+    """Mean of consecutive groups of ``n`` frames (an incomplete last group is dropped)."""
+    if n < 1:
+        raise ValueError(f"average must be >= 1, got {n}")
+    if n == 1:
+        yield from (np.asarray(f, dtype=np.float32) for f in frames)
+        return
+    acc: NDArray[np.float64] | None = None
+    k = 0
+    for f in frames:
+        acc = np.array(f, dtype=np.float64) if acc is None else acc + f
+        k += 1
+        if k == n:
+            yield (acc / n).astype(np.float32)
+            acc, k = None, 0
+
+
+@dataclass
+class VideoStream:
+    """An opened video: metadata and a one-shot iterator of float32 gray frames.
+
+    Attributes
+    ----------
+    frames : iterator of ndarray
+        ``(H, W)`` float32 frames in ``[0, 1]`` for integer sources.
+    shape : tuple of int
+        ``(H, W)`` after cropping.
+    fps : float or None
+        Frame rate of a file: its ``CAPTURE_FPS`` tag, else the container's exact rate
+        (:func:`probe_video`); None for arrays and iterables.
+    n_frames : int or None
+        Expected number of frames (estimate for compressed containers).
+    meta : dict
+        Source description (path, pixel format, bit depth, ...).
+    """
+
+    frames: Iterator[NDArray[np.float32]]
+    shape: tuple[int, int]
+    fps: float | None
+    n_frames: int | None
+    meta: dict[str, Any] = field(default_factory=dict)
+    rate: Fraction | None = None
+    """The exact frame rate behind ``fps`` (None when unknown)."""
+
+
+def _crop(frames: Iterable[NDArray], roi: tuple[int, int, int, int] | None) -> Iterator[NDArray]:
+    for f in frames:
+        yield f if roi is None else f[roi[0] : roi[1], roi[2] : roi[3]]
+
+
+def _limit(frames: Iterable[NDArray], n: int | None) -> Iterator[NDArray]:
+    for i, f in enumerate(frames):
+        if n is not None and i >= n:
+            return
+        yield f
+
+
+
+
+def _file_frames(path: Path) -> tuple[Iterator[NDArray[np.float32]], VideoInfo, dict[str, Any]]:
+    info = probe_video(path)
+    bpp = 2 if info.high_depth else 1
+
+    def gen() -> Iterator[NDArray[np.float32]]:
+        for frame in read_frames(path, bpp=bpp, info=info):
+            yield to_gray(frame)
+
+    meta = {
+        "source_pix_fmt": info.pix_fmt,
+        "decoded_pix_fmt": "gray16le" if bpp == 2 else "gray",
+        "bits": 16 if bpp == 2 else 8,
+        "codec": info.codec,
+        "container_fps": float(info.container_rate) if info.container_rate else None,
+        "frame_rate": str(info.frame_rate) if info.frame_rate else None,
+        "frame_rate_source": "CAPTURE_FPS tag" if info.capture_rate is not None
+        else ("container" if info.container_rate is not None else None),
+    }
+    return gen(), info, meta
+
+
+def open_video(
+    source: str | Path | ArrayLike | Iterable[ArrayLike],
+    *,
+    roi: tuple[int, int, int, int] | None = None,
+    max_frames: int | None = None,
+) -> VideoStream:
+    """Open a video file, a ``.npy`` file, an array ``(T, H, W[, C])`` or an iterable of frames.
+
+    Parameters
+    ----------
+    source : path, array or iterable
+        See the module notes.
+    roi : tuple of int, optional
+        Crop ``(y0, y1, x0, x1)`` (rows ``y0:y1``, columns ``x0:x1``).
+    max_frames : int, optional
+        Read at most this many frames.
+
+    Returns
+    -------
+    VideoStream
+    """
+    meta: dict[str, Any] = {}
+    rate: Fraction | None = None
+    if isinstance(source, (str, Path)):
+        path = Path(source)
+        if not path.is_file():
+            raise FileNotFoundError(f"video file not found: {path}")
+        meta["source"] = str(path)
+        if path.suffix.lower() == ".npy":
+            arr = np.load(path, mmap_mode="r")
+            frames: Iterable = arr
+            shape = tuple(arr.shape[1:3])
+            n = arr.shape[0]
+        else:
+            frames, info, more = _file_frames(path)
+            shape, rate, n = (info.height, info.width), info.frame_rate, info.n_frames
+            meta.update(more)
+    elif isinstance(source, np.ndarray):
+        frames, shape, n = source, tuple(source.shape[1:3]), source.shape[0]
+        meta["source"] = f"array {source.shape} {source.dtype}"
+    else:
+        it = iter(source)
+        try:
+            first = np.asarray(next(it))
+        except StopIteration:
+            raise ValueError("the frame iterable is empty") from None
+        frames = _chain(first, it)
+        shape, n = tuple(first.shape[:2]), None
+        meta["source"] = "iterable"
+    if roi is not None:
+        y0, y1, x0, x1 = (int(r) for r in roi)
+        if not (0 <= y0 < y1 <= shape[0] and 0 <= x0 < x1 <= shape[1]):
+            raise ValueError(f"roi {roi} is outside the {shape[1]}x{shape[0]} frame")
+        roi = (y0, y1, x0, x1)
+        shape = (y1 - y0, x1 - x0)
+        meta["roi"] = list(roi)
+    if max_frames is not None and n is not None:
+        n = min(n, max_frames)
+    gray = (to_gray(f) for f in _crop(_limit(frames, max_frames), roi))
+    return VideoStream(
+        frames=gray, shape=(int(shape[0]), int(shape[1])),
+        fps=float(rate) if rate is not None else None, n_frames=n, meta=meta, rate=rate,
+    )
+
+
+def _chain(first: NDArray, rest: Iterator) -> Iterator:
+    yield first
+    yield from rest
