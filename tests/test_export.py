@@ -18,6 +18,7 @@ from vvtbench import dataset as ds
 from vvtbench.cli import main as cli_main
 from vvtbench.cli_export import main as export_main
 from vvtbench.export import ExportError, open_dataset, pack
+from vvtbench.generate import generate
 from vvtbench.modes import ModeSet
 from vvtbench.render.camera import Camera
 from vvtbench.scene import Scene, parse_scene
@@ -70,7 +71,7 @@ def _modeset(k: int = 2, F: int = 11) -> ModeSet:
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Path:
     scene = parse_scene(json.loads(json.dumps(TINY)), "tiny")
-    return ds.generate(scene, tmp_path_factory.mktemp("samples"), progress=False,
+    return generate(scene, tmp_path_factory.mktemp("samples"), progress=False,
                        preview_frames=2)
 
 

@@ -15,6 +15,7 @@ import pytest
 import scipy.sparse as sp
 
 from vvtbench import dataset as ds
+from vvtbench.generate import generate
 from vvtbench.observe import ObserveError, ObserveOptions, RealVideo, Truth, observe
 from vvtbench.problem import InverseProblem
 from vvtbench.scene import parse_scene
@@ -42,7 +43,7 @@ def scene():
 
 @pytest.fixture(scope="module")
 def sample(scene, tmp_path_factory) -> Path:
-    return ds.generate(scene, tmp_path_factory.mktemp("s"), progress=False)
+    return generate(scene, tmp_path_factory.mktemp("s"), progress=False)
 
 
 @pytest.fixture
@@ -217,3 +218,11 @@ def test_real_video_has_no_truth(sample):
                      inference_shape=(3, 3, 3), n_modes=4)
     np.testing.assert_array_equal(np.sort(problem.frequencies_hz),
                                   np.sort(ref.frequencies_hz))
+
+
+def test_voxel_truth_on_a_grid_finer_than_the_mesh(sample):
+    # 8^3 voxels over a 4^3 mesh: no voxel inside the body is empty, means stay in range
+    problem, truth = observe(sample, inference_shape=(8, 8, 8), n_modes=3)
+    assert problem.n_params == 512
+    for f, lo, hi in ((truth.w, 9000.0, 9.0e4), (truth.v, 1270.0, 2000.0)):
+        assert np.all(np.isfinite(f)) and f.min() >= lo * (1 - 1e-12) and f.max() <= hi * 1.000001

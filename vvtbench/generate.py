@@ -36,13 +36,14 @@ import numpy as np
 
 from . import __version__
 from .dataset import FORMAT_VERSION, DatasetError, sha256_file
+from .io import write_json
+from .observe import default_voxel_shape
 from .scene import SCENES_DIR, Scene, SceneError, find_scene, load_scene, parse_scene
 from .video import PLAYBACK_FPS, VideoWriter, concat_videos
 
 __all__ = [
     "FULL_WELL_ELECTRONS",
     "generate",
-    "default_voxel_shape",
     "mode_vectors_3d",
     "n_video_frames",
     "resolve_scenes",
@@ -60,15 +61,8 @@ ProgressCallback = Callable[[str, int, int], None]
 
 
 # --------------------------------------------------------------------------- small helpers
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
-
-
-def default_voxel_shape(scene: Scene) -> tuple[int, ...]:
-    """The paper's inference grids: 20 x 20 for drums, 8 x 8 x 8 for solids."""
-    return (20, 20) if scene.geometry.kind == "drum" else (8, 8, 8)
+def _write_json_sorted(path: Path, data: Any) -> None:
+    write_json(path, data, indent=2, sort_keys=True)
 
 
 def _as_scene(scene: Scene | str | Path) -> Scene:
@@ -388,7 +382,7 @@ def generate(
         shutil.rmtree(partial, ignore_errors=True)
         (partial / "segments").mkdir(parents=True)
         state = {"fingerprint": fingerprint, "segments_done": 0}
-        _write_json(checkpoint, state)
+        _write_json_sorted(checkpoint, state)
     bar = _Progress(progress, callback, scene.name)
     try:
         _generate_into(scene, scene_text, partial, opts, state, checkpoint, bar)
@@ -538,7 +532,7 @@ def _render_video(ctx: _Context, renderer, state: dict, checkpoint: Path,
                     bar.advance()
         os.replace(tmp, seg_dir / f"seg_{s:05d}.mkv")
         state["segments_done"] = s + 1
-        _write_json(checkpoint, state)
+        _write_json_sorted(checkpoint, state)
     segments = [seg_dir / f"seg_{s:05d}.mkv" for s in range(n_seg)]
     bar.stage("join video", 1)
     name = "video.mkv" if opts.consumer_crf is None else "video.mp4"
@@ -723,11 +717,11 @@ def _write_info(ctx: _Context, truth: dict) -> None:
         "truncation_error": result.truncation_error,
         "generator": opts.to_dict(),
     }
-    _write_json(ctx.work / "truth.json", info)
+    _write_json_sorted(ctx.work / "truth.json", info)
     cam = camera.to_dict()
     cam["P"] = camera.P.tolist()
     cam["fov_y_deg"] = float(np.degrees(2 * np.arctan((H / 2) / camera.fy)))
-    _write_json(ctx.work / "camera.json", cam)
+    _write_json_sorted(ctx.work / "camera.json", cam)
 
 
 def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: _Progress) -> None:
@@ -758,7 +752,7 @@ def _write_manifest(work: Path, scene: Scene) -> None:
                 continue
             files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size,
                           "description": _describe(rel)}
-    _write_json(work / "manifest.json", {
+    _write_json_sorted(work / "manifest.json", {
         "format": "vvtbench-sample",
         "format_version": FORMAT_VERSION,
         "vvtbench": __version__,

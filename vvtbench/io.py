@@ -46,7 +46,7 @@ def write_text(path: str | Path, text: str) -> None:
         tmp.unlink(missing_ok=True)
 
 
-def write_json(path: str | Path, data: Any) -> None:
+def write_json(path: str | Path, data: Any, *, indent: int = 1, sort_keys: bool = False) -> None:
     """``data`` as indented JSON (see :func:`jsonable`), atomically.
 
     >>> import tempfile
@@ -55,7 +55,8 @@ def write_json(path: str | Path, data: Any) -> None:
     >>> json.loads(p.read_text())
     {'x': 1.5, 'y': [1, 2], 'z': None}
     """
-    write_text(path, json.dumps(jsonable(data), indent=1, default=str) + "\n")
+    write_text(path, json.dumps(jsonable(data), indent=indent, sort_keys=sort_keys, default=str)
+               + "\n")
 
 
 def write_npz(path: str | Path, arrays: dict[str, np.ndarray], compressed: bool = True) -> None:

@@ -436,8 +436,10 @@ def _scale_vector(geometry_scale: float | tuple[float, ...]) -> np.ndarray:
     return scale
 
 
-def default_voxel_shape(kind: str) -> tuple[int, ...]:
-    """The paper's inference grids: 8x8x8 for solids, 20x20 for drums."""
+def default_voxel_shape(scene_or_kind: Any) -> tuple[int, ...]:
+    """The paper's inference grids: 8x8x8 for solids, 20x20 for drums (a Scene or its
+    geometry kind)."""
+    kind = getattr(getattr(scene_or_kind, "geometry", None), "kind", scene_or_kind)
     return (20, 20) if kind == "drum" else (8, 8, 8)
 
 
@@ -639,33 +641,25 @@ def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
 
 
 def _voxel_truth(rec: _Record, model: ParametricModel, scale: np.ndarray):
-    """Per parameter of ``model``: element-volume-weighted mean of the simulation's
-    per-element material over each voxel (the simulation mesh mapped onto the inference
-    geometry)."""
-    from .fem.elements import element_volumes
+    """Per parameter of ``model``: the mean of the simulation's per-element material over each
+    voxel, weighted by the volume of overlap of element and voxel (the simulation mesh mapped
+    onto the inference geometry); an active voxel that no simulation element reaches (only
+    possible when the inference mesh covers more than the body) takes the nearest element's
+    value."""
+    from .fem.voxels import overlap_matrix, voxel_average
 
-    sim = rec.mesh
     vmap = model.voxel_map
-    cent = sim.centroids * scale
-    vox = vmap.grid.voxel_of(cent)
-    param_of_voxel = np.full(vmap.grid.n_voxels, -1)
-    param_of_voxel[vmap.active] = np.arange(vmap.n_params)
-    param = param_of_voxel[vox]
-    vol = element_volumes(sim.element_type, sim.cell_coords)
-    keep = param >= 0
+    overlap = overlap_matrix(rec.mesh, vmap.grid, scale=scale)
     out = []
     for values in (rec.stiffness, rec.density):
-        num = np.bincount(param[keep], vol[keep] * values[keep], minlength=vmap.n_params)
-        den = np.bincount(param[keep], vol[keep], minlength=vmap.n_params)
-        res = np.empty(vmap.n_params)
-        has = den > 0
-        res[has] = num[has] / den[has]
-        if not has.all():
+        res = np.asarray(voxel_average(overlap, values), dtype=float)[vmap.active]
+        empty = ~np.isfinite(res)
+        if empty.any():
             from scipy.spatial import cKDTree
 
-            centers = vmap.grid.centers()[vmap.active[~has]]
-            _, nearest = cKDTree(cent).query(centers)
-            res[~has] = values[nearest]
+            centers = vmap.grid.centers()[vmap.active[empty]]
+            _, nearest = cKDTree(rec.mesh.centroids * scale).query(centers)
+            res[empty] = values[nearest]
         out.append(res)
     return out[0], out[1]
 

@@ -230,7 +230,7 @@ def _piece_parents(X: np.ndarray, d: np.ndarray, parent: np.ndarray) -> np.ndarr
     return np.concatenate(out)
 
 
-def overlap_matrix(source, grid: VoxelGrid, *, element=None, scale: float = 1.0):
+def overlap_matrix(source, grid: VoxelGrid, *, element=None, scale=1.0):
     """Volumes of overlap between every voxel of ``grid`` and every element.
 
     Parameters
@@ -244,8 +244,8 @@ def overlap_matrix(source, grid: VoxelGrid, *, element=None, scale: float = 1.0)
     element : str or Element, optional
         Element type name (``hex8``, ``hex27``, ``tet4``, ``tet10``, ``tri3``); required when
         ``source`` is an array, ignored for a Mesh.
-    scale : float
-        Multiply the coordinates by this first (a geometry scale; volumes are then those of
+    scale : float or (3,) array_like
+        Multiply the coordinates by this first (per axis) (a geometry scale; volumes are then those of
         the scaled body).
 
     Returns
@@ -291,7 +291,7 @@ def overlap_matrix(source, grid: VoxelGrid, *, element=None, scale: float = 1.0)
         raise ValueError(f"coordinates must be (n_e, {el.nnodes}, dim), got {coords.shape}")
     if coords.shape[2] == 2:
         coords = np.concatenate([coords, np.zeros(coords.shape[:2] + (1,))], axis=2)
-    coords = coords * float(scale)
+    coords = coords * np.broadcast_to(np.asarray(scale, dtype=float), (3,))
     n_e = len(coords)
     vols = element_volumes(el, coords)
     shape = (grid.n_voxels, n_e)
