@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from vvtbench import dataset as ds
-from vvtbench.plugins import main_solve
+from vvtbench.cli.solve import main_solve
 from vvtbench.problem import InverseProblem
 from vvtbench.scene import parse_scene
 

@@ -11,13 +11,13 @@ import textwrap
 import numpy as np
 import pytest
 
+from vvtbench.cli.solve import main_solve
 from vvtbench.fem.mesh import box_mesh
 from vvtbench.metrics import mode_match, normalized_correlation
 from vvtbench.plugins import (
     PluginError,
     list_solvers,
     load_solver,
-    main_solve,
     parse_overrides,
 )
 from vvtbench.problem import Estimate, InverseProblem, interpolate_nodal
