@@ -1,13 +1,19 @@
-"""Benchmark suites: the suite file (``scenes/suites/*.toml``, docs/suites.md) parsed into
+"""Benchmark suites: the suite file (``scenes/suites/*.toml``, docs/suites.md), validated by
+pydantic models (unknown keys, wrong types and out-of-range or non-finite numbers are
+:class:`SuiteError` one-liners naming the file, the key and what is allowed) and expanded into
 :class:`Suite` / :class:`Track` / :class:`Variation`."""
 
 from __future__ import annotations
 
 import itertools
 import json
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..scene import SCENES_DIR
 
@@ -15,17 +21,207 @@ SUITES_DIR = SCENES_DIR / "suites"
 OBSERVATIONS = ("true", "extracted")
 SCENE_SECTIONS = ("seed", "description", "geometry", "material", "boundary", "damping",
                   "excitation", "simulation", "camera", "render")
-INFERENCE_KEYS = {
-    "n_modes": int, "inference_shape": list, "geometry_scale": (float, list), "nu": float,
-    "inference_order": int, "w0": float, "v0": float, "w_mean": float,
-}
-EXTRACT_KEYS = ("fmin", "fmax", "prominence", "min_separation_hz", "max_modes",
-                "min_power_ratio", "n_scales", "n_orientations", "sigma", "weighting",
-                "average", "detrend", "shake_threshold", "merge_freq_tol", "merge_min_mac")
 
 
 class SuiteError(ValueError):
     """A suite file is malformed; the message names the file, the key and what is allowed."""
+
+
+# --------------------------------------------------------------------------- models
+
+PositiveNumber = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeNumber = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+Count = Annotated[int, Field(ge=1)]
+Name = Annotated[str, Field(min_length=1)]
+Observation = Literal["true", "extracted"]
+Options = dict[str, Any]  # scene overrides and inference options, checked by _split_options
+
+
+class _Strict(BaseModel):
+    # strict: nothing is coerced ("5" is not 5, true is not 1), so what the runner hashes and
+    # records is what the file says
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class InferenceOptions(_Strict):
+    """The inference options of a variation (docs/suites.md)."""
+
+    n_modes: Count | None = Field(None, description="an integer >= 1")
+    inference_shape: Annotated[list[Count], Field(min_length=2, max_length=3)] | None = Field(
+        None, description="a list of 3 integers >= 1 (drums: 2)")
+    geometry_scale: (PositiveNumber | Annotated[list[PositiveNumber],
+                                                Field(min_length=3, max_length=3)] | None) = Field(
+        None, description="a number > 0 (scales x), or [sx, sy, sz] of numbers > 0")
+    nu: Annotated[float, Field(gt=-1, lt=0.5, allow_inf_nan=False)] | None = Field(
+        None, description="a Poisson's ratio in (-1, 0.5)")
+    inference_order: Literal[1, 2] | None = Field(None, description="1 (hex8) or 2 (hex27)")
+    w0: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
+    v0: PositiveNumber | None = Field(None, description="a number > 0 (kg/m^3)")
+    w_mean: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
+
+
+class ExtractOptions(_Strict):
+    """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging."""
+
+    fmin: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    fmax: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    prominence: NonNegativeNumber | None = Field(None, description="a number >= 0 (decades)")
+    min_separation_hz: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    max_modes: Count | None = Field(None, description="an integer >= 1")
+    min_power_ratio: NonNegativeNumber | None = Field(None, description="a number >= 0")
+    n_scales: Count | None = Field(None, description="an integer >= 1")
+    n_orientations: Count | None = Field(None, description="an integer >= 1")
+    sigma: NonNegativeNumber | None = Field(None, description="a number >= 0 (pixels)")
+    weighting: Literal["confidence", "none"] | None = Field(
+        None, description="'confidence' or 'none'")
+    average: Count | None = Field(None, description="an integer >= 1 (frames)")
+    detrend: Literal["mean", "linear", "none"] | None = Field(
+        None, description="'mean', 'linear' or 'none'")
+    shake_threshold: Fraction | None = Field(None, description="a MAC in [0, 1]")
+    merge_freq_tol: PositiveNumber | None = Field(
+        None, description="a relative frequency tolerance > 0")
+    merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")
+
+
+SceneGroup = Name | Annotated[list[Name], Field(min_length=1)]
+_SCENES = ("a list of scene names or paths (relative to the suite file), or of lists of them "
+           "(videos of one object whose modes are merged)")
+_SOLVER = "tables [solver.NAME] of solver config overrides (key = value)"
+
+
+class TrackFile(_Strict):
+    """One ``[[tracks]]`` table."""
+
+    name: Name | None = Field(None, description="a non-empty string")
+    description: str = Field("", description="a string")
+    scenes: list[SceneGroup] = Field(default_factory=list, description=_SCENES)
+    seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] | None = Field(
+        None, description="a non-empty list of integers >= 0")
+    observations: Annotated[list[Observation], Field(min_length=1)] | None = Field(
+        None, description=f"a non-empty list of {', '.join(map(repr, OBSERVATIONS))}")
+    defaults: Options = Field(default_factory=dict, description="a table of options")
+    variations: list[Options] = Field(default_factory=list,
+                                      description="a list of tables of options")
+    sweep: Options | None = Field(None, description="a table of key = [values]")
+    solvers: list[Name] | None = Field(None, description="a list of solver names")
+    solver: dict[Name, Options] = Field(default_factory=dict, description=_SOLVER)
+    solver_sweep: dict[Name, dict[str, Annotated[list[Any], Field(min_length=1)]]] = Field(
+        default_factory=dict, description="tables [solver_sweep.NAME] of key = [values]")
+
+
+class SuiteFile(_Strict):
+    """A suite file (docs/suites.md); with no ``[[tracks]]`` its scenes, variations and sweep
+    make one track, ``main``."""
+
+    name: Name | None = Field(None, description="a non-empty string")
+    description: str = Field("", description="a string")
+    scenes: list[SceneGroup] = Field(default_factory=list, description=_SCENES)
+    solvers: list[Name] = Field(default_factory=list, description="a list of solver names")
+    seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] = Field(
+        [0], description="a non-empty list of integers >= 0")
+    observations: Annotated[list[Observation], Field(min_length=1)] = Field(
+        ["true"], description=f"a non-empty list of {', '.join(map(repr, OBSERVATIONS))}")
+    defaults: Options = Field(default_factory=dict, description="a table of options")
+    extract: ExtractOptions = Field(default_factory=ExtractOptions,
+                                    description="a table of extraction options")
+    solver: dict[Name, Options] = Field(default_factory=dict, description=_SOLVER)
+    tracks: list[TrackFile] | None = Field(None, description="[[tracks]] tables")
+    variations: list[Options] | None = Field(None, description="a list of tables of options")
+    sweep: Options | None = Field(None, description="a table of key = [values]")
+
+
+INFERENCE_KEYS = tuple(InferenceOptions.model_fields)
+EXTRACT_KEYS = tuple(ExtractOptions.model_fields)
+_PARENTS = {"": SuiteFile, "tracks": TrackFile, "extract": ExtractOptions}
+_DESCRIPTIONS = {name: f.description for model in (SuiteFile, TrackFile, ExtractOptions,
+                                                   InferenceOptions)
+                 for name, f in model.model_fields.items()}
+_TYPE_TAGS = {"str", "int", "float", "bool", "list", "dict", "none"}
+
+
+def _path(loc: tuple, prefix: str = "") -> tuple[str, str]:
+    """(dotted key path of a pydantic error location, the last model field on it), e.g.
+    ``tracks[0].seeds[1]`` and ``seeds`` for ``('tracks', 0, 'seeds', 1)``; union-member tags
+    such as ``constrained-float`` are left out."""
+    out, field_name = prefix, ""
+    for p in loc:
+        if isinstance(p, int):
+            out += f"[{p}]"
+            continue
+        s = str(p)
+        if s in _TYPE_TAGS or "[" in s or s.startswith(("constrained-", "function-")):
+            continue
+        out = f"{out}.{s}" if out else s
+        if s in _DESCRIPTIONS:
+            field_name = s
+    return out, field_name
+
+
+def _format(source: str, error: ValidationError, prefix: str = "", root=None) -> str:
+    """One line: the file, then each key with its problem and what is allowed."""
+    errors = [(*_path(e["loc"], prefix), e) for e in error.errors()]
+
+    def mismatch(key, e):  # a union member of the wrong type, when another one says more
+        return e["type"].endswith("_type") and any(
+            (k == key or k.startswith((f"{key}[", f"{key}."))) and not o["type"].endswith("_type")
+            for k, _, o in errors if o is not e)
+
+    problems: dict[str, tuple[str, list[str]]] = {}
+    for key, name, e in errors:
+        if mismatch(key, e):
+            continue
+        msgs = problems.setdefault(key, (name, []))[1]
+        if e["type"] == "extra_forbidden":
+            parent = _path(e["loc"][:-1])[1]
+            model = root if root is not None and not parent else _PARENTS.get(parent)
+            allowed = ", ".join(model.model_fields) if model is not None else "(none)"
+            msgs.append(f"unknown key; allowed keys here: {allowed}")
+        elif e["type"] == "finite_number":
+            msgs.append(f"{e.get('input')!r} is not a finite number")
+        else:
+            msgs.append(e["msg"].removeprefix("Value error, "))
+    parts = []
+    for key, (name, msgs) in problems.items():
+        allowed = _DESCRIPTIONS.get(name)
+        if msgs[0].startswith("unknown key"):
+            msg = msgs[0]
+        elif len(msgs) > 1 and allowed:  # a union reports one error per member
+            msg = f"invalid value (allowed: {allowed})"
+        else:
+            msg = "; ".join(msgs) + (f" (allowed: {allowed})" if allowed else "")
+        parts.append(f"key '{key or '<top level>'}': {msg}")
+    return f"{source}: " + "; ".join(parts)
+
+
+def _check_finite(value, source: str, key: str) -> None:
+    """Every number anywhere in the file is finite (TOML allows nan and inf)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise SuiteError(f"{source}: key '{key}': {value!r} is not a finite number (allowed: "
+                         "finite numbers only)")
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite(v, source, f"{key}.{k}" if key else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_finite(v, source, f"{key}[{i}]")
+
+
+def _check_inference(values: dict, source: str, path: str, index: int | None = None) -> None:
+    """Validate inference option values (``index``: of a sweep's list of values)."""
+    try:
+        InferenceOptions.model_validate(values)
+    except ValidationError as error:
+        if index is not None:
+            (key,) = values
+            path = f"{_join(path, key)}[{index}]"
+            raise SuiteError(_format(source, error, path).replace(f"{path}.{key}", path)
+                             ) from None
+        raise SuiteError(_format(source, error, path, InferenceOptions)) from None
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
 
 
 def _flatten(d: dict, prefix: str = "") -> dict:
@@ -39,8 +235,9 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def _split_options(opts: dict, where: str) -> tuple[dict, dict]:
-    """Flat options -> (scene overrides by dotted key, inference options)."""
+def _split_options(opts: dict, source: str, path: str) -> tuple[dict, dict]:
+    """Flat options -> (scene overrides by dotted key, inference options); ``path`` is the
+    options' key path in the suite file, for errors."""
     scene_over, infer = {}, {}
     for key, value in _flatten(opts).items():
         head = key.split(".")[0]
@@ -50,9 +247,10 @@ def _split_options(opts: dict, where: str) -> tuple[dict, dict]:
             infer[key] = value
         else:
             raise SuiteError(
-                f"{where}: unknown key {key!r}; allowed: scene keys as dotted paths under "
-                f"{', '.join(SCENE_SECTIONS)} (e.g. 'simulation.duration'), or inference "
-                f"options {', '.join(INFERENCE_KEYS)}")
+                f"{source}: key '{_join(path, key)}': unknown key; allowed: scene keys as dotted "
+                f"paths under {', '.join(SCENE_SECTIONS)} (e.g. 'simulation.duration'), or "
+                f"inference options {', '.join(INFERENCE_KEYS)}")
+    _check_inference(infer, source, path)
     return scene_over, infer
 
 
@@ -120,38 +318,44 @@ class Suite:
         return seen
 
 
-def _variations(tdata: dict, where: str, defaults: dict) -> list[Variation]:
+def _variations(tdata: dict, source: str, path: str, defaults: dict) -> list[Variation]:
     out = []
     base = dict(defaults)
     for i, v in enumerate(tdata.get("variations", [])):
-        if not isinstance(v, dict):
-            raise SuiteError(f"{where}.variations[{i}]: must be a table")
+        where = f"{_join(path, 'variations')}[{i}]"
         v = dict(v)
         name = v.pop("name", None)
-        so, inf = _split_options({**base, **v}, f"{where}.variations[{i}]")
+        if name is not None and not (isinstance(name, str) and name):
+            raise SuiteError(f"{source}: key '{where}.name': {name!r} is not allowed (allowed: "
+                             "a non-empty string)")
+        so, inf = _split_options({**base, **v}, source, where)
         if name is None:
             name = ",".join(f"{k}={_fmt(val)}" for k, val in _flatten(v).items()) or "base"
         out.append(Variation(str(name), so, inf))
     sweep = tdata.get("sweep")
     if sweep:
-        if not isinstance(sweep, dict):
-            raise SuiteError(f"{where}.sweep: must be a table of key = [values]")
+        where = _join(path, "sweep")
         flat = _flatten(sweep)
         for k, vals in flat.items():
             if not isinstance(vals, list) or not vals:
-                raise SuiteError(f"{where}.sweep.{k}: must be a non-empty list of values")
+                raise SuiteError(f"{source}: key '{where}.{k}': {vals!r} is not allowed "
+                                 "(allowed: a non-empty list of values)")
+            if k in INFERENCE_KEYS:
+                for n, val in enumerate(vals):
+                    _check_inference({k: val}, source, where, index=n)
         keys = list(flat)
         for combo in itertools.product(*(flat[k] for k in keys)):
             v = dict(zip(keys, combo, strict=True))
-            so, inf = _split_options({**base, **v}, f"{where}.sweep")
+            so, inf = _split_options({**base, **v}, source, where)
             out.append(Variation(",".join(f"{k}={_fmt(x)}" for k, x in v.items()), so, inf))
     if not out:
-        so, inf = _split_options(base, f"{where}")
+        so, inf = _split_options(base, source, _join(path, "defaults"))
         out.append(Variation("base", so, inf))
     names = [v.name for v in out]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
-        raise SuiteError(f"{where}: duplicate variation names {sorted(dup)}")
+        raise SuiteError(f"{source}: key '{path or '<top level>'}': duplicate variation names "
+                         f"{sorted(dup)} (allowed: distinct names)")
     return out
 
 
@@ -185,33 +389,23 @@ def load_suite(name_or_path: str | Path) -> Suite:
     return parse_suite(data, str(path))
 
 
-_TOP_KEYS = {"name", "description", "scenes", "solvers", "seeds", "observations", "defaults",
-             "extract", "solver", "tracks", "variations", "sweep"}
-_TRACK_KEYS = {"name", "description", "scenes", "seeds", "observations", "defaults",
-               "variations", "sweep", "solvers", "solver", "solver_sweep"}
-
-
 def parse_suite(data: dict, source: str = "<suite>") -> Suite:
+    """Validate a suite dict (the parsed TOML) and expand it; errors are :class:`SuiteError`
+    one-liners naming ``source``, the key path and what is allowed."""
     from ..scene import SceneError, find_scene
 
-    unknown = set(data) - _TOP_KEYS
-    if unknown:
-        raise SuiteError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: "
-                         f"{', '.join(sorted(_TOP_KEYS))}")
+    _check_finite(data, source, "")
+    try:
+        SuiteFile.model_validate(data)
+    except ValidationError as error:
+        raise SuiteError(_format(source, error)) from None
+    # The validated file is expanded from ``data`` itself: strict validation coerced nothing,
+    # and the runner hashes and records the values as written (1, not 1.0).
     name = data.get("name") or Path(source).stem
     defaults = data.get("defaults", {})
-    if not isinstance(defaults, dict):
-        raise SuiteError(f"{source}: 'defaults' must be a table")
-    _split_options(defaults, f"{source}: defaults")  # validate keys early
+    _split_options(defaults, source, "defaults")  # validate keys early
     extract = dict(data.get("extract", {}))
-    bad = set(extract) - set(EXTRACT_KEYS)
-    if bad:
-        raise SuiteError(f"{source}: extract: unknown key(s) {sorted(bad)}; allowed: "
-                         f"{', '.join(EXTRACT_KEYS)}")
     solver_config = data.get("solver", {})
-    if not isinstance(solver_config, dict) or not all(isinstance(v, dict)
-                                                      for v in solver_config.values()):
-        raise SuiteError(f"{source}: [solver.NAME] tables hold solver config overrides")
     solvers = data.get("solvers", [])
     seeds = data.get("seeds", [0])
     observations = data.get("observations", ["true"])
@@ -221,58 +415,42 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
                        **{k: data[k] for k in ("variations", "sweep") if k in data}}]
     tracks = []
     for i, t in enumerate(raw_tracks):
-        where = f"{source}: tracks[{i}]"
-        if not isinstance(t, dict):
-            raise SuiteError(f"{where}: must be a table")
-        unknown = set(t) - _TRACK_KEYS
-        if unknown:
-            raise SuiteError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: "
-                             f"{', '.join(sorted(_TRACK_KEYS))}")
+        path = f"tracks[{i}]" if "tracks" in data else ""
         tname = t.get("name", f"track{i}")
-        where = f"{source}: track {tname!r}"
         scenes = []
-        for s in t.get("scenes", []):
+        for j, s in enumerate(t.get("scenes", [])):
             group = [s] if isinstance(s, str) else s
-            if not isinstance(group, list) or not group or not all(isinstance(g, str)
-                                                                   for g in group):
-                raise SuiteError(f"{where}: scenes entries are names/paths, or lists of "
-                                 "names (videos of one object whose modes are merged)")
             for g in group:
                 try:
                     find_scene(scene_ref(g, source))
                 except SceneError as error:
-                    raise SuiteError(f"{where}: {error}") from None
+                    raise SuiteError(f"{source}: key '{_join(path, 'scenes')}[{j}]': {error}"
+                                     ) from None
             scenes.append(group)
         if not scenes:
-            raise SuiteError(f"{where}: no scenes")
+            raise SuiteError(f"{source}: key '{_join(path, 'scenes')}': track {tname!r} has no "
+                             f"scenes (allowed: {_SCENES})")
         obs = t.get("observations", observations)
-        bad = [o for o in obs if o not in OBSERVATIONS]
-        if bad:
-            raise SuiteError(f"{where}: observations {bad} not allowed; allowed: "
-                             f"{', '.join(OBSERVATIONS)}")
         tseeds = t.get("seeds", seeds)
-        if not all(isinstance(s, int) for s in tseeds):
-            raise SuiteError(f"{where}: seeds must be integers")
         tdefaults = {**defaults, **t.get("defaults", {})}
+        if "defaults" in t:
+            _split_options(t["defaults"], source, _join(path, "defaults"))
         ssweep = {}
         for sname, table in t.get("solver_sweep", {}).items():
-            if not isinstance(table, dict) or not all(isinstance(v, list) and v
-                                                      for v in table.values()):
-                raise SuiteError(f"{where}: [tracks.solver_sweep.{sname}] holds key = [values]")
             keys = list(table)
             ssweep[sname] = [
                 (",".join(f"{sname}.{k}={_fmt(x)}" for k, x in zip(keys, combo, strict=True)),
                  dict(zip(keys, combo, strict=True)))
                 for combo in itertools.product(*(table[k] for k in keys))]
         tsolvers = t.get("solvers")
-        if tsolvers is not None and not all(isinstance(x, str) for x in tsolvers):
-            raise SuiteError(f"{where}: solvers must be a list of solver names")
-        tracks.append(Track(tname, scenes, _variations(t, where, tdefaults), list(tseeds),
-                            list(obs), t.get("description", ""), tsolvers,
+        tracks.append(Track(tname, scenes, _variations(t, source, path, tdefaults),
+                            list(tseeds), list(obs), t.get("description", ""), tsolvers,
                             dict(t.get("solver", {})), ssweep))
     names = [t.name for t in tracks]
     if len(set(names)) != len(names):
-        raise SuiteError(f"{source}: duplicate track names")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise SuiteError(f"{source}: key 'tracks': duplicate track names {dup} (allowed: "
+                         "distinct names)")
     return Suite(name, tracks, list(solvers), solver_config, extract,
                  data.get("description", ""), source, data)
 
