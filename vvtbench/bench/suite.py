@@ -158,9 +158,15 @@ def _path(loc: tuple, prefix: str = "") -> tuple[str, str]:
     return out, field_name
 
 
-def _format(source: str, error: ValidationError, prefix: str = "", root=None) -> str:
-    """One line: the file, then each key with its problem and what is allowed."""
-    errors = [(*_path(e["loc"], prefix), e) for e in error.errors()]
+def _format(source: str, error: ValidationError, prefix: str = "", root=None,
+            index: int | None = None) -> str:
+    """One line: the file, then each key with its problem and what is allowed. ``prefix``: the
+    key path of what was validated; ``index``: of the value in a sweep's list of values."""
+
+    def loc(e):
+        return e["loc"] if index is None else (e["loc"][0], index, *e["loc"][1:])
+
+    errors = [(*_path(loc(e), prefix), e) for e in error.errors()]
 
     def mismatch(key, e):  # a union member of the wrong type, when another one says more
         return e["type"].endswith("_type") and any(
@@ -212,12 +218,7 @@ def _check_inference(values: dict, source: str, path: str, index: int | None = N
     try:
         InferenceOptions.model_validate(values)
     except ValidationError as error:
-        if index is not None:
-            (key,) = values
-            path = f"{_join(path, key)}[{index}]"
-            raise SuiteError(_format(source, error, path).replace(f"{path}.{key}", path)
-                             ) from None
-        raise SuiteError(_format(source, error, path, InferenceOptions)) from None
+        raise SuiteError(_format(source, error, path, InferenceOptions, index)) from None
 
 
 def _join(path: str, key: str) -> str:
