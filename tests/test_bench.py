@@ -14,10 +14,10 @@ from vvtbench.bench import (  # noqa: E402
     COLUMNS,
     check_results,
     load_suite,
-    main_check_results,
     read_results,
     run_suite,
 )
+from vvtbench.cli.run import main_check_results  # noqa: E402
 
 MICRO = """
 name = "micro"
@@ -247,7 +247,7 @@ def test_shipped_suites_parse():
 
 
 def test_leaderboard(micro, tmp_path):
-    from vvtbench.leaderboard import main_leaderboard
+    from vvtbench.cli.leaderboard import main_leaderboard
 
     _, out, _ = micro
     lb = tmp_path / "lb"

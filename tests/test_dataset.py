@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench import cli_generate
 from vvtbench import dataset as ds
 from vvtbench import generate as gen
+from vvtbench.cli import generate as cli_generate
 from vvtbench.render.camera import Camera
 from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
 from vvtbench.video import VideoWriter, concat_videos, probe_video, read_frames

@@ -16,7 +16,7 @@ import xarray as xr
 
 from vvtbench import dataset as ds
 from vvtbench.cli import main as cli_main
-from vvtbench.cli_export import main as export_main
+from vvtbench.cli.export import main as export_main
 from vvtbench.export import ExportError, open_dataset, pack
 from vvtbench.generate import generate
 from vvtbench.modes import ModeSet

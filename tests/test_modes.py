@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from vvtbench.cli.extract import main_extract
 from vvtbench.modes import (
     DisplacementStore,
     ModeSet,
@@ -23,7 +24,6 @@ from vvtbench.modes import (
     extract_modes,
     load_clicks,
     mac,
-    main_extract,
     merge_modesets,
     modes_from_displacements,
     motion_power_spectrum,

@@ -13,7 +13,7 @@ import pytest
 
 from vvtbench import dataset as ds
 from vvtbench import generate as gen
-from vvtbench.plugins import main_solve
+from vvtbench.cli.solve import main_solve
 from vvtbench.problem import InverseProblem
 from vvtbench.scene import parse_scene
 

@@ -11,6 +11,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from vvtbench.cli.solve import main_solve
 from vvtbench.fem.interpolate import interpolate_nodal
 from vvtbench.fem.mesh import box_mesh
 from vvtbench.metrics import mode_match, normalized_correlation
@@ -19,7 +20,6 @@ from vvtbench.plugins import (
     PluginError,
     list_solvers,
     load_solver,
-    main_solve,
     parse_overrides,
 )
 from vvtbench.problem import Estimate

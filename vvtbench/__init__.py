@@ -1,6 +1,8 @@
 """vvtbench: an open benchmark and dataset generator for visual vibration tomography."""
 
-__version__ = "0.1.0"
+from ._version import __version__
+
+__all__ = ["__version__", "open_dataset", "open_sample"]
 
 
 def __getattr__(name: str):

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
+from ._version import __version__
 from .dataset import FORMAT_VERSION, DatasetError, sha256_file
 from .io import write_json
 from .observe import default_voxel_shape

@@ -1,4 +1,4 @@
-"""``vvtbench leaderboard``: Markdown + static HTML (no server) from a results table.
+"""The leaderboard: Markdown + static HTML (no server) from a results table.
 
 Writes into the output folder (default ``leaderboard/``): ``README.md`` (one ranking table per
 track), ``index.html`` (the same tables and the figures, images referenced relatively),
@@ -10,7 +10,6 @@ truth), and slices of estimated vs true fields (the paper's Fig. 5 style) read f
 
 from __future__ import annotations
 
-import argparse
 import html
 import json
 import shutil
@@ -19,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from ._version import __version__
 
 RANK_COLUMNS = [("nc_w", "NC w"), ("nc_v", "NC v"), ("nc_at_sigma_star_w", "NC w @ σ*"),
                 ("sigma_star_w", "σ* w (vox)"), ("mode_mac", "mode MAC"),
@@ -251,21 +250,4 @@ text-align:right}}th{{background:#eee}}img{{max-width:100%}}</style></head><body
     return out
 
 
-def main_leaderboard(argv: list[str] | None = None) -> int:
-    """``vvtbench leaderboard RESULTS [-o leaderboard]``."""
-    p = argparse.ArgumentParser(prog="vvtbench leaderboard",
-                                description="Markdown + static HTML leaderboard of a results "
-                                            "table")
-    p.add_argument("results", help="results.parquet/.csv, or a run folder")
-    p.add_argument("-o", "--output", default="leaderboard", help="output folder")
-    args = p.parse_args(argv)
-    try:
-        out = build(args.results, args.output)
-    except (OSError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(f"leaderboard -> {out / 'README.md'}, {out / 'index.html'}")
-    return 0
-
-
-__all__ = ["build", "main_leaderboard", "ranking", "shutil"]
+__all__ = ["build", "ranking", "shutil"]

@@ -245,8 +245,8 @@ def overlap_matrix(source, grid: VoxelGrid, *, element=None, scale=1.0):
         Element type name (``hex8``, ``hex27``, ``tet4``, ``tet10``, ``tri3``); required when
         ``source`` is an array, ignored for a Mesh.
     scale : float or (3,) array_like
-        Multiply the coordinates by this first (per axis) (a geometry scale; volumes are then those of
-        the scaled body).
+        Multiply the coordinates by this first, per axis (a geometry scale; volumes are then
+        those of the scaled body).
 
     Returns
     -------

@@ -4,7 +4,7 @@ See ``docs/modes.md`` for the pipeline and the file format.
 """
 
 from ..video import open_video
-from .extract import confidence_weights, extract_modes, main_extract, modes_from_displacements
+from .extract import confidence_weights, extract_modes, modes_from_displacements
 from .modeset import ModeSet, merge_modesets
 from .peaks import (
     align_phase,
@@ -40,7 +40,6 @@ __all__ = [
     "extract_modes",
     "load_clicks",
     "mac",
-    "main_extract",
     "merge_modes",
     "merge_modesets",
     "modes_from_displacements",

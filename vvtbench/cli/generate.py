@@ -43,9 +43,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 def run(args: argparse.Namespace) -> int:
     """Run parsed arguments; returns the exit code (0 ok, 2 bad input)."""
-    from .dataset import DatasetError
-    from .generate import generate, resolve_scenes, with_overrides
-    from .scene import SceneError
+    from ..dataset import DatasetError
+    from ..generate import generate, resolve_scenes, with_overrides
+    from ..scene import SceneError
 
     try:
         scenes = resolve_scenes(args.scene)

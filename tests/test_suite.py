@@ -1,0 +1,82 @@
+"""Suite files are validated by pydantic models: every error is a one-line SuiteError naming the
+file, the key path and what is allowed."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+
+from vvtbench.bench import SuiteError, load_suite, parse_suite
+
+BASE = 'scenes = ["jello_cube_homogeneous"]\n'
+
+
+def error_of(text: str) -> str:
+    with pytest.raises(SuiteError) as info:
+        parse_suite(tomllib.loads(BASE + text), "my_suite.toml")
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith("my_suite.toml: key '")
+    return msg
+
+
+def test_unknown_keys_name_the_key_and_the_allowed_ones():
+    msg = error_of("solverz = ['vvt']")
+    assert "key 'solverz': unknown key" in msg and "solvers" in msg
+    msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\nseed = [0]\n")
+    assert "key 'tracks[0].seed': unknown key" in msg and "seeds" in msg
+    msg = error_of("[extract]\nfmaxx = 10.0\n")
+    assert "key 'extract.fmaxx': unknown key" in msg and "fmax" in msg
+    msg = error_of("[defaults]\nn_mode = 5\n")
+    assert "key 'defaults.n_mode': unknown key" in msg and "n_modes" in msg
+
+
+def test_seeds_are_non_negative_integers():
+    assert "key 'seeds[1]'" in (msg := error_of("seeds = [0, -1]")) and ">= 0" in msg
+    assert "key 'seeds'" in error_of("seeds = -3")
+    assert "key 'seeds[0]'" in error_of("seeds = [true]")  # no silent bool -> int
+    assert "key 'seeds'" in error_of("seeds = []")
+    msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\nseeds = [2, -5]\n")
+    assert "key 'tracks[0].seeds[1]'" in msg
+
+
+def test_numbers_are_finite_and_in_range():
+    msg = error_of("[defaults]\nn_modes = nan\n")
+    assert "key 'defaults.n_modes'" in msg and "not a finite number" in msg
+    assert "key 'solver.vvt.alpha_v'" in error_of("[solver.vvt]\nalpha_v = inf\n")
+    assert "key 'extract.fmax'" in error_of("[extract]\nfmax = -inf\n")
+    msg = error_of("[defaults]\nn_modes = 0\n")
+    assert "key 'defaults.n_modes'" in msg and "an integer >= 1" in msg
+    msg = error_of("[defaults]\nnu = 0.5\n")
+    assert "key 'defaults.nu'" in msg and "(-1, 0.5)" in msg
+    msg = error_of("[sweep]\ngeometry_scale = [1.0, 0.0]\n")
+    assert "key 'sweep.geometry_scale[1]'" in msg and "> 0" in msg
+    msg = error_of("[[variations]]\ngeometry_scale = [1.0, -1.0, 1.0]\n")
+    assert "key 'variations[0].geometry_scale[1]'" in msg
+    assert "key 'extract.shake_threshold'" in error_of("[extract]\nshake_threshold = 1.5\n")
+    assert "key 'sweep.n_modes'" in error_of("[sweep]\nn_modes = []\n")
+
+
+def test_bad_observation_and_scene_names():
+    msg = error_of('observations = ["true", "video"]')
+    assert "key 'observations[1]'" in msg and "'extracted'" in msg
+    assert "key 'observations'" in error_of("observations = []")
+    msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\nobservations = ['x']\n")
+    assert "key 'tracks[0].observations[0]'" in msg
+    msg = error_of("[[tracks]]\nscenes = ['no_such_scene']\n")
+    assert "key 'tracks[0].scenes[0]'" in msg and "jello_cube_homogeneous" in msg
+    msg = error_of("[extract]\nweighting = 'snr'\n")
+    assert "key 'extract.weighting'" in msg and "'confidence'" in msg
+
+
+def test_values_are_kept_as_written():
+    """Validation coerces nothing: the runner hashes and records the file's own values."""
+    suite = parse_suite(tomllib.loads(BASE + "[sweep]\ngeometry_scale = [1, 1.5]\n"), "s.toml")
+    scales = [v.inference["geometry_scale"] for v in suite.tracks[0].variations]
+    assert scales == [1, 1.5] and type(scales[0]) is int
+
+
+def test_shipped_suites_validate():
+    for name in ("smoke", "paper"):
+        suite = load_suite(name)
+        assert suite.tracks and all(t.variations for t in suite.tracks)

@@ -1,0 +1,194 @@
+"""The task graph of a suite: one :class:`Task` per stage input, one :class:`Run` per row."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._version import __version__
+from .suite import Suite, SuiteError, Track, apply_overrides, scene_ref
+
+STAGES = ("generate", "extract", "observe", "solve", "evaluate")
+# Bump when a stage's output format or meaning changes (part of every task key).
+CACHE_FORMAT = 1
+
+
+def _canon(x):
+    if isinstance(x, dict):
+        return {str(k): _canon(v) for k, v in sorted(x.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(x, (list, tuple)):
+        return [_canon(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def content_hash(*parts, n: int = 16) -> str:
+    """sha256 (first ``n`` hex digits) of the canonical JSON of ``parts``."""
+    text = json.dumps(_canon(list(parts)), sort_keys=True, default=str, allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:n]
+
+
+@dataclass
+class Task:
+    stage: str
+    key: str
+    deps: list[str]
+    payload: dict
+    label: str = ""
+
+
+@dataclass
+class Run:
+    """One row of the results table."""
+
+    track: str
+    scene: str
+    variation: str
+    seed: int
+    observation: str
+    solver: str            # spec as given (name or file.py:Class)
+    n_modes: int
+    variation_options: dict
+    dataset_revision: str
+    solve_key: str | None = None
+    evaluate_key: str | None = None
+    observe_key: str | None = None
+    config: dict | None = None
+    config_hash: str = ""
+    solver_name: str = ""
+    solver_version: str = ""
+    setup_error: str | None = None
+
+
+def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
+    from ..scene import load_scene, parse_scene
+
+    scene = load_scene(scene_ref(ref, source))
+    data = apply_overrides(scene.to_toml_dict(), {**overrides, "seed": seed})
+    try:
+        parsed = parse_scene(data, f"{scene.source} (suite overrides)")
+    except Exception as error:
+        raise SuiteError(str(error)) from None
+    return parsed.to_toml_dict()
+
+
+def solver_setup(spec: str, overrides: dict | None):
+    """(class, config dict) for a solver spec with suite/CLI overrides."""
+    from ..plugins import load_solver, parse_overrides
+
+    cls = load_solver(spec)
+    items = [f"{k}={json.dumps(v) if not isinstance(v, str) else v}"
+             for k, v in (overrides or {}).items()]
+    cfg = parse_overrides(items, cls.Config)
+    return cls, dataclasses.asdict(cfg)
+
+
+def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = None,
+                until: str = "evaluate") -> tuple[dict[str, Task], list[Run]]:
+    """All tasks (by key) and runs (rows) of a suite."""
+    tasks: dict[str, Task] = {}
+    runs: list[Run] = []
+    cfgs = {**suite.solver_config}
+    for k, v in (solver_config or {}).items():
+        cfgs[k] = {**cfgs.get(k, {}), **v}
+    solver_info: dict = {}
+
+    def info(spec: str, extra: dict | None = None):
+        ck = (spec, json.dumps(_canon(extra or {}), sort_keys=True))
+        if ck not in solver_info:
+            try:
+                from ..plugins import load_solver
+
+                name = load_solver(spec).name
+                over = {**(cfgs.get(spec) or cfgs.get(name) or {}), **(extra or {})}
+                cls, cfg = solver_setup(spec, over)
+                solver_info[ck] = (cls.name, str(cls.version), cfg, None)
+            except Exception as error:  # a broken plug-in becomes error rows
+                solver_info[ck] = (spec, "", {}, f"setup: {type(error).__name__}: {error}")
+        return solver_info[ck]
+
+    stop = STAGES.index(until)
+
+    def add(stage, key_parts, deps, payload, label, register=True):
+        key = content_hash(stage, CACHE_FORMAT, __version__, *key_parts, deps)
+        k = f"{stage}/{key}"
+        if register and k not in tasks:
+            tasks[k] = Task(stage, k, deps, payload, label)
+        return k
+
+    for track in suite.tracks:
+        for group, var, seed in itertools.product(track.scenes, track.variations, track.seeds):
+            scene_dicts = [_resolve_scene(s, suite.source, var.scene_overrides, seed)
+                           for s in group]
+            scene_label = "+".join(d["name"] for d in scene_dicts)
+            needed = stop < 1 or "extracted" in track.observations
+            gen_keys = [add("generate", [d], [], {"scene": d}, d["name"], register=needed)
+                        for d in scene_dicts]
+            dataset_revision = content_hash(*gen_keys)
+            if stop < 1:
+                continue
+            extract_opts = {k: v for k, v in suite.extract.items()}
+            n_modes = int(var.inference.get("n_modes", 10))
+            for obs in track.observations:
+                ext_keys = []
+                if obs == "extracted":
+                    ext_keys = [add("extract", [extract_opts], [g], {"options": extract_opts},
+                                    name) for g, name in zip(gen_keys, [d["name"] for d in
+                                                                        scene_dicts],
+                                                             strict=True)]
+                if stop < 2:
+                    continue
+                inf = {"n_modes": n_modes, **var.inference}
+                obs_payload = {"scene": scene_dicts[0], "inference": inf, "observation": obs,
+                               "extract": extract_opts}
+                obs_key = add("observe", [scene_dicts[0], inf, obs,
+                                          extract_opts if obs == "extracted" else {}],
+                              ext_keys, obs_payload, scene_label)
+                if stop < 3:
+                    continue
+                for spec, vlabel, extra in _track_solvers(track, solvers, info):
+                    name, version, cfg, err = info(spec, extra)
+                    cfg_hash = content_hash(name, cfg)
+                    vname = var.name if not vlabel else (
+                        vlabel if var.name == "base" else f"{var.name},{vlabel}")
+                    run = Run(track.name, scene_label, vname, seed, obs, spec, n_modes,
+                              {**var.scene_overrides, **var.inference,
+                               **{f"{name}.{k}": x for k, x in (extra or {}).items()}},
+                              dataset_revision,
+                              observe_key=obs_key, config=cfg, config_hash=cfg_hash,
+                              solver_name=name, solver_version=version, setup_error=err)
+                    if err is None:
+                        sk = add("solve", [name, version, cfg], [obs_key],
+                                 {"solver": spec, "config": cfg}, f"{name}:{scene_label}")
+                        ek = add("evaluate", [], [sk, obs_key], {}, f"{name}:{scene_label}")
+                        run.solve_key, run.evaluate_key = sk, ek
+                    runs.append(run)
+    return tasks, runs
+
+
+
+def _track_solvers(track: Track, solvers: list[str], info):
+    """(spec, variation label, config overrides) of each solver run in a track."""
+    out = []
+    for spec in solvers:
+        name = info(spec)[0]
+        if track.solvers is not None and name not in track.solvers and spec not in track.solvers:
+            continue
+        base = dict(track.solver_config.get(name, {}))
+        sweep = track.solver_sweep.get(name)
+        if sweep:
+            out.extend((spec, label, {**base, **over}) for label, over in sweep)
+        else:
+            out.append((spec, "", base))
+    return out

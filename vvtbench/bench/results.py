@@ -1,0 +1,225 @@
+"""The results table (one row per run): its columns, writing, reading and checking."""
+
+from __future__ import annotations
+
+import json
+import os
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from .._version import __version__
+from ..io import jsonable
+from .graph import Run
+from .suite import OBSERVATIONS
+
+METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_star_w",
+                  "sigma_star_v", "nc_at_sigma_star_w", "nc_at_sigma_star_v", "mode_mac",
+                  "freq_err_raw", "freq_err_scaled")
+
+COLUMNS = ("track", "solver", "solver_version", "config_hash", "config", "scene", "variation",
+           "variation_options", "seed", "observation", "n_modes", "n_modes_observed",
+           *METRIC_COLUMNS, "runtime_s", "status", "error", "vvtbench_version",
+           "dataset_revision", "estimate_path", "traceback_path")
+
+
+def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
+    row = {c: None for c in COLUMNS}
+    row.update(track=run.track, solver=run.solver_name or run.solver,
+               solver_version=run.solver_version, config_hash=run.config_hash,
+               config=json.dumps(jsonable(run.config or {}), sort_keys=True),
+               scene=run.scene, variation=run.variation,
+               variation_options=json.dumps(jsonable(run.variation_options), sort_keys=True),
+               seed=int(run.seed), observation=run.observation, n_modes=int(run.n_modes),
+               vvtbench_version=__version__, dataset_revision=run.dataset_revision,
+               status="ok", error="")
+    for m in METRIC_COLUMNS:
+        row[m] = float("nan")
+    row["runtime_s"] = float("nan")
+    row["n_modes_observed"] = -1
+    if run.setup_error:
+        row.update(status="error", error=run.setup_error)
+        return row
+    ev = results.get(run.evaluate_key, {})
+    if ev.get("status") != "ok":
+        # find the first failing task on the chain
+        for k in (run.observe_key, run.solve_key, run.evaluate_key):
+            r = results.get(k, {})
+            if r.get("status") == "error":
+                row.update(status="error", error=r.get("error", ""),
+                           traceback_path=f"{cache_rel}/{r['traceback']}"
+                           if r.get("traceback") else None)
+                break
+            if r.get("status") == "skipped" and r.get("upstream"):
+                up = results.get(r["upstream"], {})
+                if up.get("status") == "error":
+                    row.update(status="error", error=up.get("error", r.get("error", "")),
+                               traceback_path=f"{cache_rel}/{up['traceback']}"
+                               if up.get("traceback") else None)
+                    break
+        else:
+            row.update(status="error", error=ev.get("error") or "not run")
+        if row["status"] != "error":
+            row.update(status="error", error=ev.get("error") or "not run")
+        return row
+    res = ev["result"]
+    for m in METRIC_COLUMNS:
+        val = res["metrics"].get(m)
+        row[m] = float("nan") if val is None else float(val)
+    row["n_modes_observed"] = int(res.get("n_modes_observed", -1))
+    sres = results.get(run.solve_key, {}).get("result", {})
+    row["runtime_s"] = float(sres.get("runtime_s", float("nan")))
+    row["estimate_path"] = f"{cache_rel}/{run.evaluate_key}/fields.npz"
+    return row
+
+
+def results_table(runs: list[Run], results: dict[str, dict], cache_rel: str = "cache"):
+    import pandas as pd
+
+    df = pd.DataFrame([_row(r, results, cache_rel) for r in runs], columns=list(COLUMNS))
+    return _coerce(df)
+
+
+def _coerce(df):
+    for c in METRIC_COLUMNS + ("runtime_s",):
+        df[c] = df[c].astype("float64")
+    for c in ("seed", "n_modes", "n_modes_observed"):
+        df[c] = df[c].astype("int64")
+    for c in COLUMNS:
+        if c not in METRIC_COLUMNS and c not in ("seed", "n_modes", "n_modes_observed",
+                                                 "runtime_s"):
+            df[c] = df[c].astype(object).where(df[c].notna(), None)
+    return df
+
+
+def write_results(df, out_dir: Path) -> tuple[Path, Path]:
+    """results.parquet and results.csv in ``out_dir`` (atomic writes)."""
+    out_dir = Path(out_dir)
+    pq = out_dir / "results.parquet"
+    csv = out_dir / "results.csv"
+    tmp = out_dir / f".results.{uuid.uuid4().hex[:8]}"
+    df.to_parquet(f"{tmp}.parquet", index=False)
+    os.replace(f"{tmp}.parquet", pq)
+    df.to_csv(f"{tmp}.csv", index=False)
+    os.replace(f"{tmp}.csv", csv)
+    return pq, csv
+
+
+def read_results(path: str | Path):
+    import pandas as pd
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "results.parquet"
+    if path.suffix == ".parquet":
+        return pd.read_parquet(path)
+    if path.suffix == ".csv":
+        return pd.read_csv(path, keep_default_na=True)
+    raise ValueError(f"{path}: results must be .parquet or .csv")
+
+
+
+_ALLOWED = {"status": ("ok", "error"), "observation": OBSERVATIONS}
+_RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered",
+                                       "nc_at_sigma_star_w", "nc_at_sigma_star_v")},
+           "sigma_star_w": (0.0, None), "sigma_star_v": (0.0, None), "mode_mac": (0.0, 1.0),
+           "freq_err_raw": (0.0, None), "freq_err_scaled": (0.0, None),
+           "runtime_s": (0.0, None)}
+REQUIRED = ("solver", "solver_version", "config_hash", "config", "scene", "variation", "seed",
+            "observation", "n_modes", *METRIC_COLUMNS, "runtime_s", "status", "error",
+            "vvtbench_version", "dataset_revision")
+_STRINGS = ("solver", "solver_version", "config_hash", "scene", "variation",
+            "vvtbench_version", "dataset_revision")
+
+
+def check_results(path_or_df, max_errors: int = 50) -> list[str]:
+    """Validate a results table (file or DataFrame) against docs/results.md.
+
+    Returns a list of problems, each naming the column, the row (0-based, as in the file's data
+    rows) and what is allowed; empty when the table is valid.
+    """
+    import pandas as pd
+
+    if isinstance(path_or_df, pd.DataFrame):
+        df = path_or_df
+    else:
+        try:
+            df = read_results(path_or_df)
+        except Exception as error:
+            return [f"{path_or_df}: cannot read: {type(error).__name__}: {error}"]
+    errors: list[str] = []
+
+    def err(msg):
+        errors.append(msg)
+
+    missing = [c for c in REQUIRED if c not in df.columns]
+    if missing:
+        err(f"missing column(s): {', '.join(missing)} (required: {', '.join(REQUIRED)})")
+    if len(df) == 0:
+        err("the table has no rows")
+    for c in _STRINGS:
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if not isinstance(val, str) or not val.strip():
+                err(f"column {c!r}, row {i}: {val!r} must be a non-empty string")
+    for c, allowed in _ALLOWED.items():
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if val not in allowed:
+                err(f"column {c!r}, row {i}: {val!r} not allowed; allowed values: "
+                    f"{', '.join(allowed)}")
+    for c in ("seed", "n_modes"):
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            ok = isinstance(val, (int, np.integer)) or (
+                isinstance(val, (float, np.floating)) and float(val).is_integer())
+            if not ok or (c == "n_modes" and val < 1):
+                err(f"column {c!r}, row {i}: {val!r} must be an integer"
+                    + (" >= 1" if c == "n_modes" else ""))
+    if "config" in df.columns:
+        for i, val in df["config"].items():
+            try:
+                if not isinstance(json.loads(val), dict):
+                    raise ValueError
+            except (TypeError, ValueError):
+                err(f"column 'config', row {i}: must be a JSON object (the solver config), "
+                    f"got {str(val)[:40]!r}")
+    if "config_hash" in df.columns:
+        for i, val in df["config_hash"].items():
+            if isinstance(val, str) and not all(ch in "0123456789abcdef" for ch in val):
+                err(f"column 'config_hash', row {i}: {val!r} must be lower-case hex")
+    for c, (lo, hi) in _RANGES.items():
+        if c not in df.columns:
+            continue
+        col = pd.to_numeric(df[c], errors="coerce")
+        for i, (raw, val) in enumerate(zip(df[c], col, strict=True)):
+            if pd.isna(val):
+                if raw is not None and not pd.isna(raw):
+                    err(f"column {c!r}, row {df.index[i]}: {raw!r} is not a number")
+                continue
+            if (lo is not None and val < lo - 1e-9) or (hi is not None and val > hi + 1e-9):
+                rng = f"[{lo}, {hi if hi is not None else 'inf'}]"
+                err(f"column {c!r}, row {df.index[i]}: {val!r} outside the allowed range {rng}")
+    if "status" in df.columns:
+        for i, row in df.iterrows():
+            if row["status"] == "ok":
+                for c in ("nc_w", "nc_v", "runtime_s"):
+                    if c in df.columns and pd.isna(pd.to_numeric(row[c], errors="coerce")):
+                        err(f"column {c!r}, row {i}: rows with status 'ok' need a number")
+            elif row["status"] == "error" and "error" in df.columns:
+                if not isinstance(row["error"], str) or not row["error"].strip():
+                    err(f"column 'error', row {i}: rows with status 'error' need the error "
+                        "message")
+    key = [c for c in ("track", "solver", "config_hash", "scene", "variation", "seed",
+                       "observation") if c in df.columns]
+    if len(key) >= 6:
+        dup = df.duplicated(subset=key, keep="first")
+        for i in df.index[dup]:
+            err(f"row {i}: duplicate of an earlier row in columns {', '.join(key)}")
+    if len(errors) > max_errors:
+        errors = errors[:max_errors] + [f"... and {len(errors) - max_errors} more problem(s)"]
+    return errors

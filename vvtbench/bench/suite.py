@@ -1,0 +1,461 @@
+"""Benchmark suites: the suite file (``scenes/suites/*.toml``, docs/suites.md), validated by
+pydantic models (unknown keys, wrong types and out-of-range or non-finite numbers are
+:class:`SuiteError` one-liners naming the file, the key and what is allowed) and expanded into
+:class:`Suite` / :class:`Track` / :class:`Variation`."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ..scene import SCENES_DIR
+
+SUITES_DIR = SCENES_DIR / "suites"
+OBSERVATIONS = ("true", "extracted")
+SCENE_SECTIONS = ("seed", "description", "geometry", "material", "boundary", "damping",
+                  "excitation", "simulation", "camera", "render")
+
+
+class SuiteError(ValueError):
+    """A suite file is malformed; the message names the file, the key and what is allowed."""
+
+
+# --------------------------------------------------------------------------- models
+
+PositiveNumber = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeNumber = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+Count = Annotated[int, Field(ge=1)]
+Name = Annotated[str, Field(min_length=1)]
+Observation = Literal["true", "extracted"]
+Options = dict[str, Any]  # scene overrides and inference options, checked by _split_options
+
+
+class _Strict(BaseModel):
+    # strict: nothing is coerced ("5" is not 5, true is not 1), so what the runner hashes and
+    # records is what the file says
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+
+class InferenceOptions(_Strict):
+    """The inference options of a variation (docs/suites.md)."""
+
+    n_modes: Count | None = Field(None, description="an integer >= 1")
+    inference_shape: Annotated[list[Count], Field(min_length=2, max_length=3)] | None = Field(
+        None, description="a list of 3 integers >= 1 (drums: 2)")
+    geometry_scale: (PositiveNumber | Annotated[list[PositiveNumber],
+                                                Field(min_length=3, max_length=3)] | None) = Field(
+        None, description="a number > 0 (scales x), or [sx, sy, sz] of numbers > 0")
+    nu: Annotated[float, Field(gt=-1, lt=0.5, allow_inf_nan=False)] | None = Field(
+        None, description="a Poisson's ratio in (-1, 0.5)")
+    inference_order: Literal[1, 2] | None = Field(None, description="1 (hex8) or 2 (hex27)")
+    w0: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
+    v0: PositiveNumber | None = Field(None, description="a number > 0 (kg/m^3)")
+    w_mean: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
+
+
+class ExtractOptions(_Strict):
+    """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging."""
+
+    fmin: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    fmax: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    prominence: NonNegativeNumber | None = Field(None, description="a number >= 0 (decades)")
+    min_separation_hz: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    max_modes: Count | None = Field(None, description="an integer >= 1")
+    min_power_ratio: NonNegativeNumber | None = Field(None, description="a number >= 0")
+    n_scales: Count | None = Field(None, description="an integer >= 1")
+    n_orientations: Count | None = Field(None, description="an integer >= 1")
+    sigma: NonNegativeNumber | None = Field(None, description="a number >= 0 (pixels)")
+    weighting: Literal["confidence", "none"] | None = Field(
+        None, description="'confidence' or 'none'")
+    average: Count | None = Field(None, description="an integer >= 1 (frames)")
+    detrend: Literal["mean", "linear", "none"] | None = Field(
+        None, description="'mean', 'linear' or 'none'")
+    shake_threshold: Fraction | None = Field(None, description="a MAC in [0, 1]")
+    merge_freq_tol: PositiveNumber | None = Field(
+        None, description="a relative frequency tolerance > 0")
+    merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")
+
+
+SceneGroup = Name | Annotated[list[Name], Field(min_length=1)]
+_SCENES = ("a list of scene names or paths (relative to the suite file), or of lists of them "
+           "(videos of one object whose modes are merged)")
+_SOLVER = "tables [solver.NAME] of solver config overrides (key = value)"
+
+
+class TrackFile(_Strict):
+    """One ``[[tracks]]`` table."""
+
+    name: Name | None = Field(None, description="a non-empty string")
+    description: str = Field("", description="a string")
+    scenes: list[SceneGroup] = Field(default_factory=list, description=_SCENES)
+    seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] | None = Field(
+        None, description="a non-empty list of integers >= 0")
+    observations: Annotated[list[Observation], Field(min_length=1)] | None = Field(
+        None, description=f"a non-empty list of {', '.join(map(repr, OBSERVATIONS))}")
+    defaults: Options = Field(default_factory=dict, description="a table of options")
+    variations: list[Options] = Field(default_factory=list,
+                                      description="a list of tables of options")
+    sweep: Options | None = Field(None, description="a table of key = [values]")
+    solvers: list[Name] | None = Field(None, description="a list of solver names")
+    solver: dict[Name, Options] = Field(default_factory=dict, description=_SOLVER)
+    solver_sweep: dict[Name, dict[str, Annotated[list[Any], Field(min_length=1)]]] = Field(
+        default_factory=dict, description="tables [solver_sweep.NAME] of key = [values]")
+
+
+class SuiteFile(_Strict):
+    """A suite file (docs/suites.md); with no ``[[tracks]]`` its scenes, variations and sweep
+    make one track, ``main``."""
+
+    name: Name | None = Field(None, description="a non-empty string")
+    description: str = Field("", description="a string")
+    scenes: list[SceneGroup] = Field(default_factory=list, description=_SCENES)
+    solvers: list[Name] = Field(default_factory=list, description="a list of solver names")
+    seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] = Field(
+        [0], description="a non-empty list of integers >= 0")
+    observations: Annotated[list[Observation], Field(min_length=1)] = Field(
+        ["true"], description=f"a non-empty list of {', '.join(map(repr, OBSERVATIONS))}")
+    defaults: Options = Field(default_factory=dict, description="a table of options")
+    extract: ExtractOptions = Field(default_factory=ExtractOptions,
+                                    description="a table of extraction options")
+    solver: dict[Name, Options] = Field(default_factory=dict, description=_SOLVER)
+    tracks: list[TrackFile] | None = Field(None, description="[[tracks]] tables")
+    variations: list[Options] | None = Field(None, description="a list of tables of options")
+    sweep: Options | None = Field(None, description="a table of key = [values]")
+
+
+INFERENCE_KEYS = tuple(InferenceOptions.model_fields)
+EXTRACT_KEYS = tuple(ExtractOptions.model_fields)
+_PARENTS = {"": SuiteFile, "tracks": TrackFile, "extract": ExtractOptions}
+_DESCRIPTIONS = {name: f.description for model in (SuiteFile, TrackFile, ExtractOptions,
+                                                   InferenceOptions)
+                 for name, f in model.model_fields.items()}
+_TYPE_TAGS = {"str", "int", "float", "bool", "list", "dict", "none"}
+
+
+def _path(loc: tuple, prefix: str = "") -> tuple[str, str]:
+    """(dotted key path of a pydantic error location, the last model field on it), e.g.
+    ``tracks[0].seeds[1]`` and ``seeds`` for ``('tracks', 0, 'seeds', 1)``; union-member tags
+    such as ``constrained-float`` are left out."""
+    out, field_name = prefix, ""
+    for p in loc:
+        if isinstance(p, int):
+            out += f"[{p}]"
+            continue
+        s = str(p)
+        if s in _TYPE_TAGS or "[" in s or s.startswith(("constrained-", "function-")):
+            continue
+        out = f"{out}.{s}" if out else s
+        if s in _DESCRIPTIONS:
+            field_name = s
+    return out, field_name
+
+
+def _format(source: str, error: ValidationError, prefix: str = "", root=None,
+            index: int | None = None) -> str:
+    """One line: the file, then each key with its problem and what is allowed. ``prefix``: the
+    key path of what was validated; ``index``: of the value in a sweep's list of values."""
+
+    def loc(e):
+        return e["loc"] if index is None else (e["loc"][0], index, *e["loc"][1:])
+
+    errors = [(*_path(loc(e), prefix), e) for e in error.errors()]
+
+    def mismatch(key, e):  # a union member of the wrong type, when another one says more
+        return e["type"].endswith("_type") and any(
+            (k == key or k.startswith((f"{key}[", f"{key}."))) and not o["type"].endswith("_type")
+            for k, _, o in errors if o is not e)
+
+    problems: dict[str, tuple[str, list[str]]] = {}
+    for key, name, e in errors:
+        if mismatch(key, e):
+            continue
+        msgs = problems.setdefault(key, (name, []))[1]
+        if e["type"] == "extra_forbidden":
+            parent = _path(e["loc"][:-1])[1]
+            model = root if root is not None and not parent else _PARENTS.get(parent)
+            allowed = ", ".join(model.model_fields) if model is not None else "(none)"
+            msgs.append(f"unknown key; allowed keys here: {allowed}")
+        elif e["type"] == "finite_number":
+            msgs.append(f"{e.get('input')!r} is not a finite number")
+        else:
+            msgs.append(e["msg"].removeprefix("Value error, "))
+    parts = []
+    for key, (name, msgs) in problems.items():
+        allowed = _DESCRIPTIONS.get(name)
+        if msgs[0].startswith("unknown key"):
+            msg = msgs[0]
+        elif len(msgs) > 1 and allowed:  # a union reports one error per member
+            msg = f"invalid value (allowed: {allowed})"
+        else:
+            msg = "; ".join(msgs) + (f" (allowed: {allowed})" if allowed else "")
+        parts.append(f"key '{key or '<top level>'}': {msg}")
+    return f"{source}: " + "; ".join(parts)
+
+
+def _check_finite(value, source: str, key: str) -> None:
+    """Every number anywhere in the file is finite (TOML allows nan and inf)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise SuiteError(f"{source}: key '{key}': {value!r} is not a finite number (allowed: "
+                         "finite numbers only)")
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite(v, source, f"{key}.{k}" if key else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_finite(v, source, f"{key}[{i}]")
+
+
+def _check_inference(values: dict, source: str, path: str, index: int | None = None) -> None:
+    """Validate inference option values (``index``: of a sweep's list of values)."""
+    try:
+        InferenceOptions.model_validate(values)
+    except ValidationError as error:
+        raise SuiteError(_format(source, error, path, InferenceOptions, index)) from None
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and key.split(".")[0] in SCENE_SECTIONS:
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _split_options(opts: dict, source: str, path: str) -> tuple[dict, dict]:
+    """Flat options -> (scene overrides by dotted key, inference options); ``path`` is the
+    options' key path in the suite file, for errors."""
+    scene_over, infer = {}, {}
+    for key, value in _flatten(opts).items():
+        head = key.split(".")[0]
+        if head in SCENE_SECTIONS:
+            scene_over[key] = value
+        elif key in INFERENCE_KEYS:
+            infer[key] = value
+        else:
+            raise SuiteError(
+                f"{source}: key '{_join(path, key)}': unknown key; allowed: scene keys as dotted "
+                f"paths under {', '.join(SCENE_SECTIONS)} (e.g. 'simulation.duration'), or "
+                f"inference options {', '.join(INFERENCE_KEYS)}")
+    _check_inference(infer, source, path)
+    return scene_over, infer
+
+
+def apply_overrides(scene_dict: dict, overrides: dict) -> dict:
+    """A deep copy of ``scene_dict`` with dotted keys set (``"camera.resolution": [128, 128]``;
+    list items by index: ``"material.defects.0.E": 1e6``)."""
+    out = json.loads(json.dumps(scene_dict))
+    for key, value in overrides.items():
+        parts = key.split(".")
+        node = out
+        for p in parts[:-1]:
+            if isinstance(node, list):
+                node = node[int(p)]
+            else:
+                node = node.setdefault(p, {})
+        last = parts[-1]
+        if isinstance(node, list):
+            node[int(last)] = value
+        else:
+            node[last] = value
+    return out
+
+
+@dataclass
+class Variation:
+    name: str
+    scene_overrides: dict = field(default_factory=dict)
+    inference: dict = field(default_factory=dict)
+
+
+@dataclass
+class Track:
+    name: str
+    scenes: list[list[str]]          # each entry: one scene, or videos of one object to merge
+    variations: list[Variation]
+    seeds: list[int]
+    observations: list[str]
+    description: str = ""
+    solvers: list[str] | None = None            # restricts the run's solvers to these names
+    solver_config: dict[str, dict] = field(default_factory=dict)
+    solver_sweep: dict[str, list[tuple[str, dict]]] = field(default_factory=dict)
+
+
+@dataclass
+class Suite:
+    """A parsed suite file (see docs/suites.md)."""
+
+    name: str
+    tracks: list[Track]
+    solvers: list[str]
+    solver_config: dict[str, dict] = field(default_factory=dict)
+    extract: dict = field(default_factory=dict)
+    description: str = ""
+    source: str = ""
+    raw: dict = field(default_factory=dict)
+
+    @property
+    def scene_names(self) -> list[str]:
+        seen = []
+        for t in self.tracks:
+            for group in t.scenes:
+                for s in group:
+                    if s not in seen:
+                        seen.append(s)
+        return seen
+
+
+def _variations(tdata: dict, source: str, path: str, defaults: dict) -> list[Variation]:
+    out = []
+    base = dict(defaults)
+    for i, v in enumerate(tdata.get("variations", [])):
+        where = f"{_join(path, 'variations')}[{i}]"
+        v = dict(v)
+        name = v.pop("name", None)
+        if name is not None and not (isinstance(name, str) and name):
+            raise SuiteError(f"{source}: key '{where}.name': {name!r} is not allowed (allowed: "
+                             "a non-empty string)")
+        so, inf = _split_options({**base, **v}, source, where)
+        if name is None:
+            name = ",".join(f"{k}={_fmt(val)}" for k, val in _flatten(v).items()) or "base"
+        out.append(Variation(str(name), so, inf))
+    sweep = tdata.get("sweep")
+    if sweep:
+        where = _join(path, "sweep")
+        flat = _flatten(sweep)
+        for k, vals in flat.items():
+            if not isinstance(vals, list) or not vals:
+                raise SuiteError(f"{source}: key '{where}.{k}': {vals!r} is not allowed "
+                                 "(allowed: a non-empty list of values)")
+            if k in INFERENCE_KEYS:
+                for n, val in enumerate(vals):
+                    _check_inference({k: val}, source, where, index=n)
+        keys = list(flat)
+        for combo in itertools.product(*(flat[k] for k in keys)):
+            v = dict(zip(keys, combo, strict=True))
+            so, inf = _split_options({**base, **v}, source, where)
+            out.append(Variation(",".join(f"{k}={_fmt(x)}" for k, x in v.items()), so, inf))
+    if not out:
+        so, inf = _split_options(base, source, _join(path, "defaults"))
+        out.append(Variation("base", so, inf))
+    names = [v.name for v in out]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise SuiteError(f"{source}: key '{path or '<top level>'}': duplicate variation names "
+                         f"{sorted(dup)} (allowed: distinct names)")
+    return out
+
+
+def _fmt(x) -> str:
+    if isinstance(x, float):
+        return f"{x:g}"
+    if isinstance(x, list):
+        return "x".join(_fmt(v) for v in x)
+    return str(x)
+
+
+def find_suite(name_or_path: str | Path) -> Path:
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    q = SUITES_DIR / f"{name_or_path}.toml"
+    if q.is_file():
+        return q
+    known = sorted(x.stem for x in SUITES_DIR.glob("*.toml"))
+    raise SuiteError(f"{name_or_path}: no such suite file, and not a shipped suite; shipped "
+                     f"suites: {', '.join(known) or '(none)'}")
+
+
+def load_suite(name_or_path: str | Path) -> Suite:
+    """Read and validate a suite TOML (a file or a shipped suite name)."""
+    path = find_suite(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise SuiteError(f"{path}: not valid TOML: {error}") from None
+    return parse_suite(data, str(path))
+
+
+def parse_suite(data: dict, source: str = "<suite>") -> Suite:
+    """Validate a suite dict (the parsed TOML) and expand it; errors are :class:`SuiteError`
+    one-liners naming ``source``, the key path and what is allowed."""
+    from ..scene import SceneError, find_scene
+
+    _check_finite(data, source, "")
+    try:
+        SuiteFile.model_validate(data)
+    except ValidationError as error:
+        raise SuiteError(_format(source, error)) from None
+    # The validated file is expanded from ``data`` itself: strict validation coerced nothing,
+    # and the runner hashes and records the values as written (1, not 1.0).
+    name = data.get("name") or Path(source).stem
+    defaults = data.get("defaults", {})
+    _split_options(defaults, source, "defaults")  # validate keys early
+    extract = dict(data.get("extract", {}))
+    solver_config = data.get("solver", {})
+    solvers = data.get("solvers", [])
+    seeds = data.get("seeds", [0])
+    observations = data.get("observations", ["true"])
+    raw_tracks = data.get("tracks")
+    if raw_tracks is None:
+        raw_tracks = [{"name": "main", "scenes": data.get("scenes", []),
+                       **{k: data[k] for k in ("variations", "sweep") if k in data}}]
+    tracks = []
+    for i, t in enumerate(raw_tracks):
+        path = f"tracks[{i}]" if "tracks" in data else ""
+        tname = t.get("name", f"track{i}")
+        scenes = []
+        for j, s in enumerate(t.get("scenes", [])):
+            group = [s] if isinstance(s, str) else s
+            for g in group:
+                try:
+                    find_scene(scene_ref(g, source))
+                except SceneError as error:
+                    raise SuiteError(f"{source}: key '{_join(path, 'scenes')}[{j}]': {error}"
+                                     ) from None
+            scenes.append(group)
+        if not scenes:
+            raise SuiteError(f"{source}: key '{_join(path, 'scenes')}': track {tname!r} has no "
+                             f"scenes (allowed: {_SCENES})")
+        obs = t.get("observations", observations)
+        tseeds = t.get("seeds", seeds)
+        tdefaults = {**defaults, **t.get("defaults", {})}
+        if "defaults" in t:
+            _split_options(t["defaults"], source, _join(path, "defaults"))
+        ssweep = {}
+        for sname, table in t.get("solver_sweep", {}).items():
+            keys = list(table)
+            ssweep[sname] = [
+                (",".join(f"{sname}.{k}={_fmt(x)}" for k, x in zip(keys, combo, strict=True)),
+                 dict(zip(keys, combo, strict=True)))
+                for combo in itertools.product(*(table[k] for k in keys))]
+        tsolvers = t.get("solvers")
+        tracks.append(Track(tname, scenes, _variations(t, source, path, tdefaults),
+                            list(tseeds), list(obs), t.get("description", ""), tsolvers,
+                            dict(t.get("solver", {})), ssweep))
+    names = [t.name for t in tracks]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise SuiteError(f"{source}: key 'tracks': duplicate track names {dup} (allowed: "
+                         "distinct names)")
+    return Suite(name, tracks, list(solvers), solver_config, extract,
+                 data.get("description", ""), source, data)
+
+
+def scene_ref(name: str, source: str) -> str:
+    q = Path(source).parent / name
+    return str(q) if q.is_file() else name

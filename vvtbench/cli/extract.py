@@ -1,0 +1,184 @@
+"""``vvtbench extract``: image-space modes of a video (motion, spectrum, peaks, plots).
+
+Also ``python -m vvtbench.cli.extract ...``; in Python, :func:`vvtbench.modes.extract_modes`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..modes.extract import extract_modes
+from ..video import VIDEO_SUFFIXES, open_video
+
+
+def _parse_roi(s: str) -> tuple[int, int, int, int]:
+    try:
+        parts = tuple(int(v) for v in s.split(","))
+    except ValueError:
+        parts = ()
+    if len(parts) != 4:
+        raise argparse.ArgumentTypeError("roi must be y0,y1,x0,x1 (integers)")
+    return parts  # type: ignore[return-value]
+
+
+def _sample_fps(path: Path) -> float | None:
+    """The capture frame rate recorded in a vvtbench sample folder (its container says less:
+    Matroska timestamps cannot hold 2000 fps), or None."""
+    truth = path / "truth.json" if path.is_dir() else path.parent / "truth.json"
+    if not truth.is_file():
+        return None
+    try:
+        return float(json.loads(truth.read_text())["video"]["fps"])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _resolve_source(path: Path) -> Path:
+    if path.is_dir() and (path / "manifest.json").is_file():
+        for name in ("video.mkv", "video.mp4"):
+            if (path / name).is_file():
+                return path / name
+    if path.is_dir():
+        found = sorted(p for p in path.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+        if len(found) != 1:
+            raise SystemExit(
+                f"error: {path} is a directory with {len(found)} video files "
+                f"({', '.join(p.name for p in found) or 'none'}); give the file"
+            )
+        return found[0]
+    return path
+
+
+def _note_fps(given: Path, src: Path, fps: float | None) -> None:
+    """Tell on stderr which frame rate is used when ``--fps`` is not given."""
+    if fps is not None:
+        truth = given / "truth.json" if given.is_dir() else given.parent / "truth.json"
+        print(f"note: --fps not given: using {fps:g} fps from {truth}", file=sys.stderr)
+        return
+    try:
+        fps = open_video(src).fps
+    except (OSError, ValueError):
+        return  # extract_modes reports the error
+    if fps is not None:
+        print(
+            f"note: --fps not given: using the container's frame rate, {fps:g} fps, of {src} "
+            "(high-speed footage often stores a wrong one: pass --fps)",
+            file=sys.stderr,
+        )
+
+
+def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
+    """Argument parser of :func:`main_extract`."""
+    ap = argparse.ArgumentParser(
+        prog=prog,
+        description="Extract image-space modes from a video (writes modes.npz, modes.json "
+        "and PNG plots; format in docs/modes.md).",
+    )
+    ap.add_argument(
+        "video", type=Path, help="video file (avi/mp4/mkv/.npy) or a folder holding one"
+    )
+    ap.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        help="recording frame rate (Hz); default: a sample's truth.json, else the container's",
+    )
+    ap.add_argument("-o", "--out", type=Path, required=True, help="output directory")
+    ap.add_argument("--fmin", type=float, default=None, help="lowest mode frequency (Hz)")
+    ap.add_argument("--fmax", type=float, default=None, help="highest (Hz, <= fps/2)")
+    ap.add_argument("--prominence", type=float, default=0.5, help="peak prominence (decades)")
+    ap.add_argument("--min-sep", type=float, default=None, help="min peak separation (Hz)")
+    ap.add_argument("--max-modes", type=int, default=20)
+    ap.add_argument(
+        "--min-power-ratio", type=float, default=1e-6, help="vs the strongest peak in band"
+    )
+    ap.add_argument("--scales", type=int, default=3)
+    ap.add_argument("--orientations", type=int, default=4)
+    ap.add_argument("--sigma", type=float, default=2.0, help="smoothing sigma (px)")
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--workers", type=int, default=1, help="threads (-1 = all CPUs)")
+    ap.add_argument("--average", type=int, default=1, help="average N consecutive frames")
+    ap.add_argument("--roi", type=_parse_roi, default=None, help="crop y0,y1,x0,x1")
+    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--weighting", choices=("confidence", "none"), default="confidence")
+    ap.add_argument(
+        "--window", choices=("hann", "none"), default="hann", help="temporal taper of the FFT"
+    )
+    ap.add_argument("--keep-shake", action="store_true", help="keep camera-shake peaks")
+    ap.add_argument(
+        "--keep-distortion",
+        action="store_true",
+        help="keep peaks that are harmonics / intermodulation products of stronger ones",
+    )
+    ap.add_argument("--memory-budget-mb", type=float, default=1024.0)
+    ap.add_argument("--tmpdir", default=None, help="where displacements spill to disk")
+    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap
+
+
+def main_extract(argv: list[str] | None = None) -> int:
+    """``vvtbench extract VIDEO --fps F -o DIR [...]``; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    src = _resolve_source(args.video)
+    fps = args.fps if args.fps is not None else _sample_fps(args.video)
+    if args.fps is None:
+        _note_fps(args.video, src, fps)
+    try:
+        ms = extract_modes(
+            src,
+            fps,
+            fmin=args.fmin,
+            fmax=args.fmax,
+            prominence=args.prominence,
+            min_separation_hz=args.min_sep,
+            max_modes=args.max_modes,
+            min_power_ratio=args.min_power_ratio,
+            n_scales=args.scales,
+            n_orientations=args.orientations,
+            sigma=args.sigma,
+            batch=args.batch,
+            workers=args.workers,
+            average=args.average,
+            roi=args.roi,
+            max_frames=args.max_frames,
+            weighting=args.weighting,
+            window=args.window,
+            keep_camera_shake=args.keep_shake,
+            reject_distortion=not args.keep_distortion,
+            memory_budget=int(args.memory_budget_mb * (1 << 20)),
+            tmpdir=args.tmpdir,
+            progress=not args.quiet,
+        )
+    except (ValueError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    ms.save(args.out)
+    if not args.no_plots:
+        from ..modes.plots import plot_modes
+
+        plot_modes(ms, args.out)
+    print(f"{len(ms)} modes, T = {ms.n_frames} frames at {ms.fps:g} fps -> {args.out}")
+    for row in ms.summary():
+        z = row["damping"]
+        print(
+            f"  #{row['index']:2d} {row['frequencies_hz']:10.4f} Hz  zeta "
+            + (f"{z:.4f}" if z is not None else "  nan ")
+            + f"  amp {row['amplitudes_px']:.3g} px  prominence {row['prominences']:.2f}"
+        )
+    for r in ms.metadata.get("rejected", []):
+        if r["reason"] == "camera_shake":
+            why = f"MAC {r['shake_mac']:.2f}"
+        elif r["reason"] == "distortion":
+            why = f"{r['kind']} of {r['parents_hz'][0]:.3f} and {r['parents_hz'][1]:.3f} Hz"
+        else:
+            why = f"roughness {r['roughness']:.2f}"
+        print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} ({why})")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main_extract())
