@@ -69,13 +69,14 @@ class Crash:
 
 
 PEEK = '''
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from truth_search import dump
 from vvtbench.problem import Estimate
-
-TRUTH = ("matched_true_modes", "extraction_mac", "true_frequencies_hz")
 
 
 @dataclass
@@ -84,25 +85,25 @@ class Config:
 
 
 class Peek:
+    """Writes everything it can reach in the problem it gets to $PEEK_DIR/<n>/."""
+
     name = "peek"
     version = "0.0.1"
-    description = "fails when it can see the truth"
+    description = "records what a solver can see"
     Config = Config
 
     def __init__(self, config=None):
         pass
 
-    def seen(self, problem):
-        out = [k for k in TRUTH if k in problem.meta]
-        if problem.modes_3d is not None:
-            out.append("modes_3d")
-        if problem.w_true is not None or problem.v_true is not None:
-            out.append("w_true/v_true")
-        return out
+    def record(self, problem, *rest):
+        root = Path(os.environ["PEEK_DIR"])
+        dump(problem, root / f"{self.name}-{len(list(root.glob(self.name + '-*')))}")
+        if rest:
+            assert len(rest) == 1 and rest[0].modes_3d.shape[1] == problem.n_modes
 
     def solve(self, problem):
-        if self.seen(problem):
-            raise RuntimeError(f"saw the truth: {self.seen(problem)}")
+        """Record and return the prior."""
+        self.record(problem)
         m = problem.n_params
         return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0))
 
@@ -111,10 +112,9 @@ class PeekReference(Peek):
     name = "peekref"
     uses_truth = True
 
-    def solve(self, problem):
-        seen = self.seen(problem)
-        if "modes_3d" not in seen or "w_true/v_true" in seen:
-            raise RuntimeError(f"a reference solver sees the full field only: {seen}")
+    def solve(self, problem, truth):
+        """Record; a reference solver receives the truth explicitly."""
+        self.record(problem, truth)
         m = problem.n_params
         return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0))
 '''
@@ -185,13 +185,45 @@ def test_crashing_solver_is_an_error_row(micro, tmp_path):
     assert check_results(df) == []
 
 
-def test_solvers_do_not_see_the_truth_unless_they_are_references(micro, tmp_path):
+def test_no_truth_reaches_a_solver_through_run_or_solve(micro, tmp_path, monkeypatch):
+    """A plug-in that records everything reachable from its problem (attributes, __dict__,
+    nested dicts and arrays) finds no material, no true 3-D mode, no scene name or sample
+    path, through `vvtbench run` and through `vvtbench solve`; a reference solver gets the
+    truth as an argument and its rows are marked as references."""
+    from truth_search import load_dump, truth_in
+
+    from vvtbench.bench import load_observation
+    from vvtbench.cli.solve import main_solve
+
     suite_file, out, _ = micro
     plugin = tmp_path / "peek_solver.py"
     plugin.write_text(PEEK)
+    peek = tmp_path / "peek"
+    peek.mkdir()
+    monkeypatch.setenv("PEEK_DIR", str(peek))
     df = run_suite(str(suite_file), [f"{plugin}:Peek", f"{plugin}:PeekReference"], out,
                    progress=False)
     assert len(df) == 4 and (df.status == "ok").all(), df[["solver", "observation", "error"]]
+    assert df.set_index("solver").reference.to_dict() == {"peek": False, "peekref": True}
+    truths = [load_observation(out / "cache", f"observe/{d.name}", truth=True)[1]
+              for d in (out / "cache" / "observe").iterdir() if (d / "truth.npz").is_file()]
+    sample = next((out / "cache" / "generate").glob("*/sample"))
+    secrets = ["jello_cube_defect_top", str(sample), str(out)]
+    # vvtbench solve on the sample (extracted and true modes) and on the scene
+    for i, argv in enumerate([[str(sample)], [str(sample), "--observation", "true"],
+                              ["jello_cube_defect_top", "--grid", "3", "3", "3"]]):
+        assert main_solve([f"{plugin}:Peek", *argv, "--modes", "4", "--no-mode-match",
+                           "-o", str(tmp_path / f"solve{i}")]) == 0
+    _, t_scene = __import__("vvtbench.observe", fromlist=["observe"]).observe(
+        "jello_cube_defect_top", inference_shape=(3, 3, 3), n_modes=4)
+    dumps = sorted(peek.iterdir())
+    assert len(dumps) == 4 + 3  # run: 2 observations x 2 solvers; solve: 3
+    for d in dumps:
+        found = load_dump(d)
+        assert len(found) > 20
+        for truth in [*truths, t_scene]:
+            if truth.w.size == 27:
+                assert truth_in(found, truth, secrets) == [], d.name
 
 
 def test_check_results_rejects_broken_tables(micro, tmp_path, capsys):

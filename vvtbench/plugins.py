@@ -10,8 +10,11 @@ A solver is a class with::
     def __init__(self, config: Config | None = None): ...
     def solve(self, problem: InverseProblem) -> Estimate: ...
 
-Solvers are found in the ``vvtbench.solvers`` entry-point group, and a file can be named
-directly as ``path/to/file.py:ClassName``. See docs/solvers.md.
+A *reference* solver (an upper bound such as the oracle) sets ``uses_truth = True`` and is
+called as ``solve(problem, truth)`` with the :class:`vvtbench.observe.Truth`; its rows are
+marked as references in every table. Solvers are found in the ``vvtbench.solvers``
+entry-point group, and a file can be named directly as ``path/to/file.py:ClassName``. See
+docs/solvers.md.
 """
 
 from __future__ import annotations
@@ -21,10 +24,13 @@ import importlib
 import importlib.util
 import json
 import sys
+import time
 import types
 import typing
+from collections.abc import Mapping
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import Any
 
 ENTRY_POINT_GROUP = "vvtbench.solvers"
 # Shipped solvers, known by name even before the package metadata lists their entry points.
@@ -154,20 +160,68 @@ def _convert(text: str, tp, key: str):
 
 
 def parse_overrides(items: list[str] | None, config_cls):
-    """A ``config_cls`` instance from defaults and ``["key=value", ...]`` overrides."""
+    """A ``config_cls`` instance from defaults and command-line ``["key=value", ...]``."""
     fields = {f.name: f for f in dataclasses.fields(config_cls)}
-    hints = typing.get_type_hints(config_cls) if fields else {}
     values = {}
     for item in items or []:
         key, sep, text = item.partition("=")
-        key = key.strip()
         if not sep:
             raise PluginError(f"--set {item!r}: expected key=value; keys: {', '.join(fields)}")
+        values[key.strip()] = text.strip()
+    return config_from_mapping(config_cls, values)
+
+
+def config_from_mapping(config_cls, values: Mapping[str, Any] | None):
+    """A ``config_cls`` instance from defaults and a mapping of overrides (a suite's
+    ``[solver.NAME]`` table, JSON). Strings are read as the field's type (``"1e-3"`` for a
+    float, ``"none"`` for an optional field); numbers for float fields become floats."""
+    fields = {f.name: f for f in dataclasses.fields(config_cls)}
+    hints = typing.get_type_hints(config_cls) if fields else {}
+    out = {}
+    for key, value in (values or {}).items():
         if key not in fields:
             raise PluginError(f"--set {key}: unknown key for {config_cls.__name__}; allowed "
                               f"keys: {', '.join(fields)}")
-        values[key] = _convert(text.strip(), hints.get(key, fields[key].type), key)
-    return config_cls(**values)
+        tp = hints.get(key, fields[key].type)
+        if isinstance(value, str):
+            out[key] = _convert(value, tp, key)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) \
+                and float in _base_types(tp) and int not in _base_types(tp):
+            out[key] = float(value)
+        else:
+            out[key] = value
+    try:
+        return config_cls(**out)
+    except (TypeError, ValueError) as error:
+        raise PluginError(f"{config_cls.__name__}: {error}") from None
+
+
+def run_solver(cls, config, problem, truth=None):
+    """Solve ``problem`` with solver class ``cls`` and ``config`` (a Config instance or a
+    mapping of overrides); a reference solver (``uses_truth = True``) also gets ``truth``.
+
+    Returns ``(estimate, wall seconds)``.
+    """
+    from .problem import Estimate
+
+    if not dataclasses.is_dataclass(config) or isinstance(config, type):
+        config = config_from_mapping(cls.Config, config)
+    solver = cls(config)
+    t0 = time.perf_counter()
+    if getattr(cls, "uses_truth", False):
+        if truth is None:
+            raise PluginError(f"{cls.name} is a reference solver (uses_truth): it needs the "
+                              "truth, which this source does not have")
+        est = solver.solve(problem, truth)
+    else:
+        est = solver.solve(problem)
+    wall = time.perf_counter() - t0
+    if not isinstance(est, Estimate):
+        raise PluginError(f"{cls.name}.solve returned {type(est).__name__}, not an Estimate")
+    est.solver = est.solver or cls.name
+    est.version = est.version or str(cls.version)
+    est.config = est.config or dataclasses.asdict(config)
+    return est, wall
 
 
 def describe_config(config_cls) -> list[tuple[str, str, str]]:

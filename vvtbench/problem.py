@@ -179,6 +179,25 @@ class Estimate:
         if self.w.shape != self.v.shape:
             raise ValueError(f"w and v differ in shape: {self.w.shape} vs {self.v.shape}")
 
+    def save(self, folder: str | Path, problem: InverseProblem,
+             wall_s: float | None = None) -> None:
+        """``estimate.npz`` (per-parameter ``w_params``, ``v_params``; grids ``w``, ``v``;
+        ``active`` voxels) and ``estimate.json`` (solver, version, config, runtimes, history,
+        scalar extras) in ``folder``: the one estimate writer of ``run`` and ``solve``."""
+        from .io import write_json, write_npz
+
+        folder = Path(folder)
+        arrays = {"w_params": self.w, "v_params": self.v,
+                  "active": problem.voxel_map.active}
+        if self.w.shape == (problem.n_params,):
+            arrays.update(w=problem.to_grid(self.w), v=problem.to_grid(self.v))
+        write_npz(folder / "estimate.npz", arrays)
+        write_json(folder / "estimate.json", {
+            "solver": self.solver, "solver_version": self.version, "config": self.config,
+            "runtime_s": self.runtime_s or wall_s, "wall_s": wall_s,
+            "converged": self.converged, "iterations": len(self.history),
+            "history": self.history, "extra": self.extra_scalars()})
+
     def extra_scalars(self) -> dict[str, Any]:
         """The entries of ``extra`` that are not arrays (written to estimate.json)."""
         return {k: x for k, x in self.extra.items() if not isinstance(x, np.ndarray)}

@@ -43,11 +43,10 @@ from .results import (
 from .runner import run_suite
 from .stages import (
     STAGE_FUNCS,
-    TRUTH_META_KEYS,
-    blind_problem,
-    build_problem,
     execute_task,
-    load_problem,
+    load_observation,
+    observe_options,
+    sample_path,
 )
 from .suite import (
     EXTRACT_KEYS,
@@ -71,10 +70,11 @@ from .suite import (
 
 __all__ = [
     "CACHE_FORMAT", "COLUMNS", "EXTRACT_KEYS", "INFERENCE_KEYS", "METRIC_COLUMNS", "OBSERVATIONS",
-    "REQUIRED", "SCENE_SECTIONS", "STAGES", "STAGE_FUNCS", "SUITES_DIR", "TRUTH_META_KEYS",
+    "REQUIRED", "SCENE_SECTIONS", "STAGES", "STAGE_FUNCS", "SUITES_DIR", "load_observation",
+    "observe_options", "sample_path",
     "ExtractOptions", "InferenceOptions", "Run", "Suite", "SuiteError", "SuiteFile", "Task",
-    "Track", "TrackFile", "Variation", "apply_overrides", "blind_problem", "build_graph",
-    "build_problem", "check_results", "content_hash", "execute_graph", "execute_task",
-    "find_suite", "jsonable", "load_problem", "load_suite", "make_executor", "parse_suite",
+    "Track", "TrackFile", "Variation", "apply_overrides", "build_graph",
+    "check_results", "content_hash", "execute_graph", "execute_task",
+    "find_suite", "jsonable", "load_suite", "make_executor", "parse_suite",
     "read_results", "results_table", "run_suite", "solver_setup", "write_json", "write_results",
 ]

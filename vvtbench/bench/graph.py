@@ -16,7 +16,7 @@ from .suite import Suite, SuiteError, Track, apply_overrides, scene_ref
 
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 # Bump when a stage's output format or meaning changes (part of every task key).
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2  # 2: samples are the contract (observe reads them), no pickle
 
 
 def _canon(x):
@@ -69,6 +69,7 @@ class Run:
     solver_name: str = ""
     solver_version: str = ""
     setup_error: str | None = None
+    reference: bool = False  # a reference solver (uses_truth, e.g. the oracle)
 
 
 def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
@@ -85,13 +86,10 @@ def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
 
 def solver_setup(spec: str, overrides: dict | None):
     """(class, config dict) for a solver spec with suite/CLI overrides."""
-    from ..plugins import load_solver, parse_overrides
+    from ..plugins import config_from_mapping, load_solver
 
     cls = load_solver(spec)
-    items = [f"{k}={json.dumps(v) if not isinstance(v, str) else v}"
-             for k, v in (overrides or {}).items()]
-    cfg = parse_overrides(items, cls.Config)
-    return cls, dataclasses.asdict(cfg)
+    return cls, dataclasses.asdict(config_from_mapping(cls.Config, overrides))
 
 
 def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = None,
@@ -113,9 +111,11 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 name = load_solver(spec).name
                 over = {**(cfgs.get(spec) or cfgs.get(name) or {}), **(extra or {})}
                 cls, cfg = solver_setup(spec, over)
-                solver_info[ck] = (cls.name, str(cls.version), cfg, None)
+                solver_info[ck] = (cls.name, str(cls.version), cfg, None,
+                                   bool(getattr(cls, "uses_truth", False)))
             except Exception as error:  # a broken plug-in becomes error rows
-                solver_info[ck] = (spec, "", {}, f"setup: {type(error).__name__}: {error}")
+                solver_info[ck] = (spec, "", {}, f"setup: {type(error).__name__}: {error}",
+                                   False)
         return solver_info[ck]
 
     stop = STAGES.index(until)
@@ -132,9 +132,9 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             scene_dicts = [_resolve_scene(s, suite.source, var.scene_overrides, seed)
                            for s in group]
             scene_label = "+".join(d["name"] for d in scene_dicts)
-            needed = stop < 1 or "extracted" in track.observations
-            gen_keys = [add("generate", [d], [], {"scene": d}, d["name"], register=needed)
-                        for d in scene_dicts]
+            video = "extracted" in track.observations  # true modes only: no video rendered
+            gen_keys = [add("generate", [d, {"video": video}], [], {"scene": d, "video": video},
+                            d["name"]) for d in scene_dicts]
             dataset_revision = content_hash(*gen_keys)
             if stop < 1:
                 continue
@@ -154,11 +154,11 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                                "extract": extract_opts}
                 obs_key = add("observe", [scene_dicts[0], inf, obs,
                                           extract_opts if obs == "extracted" else {}],
-                              ext_keys, obs_payload, scene_label)
+                              [gen_keys[0], *ext_keys], obs_payload, scene_label)
                 if stop < 3:
                     continue
                 for spec, vlabel, extra in _track_solvers(track, solvers, info):
-                    name, version, cfg, err = info(spec, extra)
+                    name, version, cfg, err, reference = info(spec, extra)
                     cfg_hash = content_hash(name, cfg)
                     vname = var.name if not vlabel else (
                         vlabel if var.name == "base" else f"{var.name},{vlabel}")
@@ -167,7 +167,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                                **{f"{name}.{k}": x for k, x in (extra or {}).items()}},
                               dataset_revision,
                               observe_key=obs_key, config=cfg, config_hash=cfg_hash,
-                              solver_name=name, solver_version=version, setup_error=err)
+                              solver_name=name, solver_version=version, setup_error=err,
+                              reference=reference)
                     if err is None:
                         sk = add("solve", [name, version, cfg], [obs_key],
                                  {"solver": spec, "config": cfg}, f"{name}:{scene_label}")

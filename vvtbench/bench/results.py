@@ -18,7 +18,8 @@ METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_s
                   "sigma_star_v", "nc_at_sigma_star_w", "nc_at_sigma_star_v", "mode_mac",
                   "freq_err_raw", "freq_err_scaled")
 
-COLUMNS = ("track", "solver", "solver_version", "config_hash", "config", "scene", "variation",
+COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "config", "scene",
+           "variation",
            "variation_options", "seed", "observation", "n_modes", "n_modes_observed",
            *METRIC_COLUMNS, "runtime_s", "status", "error", "vvtbench_version",
            "dataset_revision", "estimate_path", "traceback_path")
@@ -32,6 +33,7 @@ def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
                scene=run.scene, variation=run.variation,
                variation_options=json.dumps(jsonable(run.variation_options), sort_keys=True),
                seed=int(run.seed), observation=run.observation, n_modes=int(run.n_modes),
+               reference=bool(run.reference),
                vvtbench_version=__version__, dataset_revision=run.dataset_revision,
                status="ok", error="")
     for m in METRIC_COLUMNS:
@@ -64,12 +66,15 @@ def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
             row.update(status="error", error=ev.get("error") or "not run")
         return row
     res = ev["result"]
+    sres = results.get(run.solve_key, {}).get("result", {})
+    row["runtime_s"] = float(sres.get("runtime_s", float("nan")))
+    row["n_modes_observed"] = int(res.get("n_modes_observed", -1))
+    if res.get("invalid"):  # never scored, never ranked
+        row.update(status="invalid", error=res["invalid"])
+        return row
     for m in METRIC_COLUMNS:
         val = res["metrics"].get(m)
         row[m] = float("nan") if val is None else float(val)
-    row["n_modes_observed"] = int(res.get("n_modes_observed", -1))
-    sres = results.get(run.solve_key, {}).get("result", {})
-    row["runtime_s"] = float(sres.get("runtime_s", float("nan")))
     row["estimate_path"] = f"{cache_rel}/{run.evaluate_key}/fields.npz"
     return row
 
@@ -86,9 +91,10 @@ def _coerce(df):
         df[c] = df[c].astype("float64")
     for c in ("seed", "n_modes", "n_modes_observed"):
         df[c] = df[c].astype("int64")
+    df["reference"] = df["reference"].astype(bool)
     for c in COLUMNS:
         if c not in METRIC_COLUMNS and c not in ("seed", "n_modes", "n_modes_observed",
-                                                 "runtime_s"):
+                                                 "runtime_s", "reference"):
             df[c] = df[c].astype(object).where(df[c].notna(), None)
     return df
 
@@ -120,7 +126,7 @@ def read_results(path: str | Path):
 
 
 
-_ALLOWED = {"status": ("ok", "error"), "observation": OBSERVATIONS}
+_ALLOWED = {"status": ("ok", "error", "invalid"), "observation": OBSERVATIONS}
 _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered",
                                        "nc_at_sigma_star_w", "nc_at_sigma_star_v")},
            "sigma_star_w": (0.0, None), "sigma_star_v": (0.0, None), "mode_mac": (0.0, 1.0),
@@ -210,10 +216,10 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
                 for c in ("nc_w", "nc_v", "runtime_s"):
                     if c in df.columns and pd.isna(pd.to_numeric(row[c], errors="coerce")):
                         err(f"column {c!r}, row {i}: rows with status 'ok' need a number")
-            elif row["status"] == "error" and "error" in df.columns:
+            elif row["status"] in ("error", "invalid") and "error" in df.columns:
                 if not isinstance(row["error"], str) or not row["error"].strip():
-                    err(f"column 'error', row {i}: rows with status 'error' need the error "
-                        "message")
+                    err(f"column 'error', row {i}: rows with status {row['status']!r} need "
+                        "the reason")
     key = [c for c in ("track", "solver", "config_hash", "scene", "variation", "seed",
                        "observation") if c in df.columns]
     if len(key) >= 6:

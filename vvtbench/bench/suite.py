@@ -59,6 +59,8 @@ class InferenceOptions(_Strict):
     w0: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
     v0: PositiveNumber | None = Field(None, description="a number > 0 (kg/m^3)")
     w_mean: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
+    visibility: Literal["depth", "normals"] | None = Field(
+        None, description="'depth' (rest depth buffer) or 'normals' (facing the camera)")
 
 
 class ExtractOptions(_Strict):
