@@ -1,4 +1,5 @@
-"""Exported datasets (vvtbench.export, `vvtbench export`): round trip, xarray, Croissant, safety.
+"""Exported datasets (vvtbench.export, vvtbench.packed, `vvtbench export`): round trip, xarray,
+Croissant, safety.
 
 Rendering needs headless EGL (Mesa llvmpipe is fine); see tests/test_render.py.
 """
@@ -17,9 +18,10 @@ import xarray as xr
 from vvtbench import dataset as ds
 from vvtbench.cli import main as cli_main
 from vvtbench.cli.export import main as export_main
-from vvtbench.export import ExportError, open_dataset, pack
+from vvtbench.export import pack
 from vvtbench.generate import generate
 from vvtbench.modes import ModeSet
+from vvtbench.packed import ExportError, open_dataset
 from vvtbench.render.camera import Camera
 from vvtbench.scene import Scene, parse_scene
 

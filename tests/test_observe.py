@@ -180,3 +180,38 @@ def test_voxel_truth_on_a_grid_finer_than_the_mesh(sample):
     assert problem.n_params == 512
     for f, lo, hi in ((truth.w, 9000.0, 9.0e4), (truth.v, 1270.0, 2000.0)):
         assert np.all(np.isfinite(f)) and f.min() >= lo * (1 - 1e-12) and f.max() <= hi * 1.000001
+
+
+@pytest.mark.parametrize("fmt", ["zarr", "hdf5"])
+def test_exported_dataset_entry_is_observed_like_its_sample(sample, tmp_path, fmt, monkeypatch):
+    from vvtbench.export import pack
+    from vvtbench.packed import open_dataset
+
+    out = pack([sample], tmp_path / ("d.zarr" if fmt == "zarr" else "d.h5"), fmt)
+    ref, tref = observe(sample, **OPTS)
+    import vvtbench.simulate
+
+    monkeypatch.setattr(vvtbench.simulate, "simulate", lambda *a, **k: 1 / 0)
+    with open_dataset(out) as ds_:
+        entry = ds_[ds_.names[0]]
+        problem, truth = observe(entry, **OPTS)
+        _same_problem(problem, ref)
+        np.testing.assert_array_equal(truth.w, tref.w)
+        ext, _ = observe(entry, observation="extracted", **OPTS)  # from the packed video
+        assert ext.n_modes >= 1
+
+
+@pytest.fixture(scope="module")
+def modes_only(scene, tmp_path_factory) -> Path:
+    return generate(scene, tmp_path_factory.mktemp("m"), progress=False, video=False)
+
+
+def test_modes_only_sample(modes_only, sample, no_simulator):
+    s = ds.open_sample(modes_only)
+    assert not s.has_video
+    problem, truth = observe(modes_only, **OPTS)
+    ref, tref = observe(sample, **OPTS)
+    _same_problem(problem, ref)
+    np.testing.assert_array_equal(truth.w, tref.w)
+    with pytest.raises(ObserveError, match="video"):
+        observe(modes_only, observation="extracted", **OPTS)

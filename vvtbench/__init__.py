@@ -11,7 +11,7 @@ def __getattr__(name: str):
 
         return open_sample
     if name == "open_dataset":
-        from .export import open_dataset
+        from .packed import open_dataset
 
         return open_dataset
     raise AttributeError(f"module 'vvtbench' has no attribute {name!r}")

@@ -15,8 +15,10 @@ Layout (the same in both formats; docs/dataset.md, "Exported datasets")::
 Every array has named dimensions (zarr v3 ``dimension_names``; HDF5 dimension scales, the
 netCDF-4 convention) and a ``units`` attribute where it has a unit, so
 ``xarray.open_datatree(path, engine="zarr")`` and ``engine="h5netcdf"`` open the file with
-named dimensions and coordinates. ``open_dataset(path)[name]`` gives a :class:`PackedSample`
-with the read interface of :class:`vvtbench.dataset.Sample`.
+named dimensions and coordinates. The reader is :mod:`vvtbench.packed`
+(``open_dataset(path)[name]`` gives a :class:`~vvtbench.packed.PackedSample` with the read
+interface of :class:`vvtbench.dataset.Sample`); the dataset card and the Croissant file are
+written by :mod:`vvtbench.export_card`.
 
 Safety: :func:`pack` never writes into or through a path it did not create. The output may
 not be, contain or lie inside an input; an existing output is replaced only with
@@ -27,42 +29,24 @@ checked against its manifest (sha256 of every file) before anything is written.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
-import tomllib
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from . import __version__
+from ._version import __version__
+from .export_card import croissant, dataset_card, sample_revision
+from .packed import FORMAT, FORMAT_VERSION, MODESET_ARRAYS, VIDEO_CHUNK, ExportError
 
-__all__ = ["ExportError", "FORMAT", "FORMAT_VERSION", "PackedDataset", "PackedSample",
-           "find_extracted", "find_samples", "is_packed_dataset", "open_dataset", "pack"]
+__all__ = ["ExportError", "check_output", "find_extracted", "find_samples", "is_packed_dataset",
+           "pack", "verify_sample"]
 
-FORMAT = "vvtbench.dataset-pack"
-FORMAT_VERSION = 2
-LICENSE_URL = "https://creativecommons.org/licenses/by/4.0/"
-LICENCE = """\
-* Generated data (videos, ground truth): CC BY 4.0, produced by vvtbench {version} (MIT).
-* Stanford bunny (scene `bunny_defect`): from the Stanford 3D Scanning Repository
-  (Stanford University Computer Graphics Laboratory, http://graphics.stanford.edu/data/3Dscanrep/),
-  as shipped in pymeshlab's test data (`pymeshlab/tests/sample_meshes/bunny.obj`). The
-  repository allows use for research with acknowledgement; please credit it, and do not use
-  the bunny commercially without permission.
-* All other geometry is procedural (boxes, drum heads).
-"""
 #: Files a Zarr dataset folder written by :func:`pack` holds at its top level.
 _ZARR_TOP = {"zarr.json", "samples", "README.md", "croissant.json"}
-_VIDEO_CHUNK = 64
-
-
-class ExportError(ValueError):
-    """Export refused or failed for a reason the user can fix (the message says which path)."""
 
 
 # --------------------------------------------------------------------------- finding inputs
@@ -122,10 +106,6 @@ def verify_sample(sample: Path) -> None:
                           f"(manifest.json of sample {sample}){more}; regenerate the sample")
 
 
-def _revision(sample: Path) -> str:
-    return hashlib.sha256((sample / "manifest.json").read_bytes()).hexdigest()[:16]
-
-
 def _names(samples: list[Path]) -> list[str]:
     names: list[str] = []
     for s in samples:
@@ -133,7 +113,7 @@ def _names(samples: list[Path]) -> list[str]:
             "scene"]
         name = base
         if name in names:
-            name = f"{base}-{_revision(s)[:8]}"
+            name = f"{base}-{sample_revision(s)[:8]}"
         names.append(name)
     return names
 
@@ -300,22 +280,6 @@ def _truth_units(name: str, drum: bool) -> str | None:
     }.get(name)
 
 
-_MODESET_ARRAYS = {  # name -> (dims, units)
-    "frequencies_hz": (("extracted_mode",), "Hz"),
-    "damping": (("extracted_mode",), "1"),
-    "damping_half_power": (("extracted_mode",), "1"),
-    "amplitudes_px": (("extracted_mode",), "px"),
-    "peak_bins": (("extracted_mode",), None),
-    "prominences": (("extracted_mode",), "decades"),
-    "collinearity": (("extracted_mode",), "1"),
-    "shake_mac": (("extracted_mode",), "1"),
-    "camera_shake": (("extracted_mode",), None),
-    "shapes": (("extracted_mode", "row", "col", "component"), "1"),
-    "power": (("frequency",), "px2"),
-    "confidence": (("row", "col"), "1"),
-}
-
-
 # --------------------------------------------------------------------------- writers
 class _Scopes:
     """Dimension sizes per group; a dimension is visible in its group and every subgroup."""
@@ -448,163 +412,6 @@ class _H5Writer:
         self.root.close()
 
 
-# --------------------------------------------------------------------------- dataset card
-def dataset_card(samples: list[Path], names: list[str], fmt: str, source: str) -> str:
-    rows = []
-    for s, n in zip(samples, names, strict=True):
-        t = json.loads((s / "truth.json").read_text())
-        v = t["video"]
-        rows.append(f"| {n} | {t['scene']} | {t['seed']} | {v['frames']} | {v['fps']:g} | "
-                    f"{v['height']}x{v['width']} | {v['bit_depth']} | {_revision(s)} |")
-    table = "\n".join(rows)
-    return f"""# vvtbench dataset
-
-Packed by vvtbench {__version__} from `{source}` ({len(samples)} samples, format `{fmt}`,
-layout version {FORMAT_VERSION}). A Croissant (JSON-LD) description is beside this card.
-
-## Samples
-
-| name | scene | seed | frames | FPS | H x W | bits | revision |
-|---|---|---|---|---|---|---|---|
-{table}
-
-`revision` = first 16 hex digits of the sha256 of the sample's manifest.json (which holds the
-sha256 of every file of the sample folder; every file was checked against it when packing).
-
-## Schema
-
-```
-/                            attrs: format, format_version, vvtbench, samples (JSON), README
-samples/<name>/              attrs (JSON strings): scene_toml (text), truth, camera, manifest,
-                             truth_arrays, extracted; seed (int), sample_revision
-                             coords: time (s), row, col (px), mode, voxel_x/y/z (m, centres)
-samples/<name>/video         (time, row, col) uint16 DN (8-bit consumer videos: uint8)
-samples/<name>/truth/        the sample's truth.zarr arrays under the same paths: mesh/,
-                             material/, voxels/, modes/, observation/, image/, transient/
-samples/<name>/extracted/<i> extracted modes (if any): shapes (extracted_mode, row, col,
-                             component), frequencies_hz, damping, ...; power (frequency, Hz)
-```
-
-Every array has named dimensions and a `units` attribute where it has a unit. Units and
-conventions of every truth array: vvtbench docs/dataset.md (SI units, pixels with (0, 0) at
-the centre of the top-left pixel, P = K[R|t]).
-
-## Loading
-
-```python
-import vvtbench.export as ex
-ds = ex.open_dataset(PATH)
-s = ds[ds.names[0]]                  # the interface of vvtbench.dataset.Sample
-s.scene, s.camera, s.info, s.read_frames(0, 10), s["modes/frequencies_hz"]
-s.extracted_modes()                  # list of vvtbench.modes.ModeSet
-import xarray as xr                  # zarr: engine="zarr"; HDF5: engine="h5netcdf"
-tree = xr.open_datatree(PATH, engine="zarr")
-tree["samples/<name>"].ds.video      # dims (time, row, col), coords in s and px
-```
-
-## Generator
-
-vvtbench {__version__}; each sample's resolved scene (with its seed) is in `scene_toml`;
-regenerate with `vvtbench generate scene.toml`. Rendering is deterministic per seed on one
-machine (see docs/dataset.md, "Reproducible").
-
-## Licence
-
-{LICENCE.format(version=__version__)}"""
-
-
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
-              source: str) -> dict:
-    """A Croissant 1.0 JSON-LD description of the dataset written at ``partial`` (to be
-    renamed ``out``)."""
-    ctx = {
-        "@language": "en", "@vocab": "https://schema.org/", "sc": "https://schema.org/",
-        "cr": "http://mlcommons.org/croissant/", "rai": "http://mlcommons.org/croissant/RAI/",
-        "dct": "http://purl.org/dc/terms/", "citeAs": "cr:citeAs", "column": "cr:column",
-        "conformsTo": "dct:conformsTo", "data": {"@id": "cr:data", "@type": "@json"},
-        "dataType": {"@id": "cr:dataType", "@type": "@vocab"}, "examples":
-        {"@id": "cr:examples", "@type": "@json"}, "extract": "cr:extract", "field": "cr:field",
-        "fileProperty": "cr:fileProperty", "fileObject": "cr:fileObject",
-        "fileSet": "cr:fileSet", "format": "cr:format", "includes": "cr:includes",
-        "isLiveDataset": "cr:isLiveDataset", "jsonPath": "cr:jsonPath", "key": "cr:key",
-        "md5": "cr:md5", "parentField": "cr:parentField", "path": "cr:path",
-        "recordSet": "cr:recordSet", "references": "cr:references", "regex": "cr:regex",
-        "repeated": "cr:repeated", "replace": "cr:replace", "samplingRate": "cr:samplingRate",
-        "separator": "cr:separator", "source": "cr:source", "subField": "cr:subField",
-        "transform": "cr:transform",
-    }
-    if fmt == "zarr":
-        meta = partial / "zarr.json"
-        dist: list[dict] = [
-            {"@type": "cr:FileObject", "@id": "zarr-metadata", "name": "zarr-metadata",
-             "description": "root metadata of the Zarr v3 store (consolidated: it lists every "
-                            "array, its dimension names and attributes)",
-             "contentUrl": "zarr.json", "encodingFormat": "application/json",
-             "sha256": _sha256_file(meta)},
-            {"@type": "cr:FileSet", "@id": "zarr-store", "name": "zarr-store",
-             "description": "every group, array and chunk of the Zarr v3 store",
-             "encodingFormat": "application/x-zarr", "includes": "samples/**"},
-        ]
-        src = {"fileSet": {"@id": "zarr-store"}}
-    else:
-        dist = [{"@type": "cr:FileObject", "@id": out.name, "name": out.name,
-                 "description": "HDF5 file (netCDF-4 style dimension scales)",
-                 "contentUrl": out.name, "encodingFormat": "application/x-hdf5",
-                 "sha256": _sha256_file(partial)}]
-        src = {"fileObject": {"@id": out.name}}
-
-    def field(fid: str, path: str, dtype: str, desc: str) -> dict:
-        return {"@type": "cr:Field", "@id": f"samples/{fid}", "name": fid,
-                "description": desc, "dataType": dtype,
-                "source": {**src, "extract": {"column": path}}}
-
-    fields = [
-        field("name", "samples/<name>", "sc:Text", "sample name (group under samples/)"),
-        field("video", "samples/<name>/video", "sc:Integer",
-              "(time, row, col) uint16 video frames in DN"),
-        field("scene_toml", "samples/<name>@scene_toml", "sc:Text",
-              "the resolved scene (TOML) the sample was generated from"),
-        field("frequencies_hz", "samples/<name>/truth/modes/frequencies_hz", "sc:Float",
-              "natural frequencies (Hz) of the simulated modes"),
-        field("image_modes", "samples/<name>/truth/image/modes", "sc:Float",
-              "(mode, row, col, uv) true image-space modes"),
-        field("stiffness", "samples/<name>/truth/material/stiffness", "sc:Float",
-              "Young's modulus per element (Pa; drums: tension N/m)"),
-        field("density", "samples/<name>/truth/material/density", "sc:Float",
-              "density per element (kg/m3; drums kg/m2)"),
-        field("points", "samples/<name>/truth/mesh/points", "sc:Float",
-              "mesh node coordinates (m)"),
-    ]
-    return {
-        "@context": ctx,
-        "@type": "sc:Dataset",
-        "name": name,
-        "description": (f"vvtbench visual vibration tomography dataset: {len(names)} "
-                        "simulated videos of vibrating objects with their ground truth "
-                        f"(mesh, material, modes, camera), packed from {source}."),
-        "conformsTo": "http://mlcommons.org/croissant/1.0",
-        "license": LICENSE_URL,
-        "url": "https://github.com/vvtbench/vvtbench",
-        "version": f"{FORMAT_VERSION}.0.0",
-        "creator": {"@type": "sc:Organization", "name": "vvtbench"},
-        "keywords": ["visual vibration tomography", "modal analysis", "video"],
-        "vvtbench:format": FORMAT,
-        "vvtbench:samples": names,
-        "distribution": dist,
-        "recordSet": [{"@type": "cr:RecordSet", "@id": "samples", "name": "samples",
-                       "description": "one record per sample (group samples/<name>)",
-                       "field": fields}],
-    }
-
-
 # --------------------------------------------------------------------------- pack
 def _walk_zarr(group, prefix=""):
     import zarr
@@ -636,7 +443,7 @@ def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
     arrays = list(_walk_zarr(truth))
     names = [p for p, _ in arrays]
     # ---- coordinates of the sample group (inherited by every subgroup)
-    times = np.arange(T) / s.fps
+    times = np.arange(T) / s.fps if T else np.zeros(0)
     if "transient/times" in names and truth["transient/times"].shape == (T,):
         times = np.asarray(truth["transient/times"][...], dtype=np.float64)
     coords: dict[str, tuple[np.ndarray, dict]] = {
@@ -658,26 +465,27 @@ def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
     for c, (values, attrs) in coords.items():
         scopes.sizes.setdefault(base, {})[c] = len(values)
         w.coord(base, c, values, attrs)
-    # ---- video
-    dtype = np.uint16 if s.info["video"]["pixel_format"] == "gray16le" else np.uint8
-    ch = (min(_VIDEO_CHUNK, max(T, 1)), H, W)
-    video = w.create(f"{base}/video", (T, H, W), dtype, ("time", "row", "col"), ch,
-                     {"units": "DN", "long_name": "video frames (digital numbers)",
-                      "bit_depth": int(s.bit_depth)})
-    buf: list[np.ndarray] = []
-    start = 0
-    for f in s.frames():
-        buf.append(f.astype(dtype))
-        if len(buf) == ch[0]:
+    # ---- video (modes-only samples have none)
+    if s.has_video:
+        dtype = np.uint16 if s.info["video"]["pixel_format"] == "gray16le" else np.uint8
+        ch = (min(VIDEO_CHUNK, max(T, 1)), H, W)
+        video = w.create(f"{base}/video", (T, H, W), dtype, ("time", "row", "col"), ch,
+                         {"units": "DN", "long_name": "video frames (digital numbers)",
+                          "bit_depth": int(s.bit_depth)})
+        buf: list[np.ndarray] = []
+        start = 0
+        for f in s.frames():
+            buf.append(f.astype(dtype))
+            if len(buf) == ch[0]:
+                video[start:start + len(buf)] = np.stack(buf)
+                start += len(buf)
+                buf = []
+        if buf:
             video[start:start + len(buf)] = np.stack(buf)
             start += len(buf)
-            buf = []
-    if buf:
-        video[start:start + len(buf)] = np.stack(buf)
-        start += len(buf)
-    if start != T:
-        raise ExportError(f"{s.video_path}: holds {start} frames, truth.json says {T}; "
-                          "regenerate the sample")
+        if start != T:
+            raise ExportError(f"{s.video_path}: holds {start} frames, truth.json says {T}; "
+                              "regenerate the sample")
     # ---- truth arrays (all of them, whatever their name)
     for path, arr in arrays:
         data = arr[...]
@@ -701,7 +509,7 @@ def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
             scopes.sizes.setdefault(g, {})[c] = len(values)
             w.coord(g, c, values, attrs)
         del F
-        for a, (dims, unit) in _MODESET_ARRAYS.items():
+        for a, (dims, unit) in MODESET_ARRAYS.items():
             data = getattr(ms, a)
             if data is None:
                 continue
@@ -718,7 +526,7 @@ def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
         "camera": (sample / "camera.json").read_text(),
         "manifest": (sample / "manifest.json").read_text(),
         "seed": int(s.info["seed"]),
-        "sample_revision": _revision(sample),
+        "sample_revision": sample_revision(sample),
         "truth_arrays": _json_attr(names),
         "extracted": _json_attr(keys),
     })
@@ -807,198 +615,3 @@ def _replace(partial: Path, out: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.replace(partial, out)
-
-
-# --------------------------------------------------------------------------- reading
-def _text(v: Any) -> str:
-    return v.decode() if isinstance(v, bytes) else str(v)
-
-
-class PackedSample:
-    """One sample of a packed dataset, with the read interface of
-    :class:`vvtbench.dataset.Sample`: ``scene`` (Scene), ``camera`` (Camera), ``info``
-    (truth.json), ``manifest``, ``s["modes/frequencies_hz"]`` (a truth array by its
-    truth.zarr name), ``frames()`` / ``read_frames()``, ``extracted_modes()``."""
-
-    def __init__(self, group, name: str, dataset_path: Path | None = None):
-        from .render import Camera
-        from .scene import parse_scene
-
-        self.group, self.name, self.dataset_path = group, name, dataset_path
-        a = group.attrs
-        self.info: dict = json.loads(_text(a["truth"]))
-        self.manifest: dict = json.loads(_text(a["manifest"]))
-        self.scene_toml = _text(a["scene_toml"])
-        self.scene = parse_scene(tomllib.loads(self.scene_toml),
-                                 f"{dataset_path or 'dataset'}:samples/{name}/scene_toml")
-        self.camera = Camera.from_dict(json.loads(_text(a["camera"])))
-        self.seed = int(a["seed"])
-        self.revision = _text(a["sample_revision"])
-        self.truth_arrays: list[str] = json.loads(_text(a.get("truth_arrays", "[]")))
-        self._extracted: list[str] = json.loads(_text(a.get("extracted", "[]")))
-
-    # ---- the Sample interface
-    @property
-    def path(self) -> Path | None:
-        """The dataset file or folder this sample was read from."""
-        return self.dataset_path
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.info["video"]["frames"])
-
-    @property
-    def fps(self) -> float:
-        return float(self.info["video"]["fps"])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (int(self.info["video"]["height"]), int(self.info["video"]["width"]))
-
-    @property
-    def bit_depth(self) -> int:
-        return int(self.info["video"]["bit_depth"])
-
-    @property
-    def has_video(self) -> bool:
-        return "video" in self.group
-
-    @property
-    def video(self):
-        """The lazy (time, row, col) video array (slice it)."""
-        return self.group["video"]
-
-    @property
-    def frequencies_hz(self) -> np.ndarray:
-        return self["modes/frequencies_hz"]
-
-    @property
-    def damping_ratios(self) -> np.ndarray:
-        return self["modes/damping_ratios"]
-
-    @property
-    def times(self) -> np.ndarray:
-        return self["transient/times"]
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return np.asarray(self.array(name)[...])
-
-    def __contains__(self, name: str) -> bool:
-        return name in self.truth_arrays
-
-    def array(self, name: str):
-        """The lazy array ``name`` of the truth (slice it to read part of it)."""
-        if name not in self.truth_arrays:
-            raise KeyError(f"{self.name}: no truth array {name!r}; arrays: "
-                           f"{', '.join(self.truth_arrays)}")
-        return self.group["truth"][name]
-
-    def frames(self, start: int = 0, stop: int | None = None, *,
-               normalize: bool = False) -> Iterator[np.ndarray]:
-        """Video frames ``start:stop`` one at a time: (H, W) uint16 DN, or float32 in [0, 1]
-        with ``normalize``."""
-        n = self.n_frames
-        stop = n if stop is None else min(stop, n)
-        if not 0 <= start <= stop:
-            raise IndexError(f"frames {start}:{stop} out of range 0:{n}")
-        if not self.has_video:
-            raise ValueError(f"{self.name}: the dataset holds no video for this sample")
-        v = self.video
-        scale = np.float32(1.0 / (2 ** self.bit_depth - 1))
-        for k0 in range(start, stop, _VIDEO_CHUNK):
-            block = np.asarray(v[k0:min(k0 + _VIDEO_CHUNK, stop)])
-            for f in block:
-                yield f.astype(np.float32) * scale if normalize else f.astype(np.uint16)
-
-    def read_frames(self, start: int = 0, stop: int | None = None, *,
-                    normalize: bool = False) -> np.ndarray:
-        """Frames ``start:stop`` as one (T, H, W) array."""
-        out = list(self.frames(start, stop, normalize=normalize))
-        dtype = np.float32 if normalize else np.uint16
-        return np.stack(out) if out else np.zeros((0, *self.shape), dtype)
-
-    def extracted_modes(self) -> list:
-        """The extracted :class:`vvtbench.modes.ModeSet` packed with this sample (may be [])."""
-        from .modes import ModeSet
-
-        out = []
-        for i in range(len(self._extracted)):
-            g = self.group["extracted"][str(i)]
-            doc = json.loads(_text(g.attrs["modes_json"]))
-            arrays = {a: np.asarray(g[a][...]) for a in _MODESET_ARRAYS if a in g}
-            out.append(ModeSet(**arrays, freqs_hz=np.asarray(g["frequency"][...]),
-                               fps=float(g.attrs["fps"]), n_frames=int(g.attrs["n_frames"]),
-                               metadata=doc.get("metadata", {})))
-        return out
-
-    def __repr__(self) -> str:
-        H, W = self.shape
-        return (f"PackedSample({self.name!r}: {self.n_frames} frames at {self.fps:g} FPS, "
-                f"{H}x{W}, {len(self.truth_arrays)} truth arrays, "
-                f"{len(self._extracted)} extracted mode sets)")
-
-
-class PackedDataset:
-    """A dataset written by :func:`pack`: ``names``, ``ds[name]`` -> :class:`PackedSample`."""
-
-    def __init__(self, root, path: Path, closer=None):
-        self.root, self.path, self._closer = root, path, closer
-        self.attrs = {k: _text(v) if isinstance(v, bytes) else v
-                      for k, v in root.attrs.items()}
-        self.names: list[str] = json.loads(_text(self.attrs["samples"]))
-
-    def __getitem__(self, name: str) -> PackedSample:
-        if name not in self.names:
-            raise KeyError(f"{self.path}: no sample {name!r}; samples: {', '.join(self.names)}")
-        return PackedSample(self.root["samples"][name], name, self.path)
-
-    def __iter__(self):
-        return (self[n] for n in self.names)
-
-    def __len__(self) -> int:
-        return len(self.names)
-
-    @property
-    def readme(self) -> str:
-        return _text(self.attrs.get("README", ""))
-
-    def __repr__(self) -> str:
-        shown = ", ".join(self.names[:3]) + (", ..." if len(self.names) > 3 else "")
-        return f"PackedDataset({str(self.path)!r}: {len(self)} samples: {shown})"
-
-    def close(self) -> None:
-        if self._closer:
-            self._closer()
-            self._closer = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-
-def open_dataset(path: str | Path) -> PackedDataset:
-    """Open a dataset written by ``vvtbench export`` (Zarr folder or HDF5 file)."""
-    path = Path(path)
-    if path.is_dir():
-        import zarr
-
-        try:
-            root = zarr.open_group(str(path), mode="r")
-        except (FileNotFoundError, ValueError) as error:
-            raise ExportError(f"{path}: not a vvtbench dataset ({error})") from None
-        if root.attrs.get("format") != FORMAT:
-            raise ExportError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} "
-                              "attribute)")
-        return PackedDataset(root, path)
-    import h5py
-
-    try:
-        f = h5py.File(path, "r")
-    except OSError as error:
-        raise ExportError(f"{path}: cannot open as HDF5: {error}") from None
-    if _text(f.attrs.get("format", "")) != FORMAT:
-        f.close()
-        raise ExportError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} attribute)")
-    return PackedDataset(f, path, f.close)

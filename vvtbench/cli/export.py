@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from vvtbench.export import ExportError, check_output, find_samples, pack
+from vvtbench.export import check_output, find_samples, pack
+from vvtbench.packed import ExportError
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

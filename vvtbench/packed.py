@@ -1,0 +1,241 @@
+"""Read a dataset written by ``vvtbench export`` (:func:`vvtbench.export.pack`).
+
+``open_dataset(path)`` opens a Zarr folder or an HDF5 file and gives a
+:class:`PackedDataset`; ``ds[name]`` is a :class:`PackedSample` with the read interface of
+:class:`vvtbench.dataset.Sample`. The layout is described in :mod:`vvtbench.export` and
+docs/dataset.md ("Exported datasets"). This module also holds what the writer and the reader
+share: the format name and version, the video chunk length, the dimensions and units of an
+extracted ModeSet's arrays, and :class:`ExportError`.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ExportError", "FORMAT", "FORMAT_VERSION", "MODESET_ARRAYS", "PackedDataset",
+           "PackedSample", "VIDEO_CHUNK", "open_dataset"]
+
+FORMAT = "vvtbench.dataset-pack"
+FORMAT_VERSION = 2
+#: Frames per chunk of a packed video (the reader decodes one chunk at a time).
+VIDEO_CHUNK = 64
+#: The arrays of an extracted ModeSet packed under ``samples/<name>/extracted/<i>/``.
+MODESET_ARRAYS = {  # name -> (dims, units)
+    "frequencies_hz": (("extracted_mode",), "Hz"),
+    "damping": (("extracted_mode",), "1"),
+    "damping_half_power": (("extracted_mode",), "1"),
+    "amplitudes_px": (("extracted_mode",), "px"),
+    "peak_bins": (("extracted_mode",), None),
+    "prominences": (("extracted_mode",), "decades"),
+    "collinearity": (("extracted_mode",), "1"),
+    "shake_mac": (("extracted_mode",), "1"),
+    "camera_shake": (("extracted_mode",), None),
+    "shapes": (("extracted_mode", "row", "col", "component"), "1"),
+    "power": (("frequency",), "px2"),
+    "confidence": (("row", "col"), "1"),
+}
+
+
+class ExportError(ValueError):
+    """Export refused or failed for a reason the user can fix (the message says which path)."""
+
+
+def _text(v: Any) -> str:
+    return v.decode() if isinstance(v, bytes) else str(v)
+
+
+class PackedSample:
+    """One sample of a packed dataset, with the read interface of
+    :class:`vvtbench.dataset.Sample`: ``scene`` (Scene), ``camera`` (Camera), ``info``
+    (truth.json), ``manifest``, ``s["modes/frequencies_hz"]`` (a truth array by its
+    truth.zarr name), ``frames()`` / ``read_frames()``, ``extracted_modes()``."""
+
+    def __init__(self, group, name: str, dataset_path: Path | None = None):
+        from .render import Camera
+        from .scene import parse_scene
+
+        self.group, self.name, self.dataset_path = group, name, dataset_path
+        a = group.attrs
+        self.info: dict = json.loads(_text(a["truth"]))
+        self.manifest: dict = json.loads(_text(a["manifest"]))
+        self.scene_toml = _text(a["scene_toml"])
+        self.scene = parse_scene(tomllib.loads(self.scene_toml),
+                                 f"{dataset_path or 'dataset'}:samples/{name}/scene_toml")
+        self.camera = Camera.from_dict(json.loads(_text(a["camera"])))
+        self.seed = int(a["seed"])
+        self.revision = _text(a["sample_revision"])
+        self.truth_arrays: list[str] = json.loads(_text(a.get("truth_arrays", "[]")))
+        self._extracted: list[str] = json.loads(_text(a.get("extracted", "[]")))
+
+    # ---- the Sample interface
+    @property
+    def path(self) -> Path | None:
+        """The dataset file or folder this sample was read from."""
+        return self.dataset_path
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.info["video"]["frames"])
+
+    @property
+    def fps(self) -> float:
+        return float(self.info["video"]["fps"])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.info["video"]["height"]), int(self.info["video"]["width"]))
+
+    @property
+    def bit_depth(self) -> int:
+        return int(self.info["video"]["bit_depth"])
+
+    @property
+    def has_video(self) -> bool:
+        return "video" in self.group
+
+    @property
+    def video(self):
+        """The lazy (time, row, col) video array (slice it)."""
+        return self.group["video"]
+
+    @property
+    def frequencies_hz(self) -> np.ndarray:
+        return self["modes/frequencies_hz"]
+
+    @property
+    def damping_ratios(self) -> np.ndarray:
+        return self["modes/damping_ratios"]
+
+    @property
+    def times(self) -> np.ndarray:
+        return self["transient/times"]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return np.asarray(self.array(name)[...])
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.truth_arrays
+
+    def array(self, name: str):
+        """The lazy array ``name`` of the truth (slice it to read part of it)."""
+        if name not in self.truth_arrays:
+            raise KeyError(f"{self.name}: no truth array {name!r}; arrays: "
+                           f"{', '.join(self.truth_arrays)}")
+        return self.group["truth"][name]
+
+    def frames(self, start: int = 0, stop: int | None = None, *,
+               normalize: bool = False) -> Iterator[np.ndarray]:
+        """Video frames ``start:stop`` one at a time: (H, W) uint16 DN, or float32 in [0, 1]
+        with ``normalize``."""
+        n = self.n_frames
+        stop = n if stop is None else min(stop, n)
+        if not 0 <= start <= stop:
+            raise IndexError(f"frames {start}:{stop} out of range 0:{n}")
+        if not self.has_video:
+            raise ValueError(f"{self.name}: the dataset holds no video for this sample")
+        v = self.video
+        scale = np.float32(1.0 / (2 ** self.bit_depth - 1))
+        for k0 in range(start, stop, VIDEO_CHUNK):
+            block = np.asarray(v[k0:min(k0 + VIDEO_CHUNK, stop)])
+            for f in block:
+                yield f.astype(np.float32) * scale if normalize else f.astype(np.uint16)
+
+    def read_frames(self, start: int = 0, stop: int | None = None, *,
+                    normalize: bool = False) -> np.ndarray:
+        """Frames ``start:stop`` as one (T, H, W) array."""
+        out = list(self.frames(start, stop, normalize=normalize))
+        dtype = np.float32 if normalize else np.uint16
+        return np.stack(out) if out else np.zeros((0, *self.shape), dtype)
+
+    def extracted_modes(self) -> list:
+        """The extracted :class:`vvtbench.modes.ModeSet` packed with this sample (may be [])."""
+        from .modes import ModeSet
+
+        out = []
+        for i in range(len(self._extracted)):
+            g = self.group["extracted"][str(i)]
+            doc = json.loads(_text(g.attrs["modes_json"]))
+            arrays = {a: np.asarray(g[a][...]) for a in MODESET_ARRAYS if a in g}
+            out.append(ModeSet(**arrays, freqs_hz=np.asarray(g["frequency"][...]),
+                               fps=float(g.attrs["fps"]), n_frames=int(g.attrs["n_frames"]),
+                               metadata=doc.get("metadata", {})))
+        return out
+
+    def __repr__(self) -> str:
+        H, W = self.shape
+        return (f"PackedSample({self.name!r}: {self.n_frames} frames at {self.fps:g} FPS, "
+                f"{H}x{W}, {len(self.truth_arrays)} truth arrays, "
+                f"{len(self._extracted)} extracted mode sets)")
+
+
+class PackedDataset:
+    """A dataset written by :func:`vvtbench.export.pack`: ``names``, ``ds[name]`` ->
+    :class:`PackedSample`."""
+
+    def __init__(self, root, path: Path, closer=None):
+        self.root, self.path, self._closer = root, path, closer
+        self.attrs = {k: _text(v) if isinstance(v, bytes) else v
+                      for k, v in root.attrs.items()}
+        self.names: list[str] = json.loads(_text(self.attrs["samples"]))
+
+    def __getitem__(self, name: str) -> PackedSample:
+        if name not in self.names:
+            raise KeyError(f"{self.path}: no sample {name!r}; samples: {', '.join(self.names)}")
+        return PackedSample(self.root["samples"][name], name, self.path)
+
+    def __iter__(self):
+        return (self[n] for n in self.names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @property
+    def readme(self) -> str:
+        return _text(self.attrs.get("README", ""))
+
+    def __repr__(self) -> str:
+        shown = ", ".join(self.names[:3]) + (", ..." if len(self.names) > 3 else "")
+        return f"PackedDataset({str(self.path)!r}: {len(self)} samples: {shown})"
+
+    def close(self) -> None:
+        if self._closer:
+            self._closer()
+            self._closer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def open_dataset(path: str | Path) -> PackedDataset:
+    """Open a dataset written by ``vvtbench export`` (Zarr folder or HDF5 file)."""
+    path = Path(path)
+    if path.is_dir():
+        import zarr
+
+        try:
+            root = zarr.open_group(str(path), mode="r")
+        except (FileNotFoundError, ValueError) as error:
+            raise ExportError(f"{path}: not a vvtbench dataset ({error})") from None
+        if root.attrs.get("format") != FORMAT:
+            raise ExportError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} "
+                              "attribute)")
+        return PackedDataset(root, path)
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError as error:
+        raise ExportError(f"{path}: cannot open as HDF5: {error}") from None
+    if _text(f.attrs.get("format", "")) != FORMAT:
+        f.close()
+        raise ExportError(f"{path}: not a vvtbench dataset (no format={FORMAT!r} attribute)")
+    return PackedDataset(f, path, f.close)
