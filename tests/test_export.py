@@ -74,23 +74,23 @@ def _modeset(k: int = 2, F: int = 11) -> ModeSet:
 def tiny(tmp_path_factory) -> Path:
     scene = parse_scene(json.loads(json.dumps(TINY)), "tiny")
     return generate(scene, tmp_path_factory.mktemp("samples"), progress=False,
-                       preview_frames=2)
+                    preview_frames=2)
 
 
 @pytest.fixture(scope="module")
 def run_dir(tiny, tmp_path_factory) -> Path:
     """A run folder's layout: the sample in cache/generate/KEY/sample, one extraction of it in
-    cache/extract/KEY2/, and an extra truth array family (mesh/fixed_nodes, mesh/node_sets/*)
-    that the exporter does not know by name."""
+    cache/extract/KEY2/, and an extra truth array family (extra/*) that the exporter does not
+    know by name."""
     run = tmp_path_factory.mktemp("run")
     sample = run / "cache" / "generate" / "abc123" / "sample"
     shutil.copytree(tiny, sample)
     import zarr
 
     root = zarr.open_group(str(sample / "truth.zarr"), mode="r+")
-    for name, data in (("mesh/fixed_nodes", np.array([0, 1, 2, 5])),
-                       ("mesh/node_sets/top", np.array([3, 4])),
-                       ("mesh/node_sets/weird", np.arange(6.0).reshape(2, 3))):
+    for name, data in (("extra/fixed", np.array([0, 1, 2, 5])),
+                       ("extra/sets/top", np.array([3, 4])),
+                       ("extra/sets/weird", np.arange(6.0).reshape(2, 3))):
         a = root.create_array(name, shape=data.shape, dtype=data.dtype)
         a[...] = data
     _rewrite_manifest(sample)
@@ -141,7 +141,8 @@ def test_packed_sample_reads_like_the_sample(packed):
         assert (p.n_frames, p.fps, p.shape, p.bit_depth) == (T, 2000.0, (H, W), 16)
         assert p.has_video
         names = _truth_names(folder)
-        assert "mesh/node_sets/top" in names and sorted(p.truth_arrays) == names
+        assert "extra/sets/top" in names and "mesh/fixed_nodes" in names
+        assert sorted(p.truth_arrays) == names
         for name in names:  # every array, same dtype and values (NaN and inf included)
             a, b = p[name], s[name]
             assert a.dtype == b.dtype and a.shape == b.shape, name
@@ -200,7 +201,7 @@ def test_xarray_opens_with_dims_coords_and_units(packed):
     assert mesh["points"].dims == ("node", "xyz") and mesh["points"].attrs["units"] == "m"
     assert mesh["fixed_nodes"].dims == ("fixed_node",)
     np.testing.assert_array_equal(mesh["cells"].values, s["mesh/cells"])
-    sets = tree["samples/tiny/truth/mesh/node_sets"].ds
+    sets = tree["samples/tiny/truth/extra/sets"].ds
     np.testing.assert_array_equal(sets["top"].values, [3, 4])
     assert sets["weird"].shape == (2, 3)
     image = tree["samples/tiny/truth/image"].ds
@@ -407,7 +408,7 @@ name = "mini"
 scenes = ["jello_cube_defect_top"]
 solvers = ["homogeneous"]
 seeds = [0]
-observations = ["true"]
+observations = ["extracted"]   # a video sample (true-modes-only suites generate modes-only samples)
 
 [defaults]
 "geometry.cells" = [2, 2, 2]

@@ -35,41 +35,65 @@ def _plt():
 
 
 def ranking(df):
-    """Per track and observation: solvers ranked by mean NC of w (ties: NC of v)."""
+    """Per track and observation: solvers ranked by mean NC of w (ties: NC of v) over their
+    valid rows. Reference solvers (``reference``: they saw the truth) are not ranked: they are
+    listed after the ranked ones, with a note when a ranked solver is above them."""
     import pandas as pd
 
+    if "reference" not in df.columns:
+        df = df.assign(reference=False)
     ok = df[df.status == "ok"]
     groups = []
     for (track, obs), g in df.groupby(["track", "observation"], sort=True):
         gok = ok[(ok.track == track) & (ok.observation == obs)]
         agg = gok.groupby("solver")[[c for c, _ in RANK_COLUMNS]].mean(numeric_only=True)
         counts = g.groupby("solver").size().rename("runs")
-        errs = g[g.status != "ok"].groupby("solver").size().rename("errors")
-        t = pd.concat([agg, counts, errs], axis=1).fillna({"errors": 0})
-        t["errors"] = t["errors"].astype(int)
-        t = t.sort_values(["nc_w", "nc_v"], ascending=False, na_position="last")
+        errs = g[g.status == "error"].groupby("solver").size().rename("errors")
+        bad = g[g.status == "invalid"].groupby("solver").size().rename("invalid")
+        ref = g.groupby("solver")["reference"].any().rename("reference")
+        t = pd.concat([agg, counts, errs, bad, ref], axis=1).fillna(
+            {"errors": 0, "invalid": 0})
+        t[["errors", "invalid"]] = t[["errors", "invalid"]].astype(int)
+        t = t.sort_values(["reference", "nc_w", "nc_v"], ascending=[True, False, False],
+                          na_position="last")
+        best = t[~t.reference.astype(bool)]["nc_w"].max()
+        t["note"] = [f"below a ranked solver (NC w {best:.3f})"
+                     if r.reference and np.isfinite(best) and r.nc_w < best else ""
+                     for r in t.itertuples()]
         groups.append((track, obs, t))
     return groups
 
 
-def _md_table(t) -> str:
-    head = ["rank", "solver", *[label for _, label in RANK_COLUMNS], "runs", "errors"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for i, (solver, r) in enumerate(t.iterrows(), 1):
+def _cells(t):
+    """(rank, solver label, formatted values, runs, errors, invalid) of each table row."""
+    rank = 0
+    for solver, r in t.iterrows():
+        if r["reference"]:
+            label, shown = f"{solver} (reference)", "ref"
+        else:
+            rank += 1
+            label, shown = solver, str(rank)
+        if r["note"]:
+            label += f" -- {r['note']}"
         vals = [f"{r[c]:.3f}" if np.isfinite(r[c]) else "–" for c, _ in RANK_COLUMNS]
-        lines.append(f"| {i} | {solver} | " + " | ".join(vals)
-                     + f" | {int(r['runs'])} | {int(r['errors'])} |")
+        yield shown, label, vals, int(r["runs"]), int(r["errors"]), int(r["invalid"])
+
+
+_HEAD = ["rank", "solver", *[label for _, label in RANK_COLUMNS], "runs", "errors", "invalid"]
+
+
+def _md_table(t) -> str:
+    lines = ["| " + " | ".join(_HEAD) + " |", "|" + "---|" * len(_HEAD)]
+    for rank, label, vals, runs, errs, bad in _cells(t):
+        lines.append(f"| {rank} | {label} | " + " | ".join(vals) + f" | {runs} | {errs} | {bad} |")
     return "\n".join(lines)
 
 
 def _html_table(t) -> str:
-    head = ["rank", "solver", *[label for _, label in RANK_COLUMNS], "runs", "errors"]
-    rows = ["<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
-    for i, (solver, r) in enumerate(t.iterrows(), 1):
-        vals = [f"{r[c]:.3f}" if np.isfinite(r[c]) else "–" for c, _ in RANK_COLUMNS]
+    rows = ["<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in _HEAD) + "</tr>"]
+    for rank, label, vals, runs, errs, bad in _cells(t):
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in
-                                     [i, solver, *vals, int(r["runs"]), int(r["errors"])])
-                    + "</tr>")
+                                     [rank, label, *vals, runs, errs, bad]) + "</tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
