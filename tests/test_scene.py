@@ -58,7 +58,8 @@ def _write(tmp_path, text):
 @pytest.mark.parametrize("text, expected", [
     ('name = "x"\n[geometry]\nkind = "boxx"\n', ["geometry", "'box', 'mesh', 'drum'"]),
     ('name = "x"\n[geometry]\nkind = "box"\ncolour = 1\n', ["geometry.colour", "cells"]),
-    ('name = "x"\n[geometry]\nkind = "box"\n[material]\nE = -5\n', ["material.E", "greater"]),
+    ('name = "x"\n[geometry]\nkind = "box"\n[material]\nE = -5\n',
+     ["material.E", "got -5; allowed: a finite number > 0"]),
     ('name = "x"\n[geometry]\nkind = "box"\n[damping]\npairs = [[1.0, 0.1]]\n',
      ["damping", "exactly two"]),
     ('name = "x"\n[geometry]\nkind = "box"\n[excitation]\nkind = "pluck"\n',
