@@ -94,6 +94,12 @@ def _nonzero(vector: tuple[float, float, float]) -> tuple[float, float, float]:
     return vector
 
 
+def _no_bool(value):
+    if isinstance(value, bool):
+        raise ValueError(f"got {str(value).lower()}; allowed: one of the integers listed")
+    return value
+
+
 Finite = Number()
 Vec3 = tuple[Finite, Finite, Finite]
 """A point or vector: three finite numbers (m, or m/s for velocities)."""
@@ -114,6 +120,8 @@ Seconds = Number(gt=0, le=1e6, unit="s")
 StartTime = Number(ge=0, le=1e6, unit="s")
 Force = Number(gt=0, le=1e9, unit="N")
 BoxCells = Number(ge=1, le=10_000, integer=True)
+Order = Annotated[Literal[1, 2], BeforeValidator(_no_bool)]
+"""Element order: 1 (linear: hex8, tet4) or 2 (quadratic: hex27, tet10)."""
 Pixels = Number(ge=8, le=16384, integer=True, unit="px")
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
@@ -140,7 +148,7 @@ class BoxGeometry(_Strict):
     kind: Literal["box"]
     size: tuple[Length, Length, Length] = (0.05, 0.05, 0.05)
     cells: tuple[BoxCells, BoxCells, BoxCells] = (10, 10, 10)
-    order: Literal[1, 2] = 1
+    order: Order = 1
 
 
 class MeshGeometry(_Strict):
@@ -155,7 +163,7 @@ class MeshGeometry(_Strict):
     epsilon: Number(gt=0, le=0.1) = 5e-3
     stop_energy: Number(gt=3, le=1e6) = 10.0
     coarsen: bool = False
-    order: Literal[1, 2] = 1
+    order: Order = 1
 
 
 class DrumGeometry(_Strict):
@@ -444,7 +452,7 @@ class RenderSpec(_Strict):
     texture_seed: Seed = 0
     motion_scale: Number(gt=0, le=1e6) = 1.0
     lighting: Literal["flat", "lit"] = "flat"
-    bit_depth: Literal[8, 12, 16] = 16
+    bit_depth: Annotated[Literal[8, 12, 16], BeforeValidator(_no_bool)] = 16
     read_noise_dn: Number(ge=0, le=1e6, unit="DN") = 0.0
     shot_noise: bool = False
     frame_average: Number(ge=1, le=1000, integer=True) = 1
