@@ -498,7 +498,14 @@ def simulate(scene: Scene, transient: bool = True, method: str | None = None) ->
             f"only {model.n_free} free DOFs; allowed: 1..{limit}"
         )
     t0 = time.perf_counter()
-    modes = eigenmodes(K, M, n_modes, seed=scene.seed)
+    try:
+        modes = eigenmodes(K, M, n_modes, seed=scene.seed)
+    except np.linalg.LinAlgError as error:
+        raise SceneError(
+            f"{scene.source}: the eigen-solve failed ({error}); the scene's values are "
+            "numerically degenerate: check the extremes among material, geometry.size and "
+            "boundary; allowed: values whose combination stays finite"
+        ) from None
     timings["modes"] = time.perf_counter() - t0
     alpha, beta = scene.damping.coefficients()
     result = SimulationResult(scene, mesh, fields, model, modes, alpha, beta, timings=timings)
