@@ -88,9 +88,14 @@ def Number(  # noqa: N802 - a type factory, used like a type
     return Annotated[int if integer else float, BeforeValidator(check), field]
 
 
+MIN_VECTOR = 1e-9
+
+
 def _nonzero(vector: tuple[float, float, float]) -> tuple[float, float, float]:
-    if not any(vector):
-        raise ValueError("got [0, 0, 0]; allowed: a non-zero vector of 3 finite numbers")
+    if not np.linalg.norm(vector) >= MIN_VECTOR:
+        raise ValueError(
+            f"got {list(vector)}; allowed: a non-zero vector (length >= {MIN_VECTOR:g})"
+        )
     return vector
 
 
@@ -101,8 +106,9 @@ def _no_bool(value):
 
 
 Finite = Number()
-Vec3 = tuple[Finite, Finite, Finite]
-"""A point or vector: three finite numbers (m, or m/s for velocities)."""
+Coordinate = Number(ge=-1e6, le=1e6)
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
+"""A point or vector: three finite numbers within +-1e6 (m, or m/s for velocities)."""
 Direction = Annotated[Vec3, AfterValidator(_nonzero)]
 """A direction: three finite numbers, not all zero (normalized where used)."""
 
@@ -115,8 +121,8 @@ Youngs = Number(ge=1e-3, le=1e13, unit="Pa")
 Density = Number(ge=1e-2, le=1e5, unit="kg/m^3")
 Tension = Number(ge=1e-6, le=1e9, unit="N/m")
 ArealDensity = Number(ge=1e-6, le=1e4, unit="kg/m^2")
-Frequency = Number(gt=0, le=1e9, unit="Hz")
-Seconds = Number(gt=0, le=1e6, unit="s")
+Frequency = Number(ge=1e-3, le=1e9, unit="Hz")
+Seconds = Number(ge=1e-9, le=1e6, unit="s")
 StartTime = Number(ge=0, le=1e6, unit="s")
 Force = Number(gt=0, le=1e9, unit="N")
 BoxCells = Number(ge=1, le=10_000, integer=True)
@@ -187,7 +193,7 @@ class Defect(_Strict):
 
     shape: Literal["box", "sphere", "cylinder", "ellipsoid"]
     center: Vec3
-    size: tuple[Number(gt=0, le=MAX_LENGTH, unit="m"), ...]
+    size: tuple[Number(ge=1e-9, le=MAX_LENGTH, unit="m"), ...]
     axis: Literal["x", "y", "z"] = "z"
     E: Youngs | None = None
     rho: Density | None = None
@@ -268,8 +274,8 @@ class Boundary(_Strict):
 class Damping(_Strict):
     """Rayleigh damping C = alpha M + beta K, given directly or by two (frequency Hz, zeta)."""
 
-    alpha: Number(ge=0, unit="1/s") = 0.0
-    beta: Number(ge=0, unit="s") = 0.0
+    alpha: Number(ge=0, le=1e9, unit="1/s") = 0.0
+    beta: Number(ge=0, le=1e3, unit="s") = 0.0
     pairs: list[tuple[Frequency, Number(ge=0, le=100)]] | None = None
 
     @field_validator("pairs")
@@ -374,7 +380,7 @@ class Excitation(_Strict):
     at: Vec3 | None = None
     radius: Number(ge=0, le=MAX_LENGTH, unit="m") = 0.0
     direction: Direction = (1.0, 1.0, 1.0)
-    displacement: Number(gt=0, le=MAX_LENGTH, unit="m") = 0.005
+    displacement: Number(ge=1e-12, le=MAX_LENGTH, unit="m") = 0.005
     velocity: Vec3 = (0.0, 0.0, 0.01)
     signal: Signal | None = None
 
@@ -429,9 +435,10 @@ class CameraSpec(_Strict):
         if self.fy is not None and self.fx is None:
             raise ValueError("fy (px) needs fx (px); with fov_y_deg the pixels are square")
         view = np.subtract(self.look_at, self.position, dtype=float)
-        if not np.any(view):
+        if not np.linalg.norm(view) >= MIN_VECTOR:
             raise ValueError(
-                f"look_at equals position {list(self.position)}; allowed: two distinct points"
+                f"look_at {list(self.look_at)} equals position {list(self.position)}; allowed: "
+                f"two points at least {MIN_VECTOR:g} m apart"
             )
         up = np.asarray(self.up, dtype=float)
         cross = np.cross(view / np.linalg.norm(view), up / np.linalg.norm(up))
@@ -573,6 +580,7 @@ def _format_error(source: str, error: ValidationError) -> str:
             key, msg = f"{key}.kind", f"missing; allowed: {kinds}"
         elif e["type"] in ("missing", "model_type", "dict_type", "tuple_type", "list_type"):
             msg = f"{msg} (got {_show(e.get('input'))})" if e["type"] != "missing" else msg
+        key = "".join(c if c.isprintable() else repr(c)[1:-1] for c in key)
         problems.append(f"key '{key or '<top level>'}': {' '.join(str(msg).split())}")
     if len(problems) == 1:
         return f"{source}: {problems[0]}"
