@@ -58,7 +58,8 @@ def _write(tmp_path, text):
 @pytest.mark.parametrize("text, expected", [
     ('name = "x"\n[geometry]\nkind = "boxx"\n', ["geometry", "'box', 'mesh', 'drum'"]),
     ('name = "x"\n[geometry]\nkind = "box"\ncolour = 1\n', ["geometry.colour", "cells"]),
-    ('name = "x"\n[geometry]\nkind = "box"\n[material]\nE = -5\n', ["material.E", "greater"]),
+    ('name = "x"\n[geometry]\nkind = "box"\n[material]\nE = -5\n',
+     ["material.E", "got -5; allowed: a finite number >= 0.001"]),
     ('name = "x"\n[geometry]\nkind = "box"\n[damping]\npairs = [[1.0, 0.1]]\n',
      ["damping", "exactly two"]),
     ('name = "x"\n[geometry]\nkind = "box"\n[excitation]\nkind = "pluck"\n',
@@ -316,3 +317,247 @@ def test_tetrahedralization_is_cached_so_meshes_repeat(tmp_path, monkeypatch):
     second = tet_mesh(v, f, edge_length_fac=0.15, epsilon=0.02)
     np.testing.assert_array_equal(first.cells, second.cells)
     np.testing.assert_array_equal(first.points, second.points)
+
+
+# ---------------------------------------------------------------- validation (issue 13, item 3)
+_BOX = ('name = "x"\n[geometry]\nkind = "box"\ncells = [3, 3, 3]\n'
+        '[excitation]\nkind = "pluck"\nat = [0.05, 0.0, 0.05]\n'
+        '[simulation]\nn_modes = 4\nfps = 1000.0\nduration = 0.01\n')
+_DRUM = ('name = "x"\n[geometry]\nkind = "drum"\ncells = 6\n'
+         '[excitation]\nkind = "force"\nat = [0.05, 0.05, 0.0]\nradius = 0.02\n'
+         'direction = [0.0, 0.0, 1.0]\n[simulation]\nn_modes = 4\nfps = 1000.0\n'
+         'duration = 0.01\n')
+
+
+def _one_line_error(message, path, key):
+    assert "\n" not in message and "Traceback" not in message
+    assert message.startswith(f"{path}: ") and f"key '{key}'" in message
+    assert any(w in message for w in ("allowed", "should be", "reduce"))
+
+
+@pytest.mark.parametrize("extra, key", [
+    ("[material]\nE = inf\n", "material.E"),
+    ("[material]\nE = nan\n", "material.E"),
+    ("[material]\nrho = inf\n", "material.rho"),
+    ("[material]\nE = 1e300\n", "material.E"),
+    ("[damping]\nalpha = inf\n", "damping.alpha"),
+    ("[damping]\npairs = [[12.5, inf], [15.5, 0.02]]\n", "damping.pairs[0][1]"),
+    ("[damping]\npairs = [[12.5, 0.01], [inf, 0.02]]\n", "damping.pairs[1][0]"),
+    ("[[material.defects]]\nshape = 'sphere'\ncenter = [nan, 0.02, 0.02]\nsize = [0.01]\n"
+     "E = 5e5\n", "material.defects[0].center[0]"),
+    ("[[material.defects]]\nshape = 'sphere'\ncenter = [0.02, 0.02, 0.02]\nsize = [inf]\n"
+     "E = 5e5\n", "material.defects[0].size[0]"),
+    ("[[material.defects]]\nshape = 'sphere'\ncenter = [0.02, 0.02, 0.02]\nsize = [0.01]\n"
+     "E = inf\n", "material.defects[0].E"),
+    ("[camera]\nposition = [nan, 0.0, 0.1]\n", "camera.position[0]"),
+    ("[camera]\nposition = [0.1, 0.1, 0.1]\nlook_at = [0.1, 0.1, 0.1]\n", "camera"),
+    ("[camera]\nposition = [0.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, 2.0]\n",
+     "camera"),
+    ("[camera]\nup = [0.0, 0.0, 0.0]\n", "camera.up"),
+    ("[camera]\nfx = inf\n", "camera.fx"),
+    ("[camera]\nresolution = [100000, 256]\n", "camera.resolution[0]"),
+    ("[render]\nmotion_scale = inf\n", "render.motion_scale"),
+    ("[render]\nfull_well_electrons = inf\n", "render.full_well_electrons"),
+    ("[render]\nframe_average = 1000000000\n", "render.frame_average"),
+    ("[render]\ntexture_seed = -1\n", "render.texture_seed"),
+    ("[render]\nbit_depth = true\n", "render.bit_depth"),
+    ("[boundary]\nfixed = ['c']\n[boundary.node_sets.c]\nbox_min = [1, 1, 1]\n"
+     "box_max = [0, 0, 0]\n", "boundary.node_sets.c"),
+    ("[boundary.node_sets.c]\nbox_min = [nan, 0, 0]\nbox_max = [1, 1, 1]\n",
+     "boundary.node_sets.c.box_min[0]"),
+])
+def test_non_finite_and_out_of_range_values_are_one_line_errors(tmp_path, extra, key):
+    path = _write(tmp_path, _BOX + extra)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    _one_line_error(str(info.value), path, key)
+
+
+@pytest.mark.parametrize("line, key", [
+    ("direction = [nan, 0.0, 1.0]", "excitation.direction[0]"),
+    ("direction = [inf, 0.0, 0.0]", "excitation.direction[0]"),
+    ("direction = [0.0, 0.0, 0.0]", "excitation.direction"),
+    ("radius = inf", "excitation.radius"),
+    ("displacement = inf", "excitation.displacement"),
+    ("velocity = [nan, 0.0, 0.0]", "excitation.velocity[0]"),
+])
+def test_excitation_vectors_must_be_finite_and_directions_non_zero(tmp_path, line, key):
+    path = _write(tmp_path, _BOX.replace('kind = "pluck"\n', f'kind = "pluck"\n{line}\n'))
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    _one_line_error(str(info.value), path, key)
+
+
+def test_excitation_point_must_be_finite(tmp_path):
+    path = _write(tmp_path, _BOX.replace("at = [0.05, 0.0, 0.05]", "at = [0.05, nan, 0.05]"))
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    _one_line_error(str(info.value), path, "excitation.at[1]")
+
+
+@pytest.mark.parametrize("signal, key", [
+    ("kind = 'chirp'\nf1 = inf\n", "excitation.signal.f1"),
+    ("kind = 'chirp'\namplitude = inf\n", "excitation.signal.amplitude"),
+    ("kind = 'chirp'\nduration = nan\n", "excitation.signal.duration"),
+    ("kind = 'impulse'\nwidth = nan\n", "excitation.signal.width"),
+])
+def test_force_signal_values_must_be_finite(tmp_path, signal, key):
+    path = _write(tmp_path, _DRUM + "[excitation.signal]\n" + signal)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    _one_line_error(str(info.value), path, key)
+
+
+@pytest.mark.parametrize("rows, fragment", [
+    ([[0, 0.0], [0.001, np.nan], [0.002, 1.0]], "the first nan in row 1 (force)"),
+    ([[0, 0.0], [0.001, np.inf], [0.002, 1.0]], "the first inf in row 1 (force)"),
+    ([[0, 0.0], [0.001, 1.0], [np.inf, 1.0]], "the first inf in row 2 (time)"),
+])
+def test_force_file_samples_must_be_finite(tmp_path, rows, fragment):
+    np.save(tmp_path / "force.npy", np.array(rows))
+    scene = load_scene(_write(tmp_path, _DRUM + "[excitation.signal]\nkind = 'file'\n"
+                                             "path = 'force.npy'\n"))
+    with pytest.raises(SceneError) as info:
+        simulate(scene)
+    message = str(info.value)
+    assert "\n" not in message and str(tmp_path / "force.npy") in message
+    assert "excitation.signal.path" in message and fragment in message and "allowed" in message
+
+
+def test_a_defect_outside_the_body_is_an_error_a_partly_overlapping_one_is_not(tmp_path):
+    inside = "[[material.defects]]\nshape = 'sphere'\ncenter = [0.025, 0.025, 0.025]\n" \
+             "size = [0.01]\nE = 5e5\n"
+    outside = inside.replace("[0.025, 0.025, 0.025]", "[1.0, 1.0, 1.0]")
+    partly = inside.replace("[0.025, 0.025, 0.025]", "[0.05, 0.05, 0.05]").replace(
+        "[0.01]", "[0.02]")
+    scene = load_scene(_write(tmp_path, _BOX + inside + outside))
+    mesh = build_mesh(scene)
+    with pytest.raises(SceneError) as info:
+        material_fields(scene, mesh)
+    message = str(info.value)
+    _one_line_error(message, scene.source, "material.defects[1]")
+    assert "lies entirely outside the body" in message and "x 0..0.05" in message
+    fields = material_fields(load_scene(_write(tmp_path, _BOX + partly)), mesh)
+    assert 0 < np.sum(fields.stiffness == 5e5) < mesh.n_elements
+
+
+def test_a_defect_between_element_centroids_is_an_error(tmp_path):
+    tiny = "[[material.defects]]\nshape = 'sphere'\ncenter = [0.0, 0.0, 0.0]\n" \
+           "size = [0.001]\nE = 5e5\n"
+    scene = load_scene(_write(tmp_path, _BOX + tiny))
+    with pytest.raises(SceneError, match=r"defects\[0\]'.*contains no element centroid"):
+        material_fields(scene, build_mesh(scene))
+
+
+@pytest.mark.parametrize("at, radius, ok", [
+    ([17.0, 0.0, 0.05], 0.0, False),           # 17 m away: was snapped to the nearest node
+    ([0.05, 0.0, 0.2], 0.0, False),            # 15 cm above a 5 cm cube
+    ([0.05, 0.0, 0.2], 0.16, True),            # ... but within the patch radius of a node
+    ([0.051, -0.001, 0.051], 0.0, True),       # 1 mm off the corner: within one element
+    ([0.025, 0.025, 0.025], 0.0, True),        # inside, between nodes
+])
+def test_a_load_point_off_the_body_is_an_error(tmp_path, at, radius, ok):
+    text = _BOX.replace("at = [0.05, 0.0, 0.05]", f"at = {at}\nradius = {radius}")
+    scene = load_scene(_write(tmp_path, text))
+    mesh = build_mesh(scene)
+    if ok:
+        assert len(load_nodes(scene, mesh)) >= 1
+        return
+    with pytest.raises(SceneError) as info:
+        load_nodes(scene, mesh)
+    message = str(info.value)
+    _one_line_error(message, scene.source, "excitation.at")
+    assert "from the body" in message and "one element size" in message
+
+
+def test_a_node_set_box_holding_no_node_is_an_error(tmp_path):
+    scene = load_scene(_write(tmp_path, _BOX + "[boundary]\nfixed = ['bottom', 'c']\n"
+                                               "[boundary.node_sets.c]\nbox_min = [1, 1, 1]\n"
+                                               "box_max = [2, 2, 2]\n"))
+    with pytest.raises(SceneError, match=r"node_sets.c'.*holds no mesh node"):
+        build_mesh(scene)
+
+
+def test_too_large_problems_are_rejected_before_meshing(tmp_path, monkeypatch):
+    import time
+
+    from vvtbench import simulate as sim
+
+    monkeypatch.setattr(sim, "available_memory", lambda: 24 * 2.0**30)
+    scene = load_scene(_write(tmp_path, _BOX.replace("[3, 3, 3]", "[100, 100, 100]")))
+    t0 = time.perf_counter()
+    with pytest.raises(SceneError) as info:
+        simulate(scene)
+    assert time.perf_counter() - t0 < 1.0
+    message = str(info.value)
+    _one_line_error(message, scene.source, "geometry.cells")
+    assert "100x100x100 hex8" in message and "this machine has 24 GiB available" in message
+    need = float(message.split("needs about ")[1].split(" GiB")[0])
+    assert 40 < need < 200
+    drum = load_scene(_write(tmp_path, _DRUM.replace("cells = 6", "cells = 100000")
+                              + "[excitation.signal]\nkind = 'chirp'\n"))
+    with pytest.raises(SceneError, match=r"key 'geometry.cells'.*needs about .* GiB"):
+        simulate(drum)
+    frames = load_scene(_write(tmp_path, _BOX.replace("duration = 0.01", "duration = 1e6")
+                               .replace("fps = 1000.0", "fps = 1e6")))
+    with pytest.raises(SceneError, match=r"key 'simulation.duration'.*needs about"):
+        simulate(frames)
+    np.save(tmp_path / "f.npy", np.array([[0.0, 0.0], [1e-15, 1.0], [0.002, 1.0]]))
+    fine = load_scene(_write(tmp_path, _DRUM + "[excitation.signal]\nkind = 'file'\n"
+                                               "path = 'f.npy'\n"))
+    with pytest.raises(SceneError, match=r"key 'excitation.signal'.*needs about"):
+        simulate(fine)
+
+
+def test_memory_estimate_of_shipped_scenes_is_modest_and_unknown_memory_skips_the_check():
+    from vvtbench.simulate import GIB, check_problem_size
+
+    for path in SHIPPED:
+        scene = load_scene(path)
+        if scene.geometry.kind != "mesh":
+            assert check_problem_size(scene) < 1.5 * GIB
+    big = load_scene("jello_cube_homogeneous")
+    big = big.model_copy(update={"geometry": big.geometry.model_copy(
+        update={"cells": (200, 200, 200)})})
+    assert check_problem_size(big, available=float("inf")) > 100 * GIB
+
+
+def test_values_at_the_ends_of_their_ranges_cannot_overflow_and_a_guard_remains(
+    tmp_path, monkeypatch
+):
+    from vvtbench import simulate as sim
+    from vvtbench.fem.modal import Modes
+
+    path = _write(tmp_path, _BOX + "[material]\nE = 1e13\nrho = 1e-300\n")
+    with pytest.raises(SceneError, match=r"key 'material.rho': got 1e-300; allowed: .*>= 0.01"):
+        load_scene(path)
+    stiff = _BOX.replace("cells = [3, 3, 3]", "cells = [3, 3, 3]\nsize = [1e-6, 1e-6, 1e-6]")
+    stiff = stiff.replace("at = [0.05, 0.0, 0.05]", "at = [1e-6, 0.0, 1e-6]")
+    scene = load_scene(_write(tmp_path, stiff + "[material]\nE = 1e13\nrho = 0.01\n"))
+    result = simulate(scene)
+    assert np.all(np.isfinite(result.frequencies_hz)) and np.all(np.isfinite(result.displacements))
+    monkeypatch.setattr(sim, "eigenmodes", lambda K, M, k, seed: Modes(
+        np.full(k, np.nan), np.zeros((K.shape[0], k))))
+    with pytest.raises(SceneError, match=r"non-finite frequencies"):
+        simulate(scene)
+
+
+@pytest.mark.parametrize("extra, key", [
+    ("[material]\nE = inf\n", "material.E"),
+    ("[excitation.x]\n", "excitation.at"),
+    ("[[material.defects]]\nshape = 'box'\ncenter = [5.0, 5.0, 5.0]\nsize = [0.01, 0.01, 0.01]\n"
+     "E = 5e5\n", "material.defects[0]"),
+    ("[camera]\nlook_at = [0.15, -0.2, 0.15]\n", "camera"),
+    ("[geometry.x]\n", "geometry.cells"),
+])
+def test_cli_simulate_on_a_bad_scene_exits_2_with_one_line(tmp_path, capsys, extra, key):
+    text = _BOX + extra
+    if extra == "[excitation.x]\n":
+        text = _BOX.replace("at = [0.05, 0.0, 0.05]", "at = [17.0, 0.0, 0.05]")
+    if extra == "[geometry.x]\n":
+        text = _BOX.replace("[3, 3, 3]", "[3000, 3000, 3000]")
+    path = _write(tmp_path, text)
+    assert main(["simulate", str(path), "--transient"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {path}: ")
+    assert f"key '{key}'" in err and "Traceback" not in err

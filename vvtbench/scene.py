@@ -19,7 +19,9 @@ from typing import Annotated, Literal, get_args
 
 import numpy as np
 from pydantic import (
+    AfterValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     ValidationError,
@@ -28,10 +30,105 @@ from pydantic import (
     model_validator,
 )
 
-Vec3 = tuple[float, float, float]
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Poisson = Annotated[float, Field(gt=-1.0, lt=0.5)]
+
+def _bound_text(gt, ge, lt, le, unit: str, integer: bool) -> str:
+    """What a numeric key allows, e.g. 'a finite number > 0 and <= 1e+13 (Pa)'."""
+    def fmt(v: float) -> str:
+        return str(int(v)) if integer else f"{v:g}"
+
+    parts = [f"> {fmt(gt)}" if gt is not None else None,
+             f">= {fmt(ge)}" if ge is not None else None,
+             f"< {fmt(lt)}" if lt is not None else None,
+             f"<= {fmt(le)}" if le is not None else None]
+    text = ("an integer" if integer else "a finite number") + (
+        " " + " and ".join(p for p in parts if p) if any(parts) else "")
+    return text + (f" ({unit})" if unit else "")
+
+
+def _show(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def Number(  # noqa: N802 - a type factory, used like a type
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    unit: str = "",
+    integer: bool = False,
+):
+    """A numeric scene value: finite, within the bounds, never a boolean. The bounds are pydantic
+    ``Field`` constraints (so they show in the JSON schema); a check before them gives the
+    one-line message 'got -5; allowed: a finite number > 0 (Pa)'."""
+    allowed = _bound_text(gt, ge, lt, le, unit, integer)
+
+    def check(value):
+        if isinstance(value, bool):
+            raise ValueError(f"got {str(value).lower()}; allowed: {allowed}")
+        if isinstance(value, int | float):
+            try:
+                x = float(value)
+            except OverflowError:
+                x = math.inf
+            bad = not math.isfinite(x) or (
+                (gt is not None and not x > gt) or (ge is not None and not x >= ge)
+                or (lt is not None and not x < lt) or (le is not None and not x <= le)
+            )
+            if not math.isfinite(x):
+                raise ValueError(
+                    f"Input should be a finite number, got {value}; allowed: {allowed}"
+                )
+            if bad or (integer and x != int(x)):
+                raise ValueError(f"got {_show(value)}; allowed: {allowed}")
+        return value
+
+    field = Field(gt=gt, ge=ge, lt=lt, le=le) if integer else Field(
+        gt=gt, ge=ge, lt=lt, le=le, allow_inf_nan=False)
+    return Annotated[int if integer else float, BeforeValidator(check), field]
+
+
+MIN_VECTOR = 1e-9
+
+
+def _nonzero(vector: tuple[float, float, float]) -> tuple[float, float, float]:
+    if not np.linalg.norm(vector) >= MIN_VECTOR:
+        raise ValueError(
+            f"got {list(vector)}; allowed: a non-zero vector (length >= {MIN_VECTOR:g})"
+        )
+    return vector
+
+
+def _no_bool(value):
+    if isinstance(value, bool):
+        raise ValueError(f"got {str(value).lower()}; allowed: one of the integers listed")
+    return value
+
+
+Finite = Number()
+Coordinate = Number(ge=-1e6, le=1e6)
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
+"""A point or vector: three finite numbers within +-1e6 (m, or m/s for velocities)."""
+Direction = Annotated[Vec3, AfterValidator(_nonzero)]
+"""A direction: three finite numbers, not all zero (normalized where used)."""
+
+MAX_LENGTH = 1e3
+MIN_LENGTH = 1e-6
+Length = Number(ge=MIN_LENGTH, le=MAX_LENGTH, unit="m")
+Poisson = Number(gt=-1.0, lt=0.5)
+Seed = Number(ge=0, le=2**63 - 1, integer=True)
+Youngs = Number(ge=1e-3, le=1e13, unit="Pa")
+Density = Number(ge=1e-2, le=1e5, unit="kg/m^3")
+Tension = Number(ge=1e-6, le=1e9, unit="N/m")
+ArealDensity = Number(ge=1e-6, le=1e4, unit="kg/m^2")
+Frequency = Number(ge=1e-3, le=1e9, unit="Hz")
+Seconds = Number(ge=1e-9, le=1e6, unit="s")
+StartTime = Number(ge=0, le=1e6, unit="s")
+Force = Number(gt=0, le=1e9, unit="N")
+BoxCells = Number(ge=1, le=10_000, integer=True)
+Order = Annotated[Literal[1, 2], BeforeValidator(_no_bool)]
+"""Element order: 1 (linear: hex8, tet4) or 2 (quadratic: hex27, tet10)."""
+Pixels = Number(ge=8, le=16384, integer=True, unit="px")
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
 SCENES_DIR = next(
@@ -55,11 +152,9 @@ class BoxGeometry(_Strict):
     """Structured hexahedral grid of an axis-aligned box with its lowest corner at the origin."""
 
     kind: Literal["box"]
-    size: tuple[Positive, Positive, Positive] = (0.05, 0.05, 0.05)
-    cells: tuple[
-        Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)], Annotated[int, Field(ge=1)]
-    ] = (10, 10, 10)
-    order: Literal[1, 2] = 1
+    size: tuple[Length, Length, Length] = (0.05, 0.05, 0.05)
+    cells: tuple[BoxCells, BoxCells, BoxCells] = (10, 10, 10)
+    order: Order = 1
 
 
 class MeshGeometry(_Strict):
@@ -68,13 +163,13 @@ class MeshGeometry(_Strict):
     kind: Literal["mesh"]
     path: str = "bunny"
     up_axis: Literal["x", "y", "z"] = "z"
-    scale_to: Positive | None = None
-    target_faces: Annotated[int, Field(ge=100)] | None = 2000
-    edge_length_fac: Annotated[float, Field(gt=0, le=1)] = 0.1
-    epsilon: Annotated[float, Field(gt=0, le=0.1)] = 5e-3
-    stop_energy: Annotated[float, Field(gt=3)] = 10.0
+    scale_to: Length | None = None
+    target_faces: Number(ge=100, le=10**7, integer=True) | None = 2000
+    edge_length_fac: Number(gt=0, le=1) = 0.1
+    epsilon: Number(gt=0, le=0.1) = 5e-3
+    stop_energy: Number(gt=3, le=1e6) = 10.0
     coarsen: bool = False
-    order: Literal[1, 2] = 1
+    order: Order = 1
 
 
 class DrumGeometry(_Strict):
@@ -82,8 +177,8 @@ class DrumGeometry(_Strict):
 
     kind: Literal["drum"]
     shape: Literal["square", "circle"] = "square"
-    size: Positive = 0.1016
-    cells: Annotated[int, Field(ge=2)] = 40
+    size: Length = 0.1016
+    cells: Number(ge=2, le=100_000, integer=True) = 40
 
 
 Geometry = Annotated[BoxGeometry | MeshGeometry | DrumGeometry, Field(discriminator="kind")]
@@ -98,13 +193,13 @@ class Defect(_Strict):
 
     shape: Literal["box", "sphere", "cylinder", "ellipsoid"]
     center: Vec3
-    size: tuple[Positive, ...]
+    size: tuple[Number(ge=1e-9, le=MAX_LENGTH, unit="m"), ...]
     axis: Literal["x", "y", "z"] = "z"
-    E: Positive | None = None
-    rho: Positive | None = None
+    E: Youngs | None = None
+    rho: Density | None = None
     nu: Poisson | None = None
-    tension: Positive | None = None
-    areal_density: Positive | None = None
+    tension: Tension | None = None
+    areal_density: ArealDensity | None = None
 
     @field_validator("size")
     @classmethod
@@ -137,11 +232,11 @@ class Defect(_Strict):
 class Material(_Strict):
     """Base material plus defects. Solids use E, rho, nu; drums use tension, areal_density."""
 
-    E: Positive = 9000.0
-    rho: Positive = 1270.0
+    E: Youngs = 9000.0
+    rho: Density = 1270.0
     nu: Poisson = 0.3
-    tension: Positive = 40.0
-    areal_density: Positive = 0.5
+    tension: Tension = 40.0
+    areal_density: ArealDensity = 0.5
     defects: list[Defect] = []
     field_file: str | None = None
 
@@ -151,7 +246,7 @@ class NodeRegion(_Strict):
 
     box_min: Vec3 | None = None
     box_max: Vec3 | None = None
-    indices: list[Annotated[int, Field(ge=0)]] | None = None
+    indices: list[Number(ge=0, le=2**62, integer=True)] | None = None
 
     @model_validator(mode="after")
     def _one_kind(self) -> NodeRegion:
@@ -161,6 +256,11 @@ class NodeRegion(_Strict):
         if has_box and (self.box_min is None or self.box_max is None):
             missing = "box_max" if self.box_max is None else "box_min"
             raise ValueError(f"missing {missing}: box_min and box_max (3 floats, m) go together")
+        if has_box and any(lo > hi for lo, hi in zip(self.box_min, self.box_max, strict=True)):
+            raise ValueError(
+                f"box_min {list(self.box_min)} exceeds box_max {list(self.box_max)} in some "
+                "coordinate; allowed: box_min <= box_max in x, y and z"
+            )
         return self
 
 
@@ -174,9 +274,9 @@ class Boundary(_Strict):
 class Damping(_Strict):
     """Rayleigh damping C = alpha M + beta K, given directly or by two (frequency Hz, zeta)."""
 
-    alpha: NonNegative = 0.0
-    beta: NonNegative = 0.0
-    pairs: list[tuple[Positive, NonNegative]] | None = None
+    alpha: Number(ge=0, le=1e9, unit="1/s") = 0.0
+    beta: Number(ge=0, le=1e3, unit="s") = 0.0
+    pairs: list[tuple[Frequency, Number(ge=0, le=100)]] | None = None
 
     @field_validator("pairs")
     @classmethod
@@ -241,11 +341,11 @@ class Chirp(_Strict):
     """Linear frequency sweep force, amplitude in N (a speaker's drive)."""
 
     kind: Literal["chirp"]
-    f0: Positive = 50.0
-    f1: Positive = 1000.0
-    duration: Positive = 3.5
-    amplitude: Positive = 1e-3
-    start: NonNegative = 0.0
+    f0: Frequency = 50.0
+    f1: Frequency = 1000.0
+    duration: Seconds = 3.5
+    amplitude: Force = 1e-3
+    start: StartTime = 0.0
 
 
 class ForceFile(_Strict):
@@ -259,9 +359,9 @@ class Impulse(_Strict):
     """Half-sine force pulse (a tap), peak amplitude in N."""
 
     kind: Literal["impulse"]
-    amplitude: Positive = 1e-3
-    width: Positive = 1e-3
-    start: NonNegative = 0.0
+    amplitude: Force = 1e-3
+    width: Seconds = 1e-3
+    start: StartTime = 0.0
 
 
 Signal = Annotated[Chirp | ForceFile | Impulse, Field(discriminator="kind")]
@@ -278,9 +378,9 @@ class Excitation(_Strict):
 
     kind: Literal["pluck", "velocity", "force", "none"] = "pluck"
     at: Vec3 | None = None
-    radius: NonNegative = 0.0
-    direction: Vec3 = (1.0, 1.0, 1.0)
-    displacement: Positive = 0.005
+    radius: Number(ge=0, le=MAX_LENGTH, unit="m") = 0.0
+    direction: Direction = (1.0, 1.0, 1.0)
+    displacement: Number(ge=1e-12, le=MAX_LENGTH, unit="m") = 0.005
     velocity: Vec3 = (0.0, 0.0, 0.01)
     signal: Signal | None = None
 
@@ -290,19 +390,30 @@ class Excitation(_Strict):
             raise ValueError(f"excitation kind '{self.kind}' needs 'at' = [x, y, z] (m)")
         if self.kind == "force" and self.signal is None:
             raise ValueError("excitation kind 'force' needs a [excitation.signal] table")
-        if np.linalg.norm(self.direction) == 0:
-            raise ValueError("direction must be a non-zero vector")
+        if self.kind == "velocity" and not any(self.velocity):
+            raise ValueError(
+                "excitation kind 'velocity' needs a non-zero 'velocity' = [vx, vy, vz] (m/s)"
+            )
         return self
 
 
 class Simulation(_Strict):
     """Modal analysis and transient sampling."""
 
-    n_modes: Annotated[int, Field(ge=1, le=2000)] = 50
-    fps: Positive = 2000.0
-    duration: Positive = 6.0
+    n_modes: Number(ge=1, le=2000, integer=True) = 50
+    fps: Number(gt=0, le=1e7, unit="frames/s") = 2000.0
+    duration: Seconds = 6.0
     method: Literal["modal", "newmark"] = "modal"
-    newmark_substeps: Annotated[int, Field(ge=1)] = 4
+    newmark_substeps: Number(ge=1, le=1000, integer=True) = 4
+
+    @model_validator(mode="after")
+    def _at_least_one_frame(self) -> Simulation:
+        if round(self.duration * self.fps) < 1:
+            raise ValueError(
+                f"duration {self.duration:g} s at {self.fps:g} frames/s gives no frame; allowed: "
+                "duration * fps >= 0.5 (the frame count is rounded)"
+            )
+        return self
 
 
 class CameraSpec(_Strict):
@@ -311,36 +422,49 @@ class CameraSpec(_Strict):
 
     position: Vec3 = (0.15, -0.2, 0.15)
     look_at: Vec3 = (0.025, 0.025, 0.02)
-    up: Vec3 = (0.0, 0.0, 1.0)
-    fov_y_deg: Annotated[float, Field(gt=0, lt=180)] | None = 20.0
-    fx: Positive | None = None
-    fy: Positive | None = None
-    cx: Annotated[float, Field(allow_inf_nan=False)] | None = None
-    cy: Annotated[float, Field(allow_inf_nan=False)] | None = None
-    resolution: tuple[Annotated[int, Field(ge=8)], Annotated[int, Field(ge=8)]] = (256, 256)
+    up: Direction = (0.0, 0.0, 1.0)
+    fov_y_deg: Number(gt=0, lt=180, unit="degrees") | None = 20.0
+    fx: Number(gt=0, le=1e7, unit="px") | None = None
+    fy: Number(gt=0, le=1e7, unit="px") | None = None
+    cx: Number(ge=-1e7, le=1e7, unit="px") | None = None
+    cy: Number(ge=-1e7, le=1e7, unit="px") | None = None
+    resolution: tuple[Pixels, Pixels] = (256, 256)
 
     @model_validator(mode="after")
     def _fy_needs_fx(self) -> CameraSpec:
         if self.fy is not None and self.fx is None:
             raise ValueError("fy (px) needs fx (px); with fov_y_deg the pixels are square")
+        view = np.subtract(self.look_at, self.position, dtype=float)
+        if not np.linalg.norm(view) >= MIN_VECTOR:
+            raise ValueError(
+                f"look_at {list(self.look_at)} equals position {list(self.position)}; allowed: "
+                f"two points at least {MIN_VECTOR:g} m apart"
+            )
+        up = np.asarray(self.up, dtype=float)
+        cross = np.cross(view / np.linalg.norm(view), up / np.linalg.norm(up))
+        if not np.linalg.norm(cross) >= 1e-9:
+            raise ValueError(
+                f"up {list(self.up)} is parallel to the viewing direction (look_at - position); "
+                "allowed: any direction not parallel to it"
+            )
         return self
 
 
 class RenderSpec(_Strict):
     """How frames are drawn and recorded (used by the renderer)."""
 
-    supersample: Annotated[int, Field(ge=1, le=8)] = 4
-    texture_density: Annotated[float, Field(gt=0, le=1)] = 0.5
-    texture_contrast: Annotated[float, Field(gt=0, le=1)] = 1.0
-    texture_seed: int = 0
-    motion_scale: Positive = 1.0
+    supersample: Number(ge=1, le=8, integer=True) = 4
+    texture_density: Number(gt=0, le=1) = 0.5
+    texture_contrast: Number(gt=0, le=1) = 1.0
+    texture_seed: Seed = 0
+    motion_scale: Number(gt=0, le=1e6) = 1.0
     lighting: Literal["flat", "lit"] = "flat"
-    bit_depth: Literal[8, 12, 16] = 16
-    read_noise_dn: NonNegative = 0.0
+    bit_depth: Annotated[Literal[8, 12, 16], BeforeValidator(_no_bool)] = 16
+    read_noise_dn: Number(ge=0, le=1e6, unit="DN") = 0.0
     shot_noise: bool = False
-    frame_average: Annotated[int, Field(ge=1)] = 1
-    full_well_electrons: Positive = 1e4
-    consumer_crf: Annotated[int, Field(ge=0, le=51)] | None = None
+    frame_average: Number(ge=1, le=1000, integer=True) = 1
+    full_well_electrons: Number(gt=0, le=1e9, unit="electrons") = 1e4
+    consumer_crf: Number(ge=0, le=51, integer=True) | None = None
 
 
 class Scene(_Strict):
@@ -348,7 +472,7 @@ class Scene(_Strict):
 
     name: str
     description: str = ""
-    seed: int = 0
+    seed: Seed = 0
     geometry: Geometry
     material: Material = Material()
     boundary: Boundary = Boundary()
@@ -428,7 +552,7 @@ def _error_key(loc: tuple) -> tuple[str, type[BaseModel] | None]:
     member = None
     for p in loc:
         s = str(p)
-        if s.startswith("function-after"):
+        if s.startswith("function-"):
             continue
         if parts and s in _TAGGED_UNIONS.get(parts[-1], {}):
             member = _TAGGED_UNIONS[parts[-1]][s]
@@ -440,7 +564,8 @@ def _error_key(loc: tuple) -> tuple[str, type[BaseModel] | None]:
 
 
 def _format_error(source: str, error: ValidationError) -> str:
-    lines = [f"{source}: invalid scene ({error.error_count()} problem(s))"]
+    """One line: the file, then each problem as "key 'a.b': what is wrong; allowed: ..."."""
+    problems = []
     for e in error.errors():
         key, member = _error_key(e["loc"])
         msg = e["msg"].removeprefix("Value error, ")
@@ -453,8 +578,13 @@ def _format_error(source: str, error: ValidationError) -> str:
         elif e["type"] == "union_tag_not_found":
             kinds = ", ".join(repr(k) for k in _TAGGED_UNIONS.get(key.rsplit(".", 1)[-1], {}))
             key, msg = f"{key}.kind", f"missing; allowed: {kinds}"
-        lines.append(f"  key '{key or '<top level>'}': {msg}")
-    return "\n".join(lines)
+        elif e["type"] in ("missing", "model_type", "dict_type", "tuple_type", "list_type"):
+            msg = f"{msg} (got {_show(e.get('input'))})" if e["type"] != "missing" else msg
+        key = "".join(c if c.isprintable() else repr(c)[1:-1] for c in key)
+        problems.append(f"key '{key or '<top level>'}': {' '.join(str(msg).split())}")
+    if len(problems) == 1:
+        return f"{source}: {problems[0]}"
+    return f"{source}: {len(problems)} problems: " + "; ".join(problems)
 
 
 def _allowed_keys(parent: str) -> str:

@@ -12,6 +12,8 @@ This is the simulation backend: it reads only the scene (pure data) and returns 
 
 from __future__ import annotations
 
+import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,6 +114,12 @@ def build_mesh(scene: Scene) -> Mesh:
         else:
             lo, hi = np.asarray(region.box_min), np.asarray(region.box_max)
             idx = np.flatnonzero(np.all((mesh.points >= lo) & (mesh.points <= hi), axis=1))
+            if idx.size == 0:
+                raise SceneError(
+                    f"{scene.source}: key 'boundary.node_sets.{name}': the box "
+                    f"{list(region.box_min)}..{list(region.box_max)} holds no mesh node; the "
+                    f"body spans {_extent(mesh)}; allowed: a box around at least one node"
+                )
         extra[name] = idx
     return mesh.with_node_sets(extra) if extra else mesh
 
@@ -128,8 +136,10 @@ def material_fields(scene: Scene, mesh: Mesh) -> MaterialFields:
     density = np.full(n, m.areal_density if drum else m.rho)
     nu = np.full(n, m.nu)
     centroids = mesh.centroids
-    for defect in m.defects:
+    for i, defect in enumerate(m.defects):
         inside = defect.contains(centroids)
+        if not inside.any():
+            raise SceneError(_empty_defect_message(scene, mesh, i))
         if drum:
             if defect.tension is not None:
                 stiffness[inside] = defect.tension
@@ -193,11 +203,71 @@ def build_model(scene: Scene, mesh: Mesh, fields: MaterialFields) -> ParametricM
 
 
 def load_nodes(scene: Scene, mesh: Mesh) -> np.ndarray:
-    """Nodes within ``excitation.radius`` of ``excitation.at`` (the nearest node if none)."""
+    """Nodes within ``excitation.radius`` of ``excitation.at`` (the nearest node if none).
+
+    ``at`` must lie on or in the body: within ``radius`` plus one element size (the largest
+    element's bounding-box diagonal) of a node; farther away is a SceneError, not a snap."""
     at = np.asarray(scene.excitation.at, dtype=float)
     dist = np.linalg.norm(mesh.points - at, axis=1)
     nodes = np.flatnonzero(dist <= scene.excitation.radius)
-    return nodes if nodes.size else np.array([int(np.argmin(dist))])
+    if nodes.size:
+        return nodes
+    nearest = int(np.argmin(dist))
+    h = element_size(mesh)
+    if dist[nearest] > scene.excitation.radius + h:
+        raise SceneError(
+            f"{scene.source}: key 'excitation.at': {list(scene.excitation.at)} is "
+            f"{dist[nearest]:.3g} m from the body (nearest node at "
+            f"{[round(float(x), 6) for x in mesh.points[nearest]]}); allowed: a point within "
+            f"radius + one element size ({scene.excitation.radius:g} + {h:.3g} m) of a node; "
+            f"the body spans {_extent(mesh)}"
+        )
+    return np.array([nearest])
+
+
+def element_size(mesh: Mesh) -> float:
+    """The largest element's bounding-box diagonal (m): every point of the body lies within
+    this distance of a node."""
+    corners = mesh.points[mesh.cells]
+    return float(np.linalg.norm(np.ptp(corners, axis=1), axis=1).max())
+
+
+def _extent(mesh: Mesh) -> str:
+    lo, hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    return ", ".join(f"{c} {a:.4g}..{b:.4g}" for c, a, b in zip("xyz", lo, hi, strict=True)) + " m"
+
+
+def _defect_bounds(defect) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounding box of a defect region."""
+    c, s = np.asarray(defect.center, dtype=float), np.asarray(defect.size, dtype=float)
+    if defect.shape == "box":
+        half = s / 2
+    elif defect.shape == "sphere":
+        half = np.full(3, s[0])
+    elif defect.shape == "ellipsoid":
+        half = s
+    else:
+        half = np.full(3, s[0])
+        half["xyz".index(defect.axis)] = s[1] / 2
+    return c - half, c + half
+
+
+def _empty_defect_message(scene: Scene, mesh: Mesh, i: int) -> str:
+    defect = scene.material.defects[i]
+    lo, hi = _defect_bounds(defect)
+    body_lo, body_hi = mesh.points.min(axis=0), mesh.points.max(axis=0)
+    where = f"{scene.source}: key 'material.defects[{i}]'"
+    what = f"the {defect.shape} defect at {list(defect.center)} (size {list(defect.size)} m)"
+    if np.any(hi < body_lo) or np.any(lo > body_hi):
+        return (
+            f"{where}: {what} lies entirely outside the body, which spans {_extent(mesh)}; "
+            "allowed: a region containing at least one element centroid"
+        )
+    return (
+        f"{where}: {what} contains no element centroid (elements are up to "
+        f"{element_size(mesh):.3g} m across, or it falls outside the body's surface); allowed: "
+        "a region containing at least one element centroid"
+    )
 
 
 def load_vector(
@@ -265,9 +335,137 @@ def _read_force_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
         ) from None
     if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < 2:
         raise SceneError(f"{where}: need at least two rows of (time s, force N); got {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise SceneError(
+            f"{where}: {int(bad.sum())} non-finite value(s), the first {arr[row, col]} in row "
+            f"{row} ({('time', 'force')[col]}); allowed: finite times (s) and forces (N)"
+        )
     if np.any(np.diff(arr[:, 0]) <= 0):
         raise SceneError(f"{where}: times must be strictly increasing")
     return arr[:, 0], arr[:, 1]
+
+
+# Peak memory of a modal analysis, fitted to measured peaks (ru_maxrss over the interpreter's;
+# hex8, hex27 and square-drum meshes of 900 to 160k DOFs, 10 to 400 modes, CHOLMOD
+# factorization; within 15 % above 200 MiB): the per-element matrices and the assembly pattern
+# cost ~B_ENTRY bytes per element-matrix entry, the block eigen-solver ~B_MODE bytes per DOF
+# and mode, the sparse factorization ~B_FILL_3D N^(4/3) bytes in 3-D (nested-dissection fill)
+# and ~B_FILL_2D N log2 N in 2-D. SuperLU (no scikit-sparse) fills in more.
+B_ENTRY = 110.0
+B_MODE = 140.0
+B_FILL_3D = 40.0
+B_FILL_2D = 70.0
+GIB = 2.0**30
+_ELEMENT_DOFS = {"hex8": 24, "hex27": 81, "tet4": 12, "tet10": 30, "tri3": 3}
+
+
+def mesh_counts(scene: Scene, mesh: Mesh | None = None) -> tuple[str, int, int, int]:
+    """(element type, elements, nodes, DOFs) of the scene's simulation mesh: from the geometry
+    alone for boxes and drums (nothing is built), else from the given tetrahedral mesh."""
+    g = scene.geometry
+    if mesh is not None:
+        return mesh.element, mesh.n_elements, mesh.n_nodes, mesh.n_dofs
+    if g.kind == "box":
+        o = g.order
+        nodes = math.prod(o * c + 1 for c in g.cells)
+        return ("hex8" if o == 1 else "hex27"), math.prod(g.cells), nodes, 3 * nodes
+    if g.kind == "drum":
+        c = g.cells
+        if g.shape == "square":
+            return "tri3", 2 * c * c, (c + 1) ** 2, (c + 1) ** 2
+        nodes = 1 + 3 * c * (c + 1)
+        return "tri3", 6 * c * c, nodes, nodes
+    raise ValueError("a mesh geometry's size is known only after tetrahedralization")
+
+
+def estimate_memory(element: str, n_elements: int, n_dofs: int, n_modes: int) -> float:
+    """About how many bytes building the model and solving for ``n_modes`` modes needs."""
+    nd = _ELEMENT_DOFS.get(element, 81)
+    n = float(n_dofs)
+    fill = B_FILL_2D * n * math.log2(max(n, 2.0)) if element == "tri3" else B_FILL_3D * n ** (4 / 3)
+    return B_ENTRY * n_elements * nd * nd + B_MODE * n * n_modes + fill
+
+
+def available_memory() -> float | None:
+    """Bytes this process may still allocate: the system's available memory, lowered by a
+    cgroup limit or an address-space rlimit when set; None when unknown."""
+    limits = []
+    try:
+        import psutil
+
+        limits.append(float(psutil.virtual_memory().available))
+    except Exception:  # noqa: BLE001 - psutil is optional
+        try:
+            limits.append(float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")))
+        except (ValueError, OSError, AttributeError):
+            pass
+    try:
+        text = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if text != "max":
+            used = float(Path("/sys/fs/cgroup/memory.current").read_text())
+            limits.append(float(text) - used)
+    except (OSError, ValueError):
+        pass
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft != resource.RLIM_INFINITY:
+            pages = int(Path("/proc/self/statm").read_text().split()[0])
+            limits.append(float(soft - pages * os.sysconf("SC_PAGE_SIZE")))
+    except (ImportError, OSError, ValueError):
+        pass
+    return max(min(limits), 0.0) if limits else None
+
+
+def _transient_memory(scene: Scene, n_dofs: int) -> tuple[float, str]:
+    """(bytes, the key to reduce) of the transient response's arrays."""
+    sim = scene.simulation
+    frames = int(round(sim.duration * sim.fps))
+    k = sim.n_modes
+    if sim.method == "newmark":
+        return 4.0 * frames * n_dofs + 8.0 * 6 * n_dofs, "simulation.duration"
+    sub = 1
+    if scene.excitation.kind == "force":
+        _, force_dt = force_signal(scene)
+        sub = max(1, math.ceil((1 / sim.fps) / force_dt - 1e-9))
+    fine = (frames - 1) * sub + 1
+    key = "simulation.duration" if sub == 1 else "excitation.signal (its time step)"
+    return 8.0 * frames * k * 2 + 8.0 * fine * (3 * k + 2), key
+
+
+def check_problem_size(
+    scene: Scene, mesh: Mesh | None = None, transient: bool = True, available=None
+) -> float:
+    """Estimated peak bytes of simulating the scene; a SceneError when it exceeds the memory
+    this machine has available (``available`` bytes, default :func:`available_memory`), so a
+    too-large problem fails in a second instead of with a MemoryError after minutes."""
+    element, n_el, _, n_dofs = mesh_counts(scene, mesh)
+    k = scene.simulation.n_modes
+    model = estimate_memory(element, n_el, n_dofs, k)
+    need, key = model, "geometry.cells" if scene.geometry.kind != "mesh" else "geometry"
+    if B_MODE * n_dofs * k > model / 2:
+        key += " or simulation.n_modes"
+    if transient and scene.excitation.kind != "none":
+        extra, tkey = _transient_memory(scene, n_dofs)
+        if extra > need:
+            key = tkey
+        need += extra
+    avail = available_memory() if available is None else available
+    if avail is not None and need > avail:
+        size = (
+            "x".join(map(str, scene.geometry.cells)) if scene.geometry.kind == "box"
+            else f"{n_el}-element"
+        )
+        raise SceneError(
+            f"{scene.source}: key '{key.split(' ')[0]}': a {size} {element} mesh ({n_dofs} DOFs, "
+            f"{k} modes{', transient' if transient and scene.excitation.kind != 'none' else ''}) "
+            f"needs about {need / GIB:.3g} GiB, this machine has {avail / GIB:.3g} GiB "
+            f"available; reduce {key}"
+        )
+    return need
 
 
 def frame_times(scene: Scene) -> np.ndarray:
@@ -279,9 +477,14 @@ def simulate(scene: Scene, transient: bool = True, method: str | None = None) ->
     """Mesh, materials, the lowest ``simulation.n_modes`` modes and (optionally) the transient
     response at every surface node, sampled at the scene's frame rate."""
     timings: dict[str, float] = {}
+    transient = transient and scene.excitation.kind != "none"
+    if scene.geometry.kind != "mesh":
+        check_problem_size(scene, transient=transient)
     t0 = time.perf_counter()
     mesh = build_mesh(scene)
     timings["mesh"] = time.perf_counter() - t0
+    if scene.geometry.kind == "mesh":
+        check_problem_size(scene, mesh, transient=transient)
     fields = material_fields(scene, mesh)
     t0 = time.perf_counter()
     model = build_model(scene, mesh, fields)
@@ -295,16 +498,37 @@ def simulate(scene: Scene, transient: bool = True, method: str | None = None) ->
             f"only {model.n_free} free DOFs; allowed: 1..{limit}"
         )
     t0 = time.perf_counter()
-    modes = eigenmodes(K, M, n_modes, seed=scene.seed)
+    try:
+        modes = eigenmodes(K, M, n_modes, seed=scene.seed)
+    except np.linalg.LinAlgError as error:
+        raise SceneError(
+            f"{scene.source}: the eigen-solve failed ({error}); the scene's values are "
+            "numerically degenerate: check the extremes among material, geometry.size and "
+            "boundary; allowed: values whose combination stays finite"
+        ) from None
     timings["modes"] = time.perf_counter() - t0
     alpha, beta = scene.damping.coefficients()
     result = SimulationResult(scene, mesh, fields, model, modes, alpha, beta, timings=timings)
-    if not transient or scene.excitation.kind == "none":
+    _check_finite(scene, "frequencies", modes.omega)
+    if not transient:
         return result
     t0 = time.perf_counter()
     _transient(result, K, M, method or scene.simulation.method)
     timings["transient"] = time.perf_counter() - t0
+    _check_finite(scene, "transient response", result.modal_coordinates
+                  if result.modal_coordinates is not None else result.direct_displacements)
     return result
+
+
+def _check_finite(scene: Scene, what: str, values: np.ndarray) -> None:
+    """A last guard: values in range one by one can still overflow together (E / rho at the
+    extremes of their ranges); say so instead of returning NaN."""
+    if not np.all(np.isfinite(values)):
+        raise SceneError(
+            f"{scene.source}: the scene's values give a non-finite {what} (overflow); check "
+            "the extremes among material (E/rho or tension/areal_density), geometry.size, "
+            "damping and excitation; allowed: values whose combination stays finite"
+        )
 
 
 def initial_conditions(scene: Scene, result: SimulationResult, K, M):
