@@ -245,7 +245,7 @@ def test_triplanar_mapping_textures_every_face_without_large_stretch():
 def test_egl_error_names_debian_packages():
     from vvtbench.render import pyrender_backend as pb
 
-    msg = str(pb._egl_error(OSError("libEGL.so.1: cannot open shared object file")))
+    msg = str(pb.egl_error(OSError("libEGL.so.1: cannot open shared object file")))
     for pkg in ("libegl1", "libegl-mesa0", "libgl1-mesa-dri", "libgles2"):
         assert pkg in msg
     assert "PYOPENGL_PLATFORM=egl" in msg

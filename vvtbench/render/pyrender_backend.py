@@ -68,7 +68,7 @@ class EGLUnavailableError(RuntimeError):
     """Headless OpenGL (EGL) could not be initialised."""
 
 
-def _egl_error(exc: BaseException) -> EGLUnavailableError:
+def egl_error(exc: BaseException) -> EGLUnavailableError:
     return EGLUnavailableError(
         "headless OpenGL rendering through EGL is unavailable "
         f"({type(exc).__name__}: {exc}). Install the Debian packages with "
@@ -88,11 +88,11 @@ def _gl() -> types.SimpleNamespace:
         return _GL
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     if os.environ["PYOPENGL_PLATFORM"] != "egl":
-        raise _egl_error(ValueError("PYOPENGL_PLATFORM is not 'egl'"))
+        raise egl_error(ValueError("PYOPENGL_PLATFORM is not 'egl'"))
     if "OpenGL.platform" in sys.modules:  # PyOpenGL fixes its platform at first import
         platform = type(sys.modules["OpenGL.platform"].PLATFORM).__name__
         if platform != "EGLPlatform":
-            raise _egl_error(
+            raise egl_error(
                 RuntimeError(f"PyOpenGL was already imported with the {platform} platform")
             )
     if not hasattr(np, "infty"):  # removed in numpy 2, still used by pyrender
@@ -103,7 +103,7 @@ def _gl() -> types.SimpleNamespace:
         from pyrender.platforms import egl as pr_egl
         from pyrender.shader_program import ShaderProgramCache
     except Exception as exc:  # ImportError, OSError, OpenGL NullFunctionError...
-        raise _egl_error(exc) from exc
+        raise egl_error(exc) from exc
     ns = types.SimpleNamespace(pyrender=pyrender, GL=GL, egl=pr_egl)
     ns.FloatTexture = _make_float_texture(pyrender, GL)
     ns.FloatRenderer = _make_float_renderer(pyrender, GL)
@@ -564,7 +564,7 @@ class Renderer:
             self._platform.make_current()
         except Exception as exc:
             self._platform = None
-            raise _egl_error(exc) from exc
+            raise egl_error(exc) from exc
         try:
             self._renderer = ns.FloatRenderer(W, H, msaa=msaa, downsample=supersample)
             if lighting == "lit":
