@@ -1,0 +1,69 @@
+"""Bootstrap intervals and paired comparisons (vvtbench.stats)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from vvtbench.stats import (
+    bootstrap_ci,
+    paired_comparison,
+    paired_table,
+    summarize,
+    track_statistics,
+)
+
+
+def test_bootstrap_interval_covers_the_mean_about_95_percent_of_the_time():
+    rng = np.random.default_rng(5)
+    hits = 0
+    for _ in range(200):
+        x = rng.normal(0.3, 0.1, 30)
+        lo, hi = bootstrap_ci(x, n_boot=400, seed=int(rng.integers(1 << 30)))
+        hits += lo <= 0.3 <= hi
+    assert 0.88 <= hits / 200 <= 0.99  # percentile bootstrap is slightly narrow at n = 30
+
+
+def test_no_interval_from_fewer_than_two_values_and_reproducible():
+    assert np.isnan(bootstrap_ci([0.5])).all() and np.isnan(bootstrap_ci([])).all()
+    assert bootstrap_ci([1.0, 2, 3, 4], seed=3) == bootstrap_ci([1.0, 2, 3, 4], seed=3)
+    s = summarize([1.0, np.nan, 3.0])
+    assert s["n"] == 2 and s["mean"] == 2.0 and s["median"] == 2.0
+
+
+def test_paired_comparison_uses_only_shared_instances():
+    a = np.array([0.5, 0.6, 0.7, np.nan, 0.9])
+    b = np.array([0.4, 0.6, 0.5, 0.1, np.nan])
+    c = paired_comparison(a, b)
+    assert c["n"] == 3 and np.isclose(c["mean_diff"], (0.1 + 0 + 0.2) / 3)
+    assert np.isclose(c["win_rate"], (1 + 0.5 + 1) / 3)
+    assert c["ci_low"] <= c["mean_diff"] <= c["ci_high"]
+
+
+def _table():
+    rows = []
+    for inst in range(6):
+        for solver, base in (("a", 0.5), ("b", 0.3), ("oracle", 0.9)):
+            for nm in (8, 20):
+                rows.append({"track": "t", "observation": "true", "variation": f"n_modes={nm}",
+                             "solver": solver, "scene": f"s{inst}", "seed": 0,
+                             "reference": solver == "oracle", "status": "ok",
+                             "nc_w": base + 0.01 * inst + (0.1 if nm == 20 else 0),
+                             "runtime_s": 1.0 + inst})
+    rows[0]["status"], rows[0]["nc_w"] = "invalid", np.nan
+    return pd.DataFrame(rows)
+
+
+def test_track_statistics_one_row_per_sweep_value_and_counts():
+    st = track_statistics(_table())
+    assert len(st) == 3 * 2  # solvers x n_modes values: never averaged over n_modes
+    a8 = st[(st.solver == "a") & (st.variation == "n_modes=8")].iloc[0]
+    assert a8.n == 5 and a8.invalid == 1 and a8.failed == 0
+    assert a8.nc_w_ci_low <= a8.nc_w_mean <= a8.nc_w_ci_high
+    assert bool(st[st.solver == "oracle"].reference.all())
+
+
+def test_paired_table_excludes_references():
+    pt = paired_table(_table())
+    assert set(zip(pt.a, pt.b, strict=True)) == {("a", "b")}
+    assert (pt.mean_diff > 0.15).all() and (pt.win_rate == 1.0).all()
