@@ -457,7 +457,10 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
                 ax.set_ylabel("NC (Pearson)", fontsize=8)
             ax.tick_params(labelsize=7)
     _legend_outside(fig, axes)
-    fig.suptitle(title or f"NC against {_key_label(key)}", fontsize=9)
+    n = d.groupby(["scene", "solver", "observation", "_x"]).size().max()
+    how = (f"mean of up to {n} instances, band: 95 % bootstrap interval" if n > 1
+           else "one instance per point, no band")
+    fig.suptitle(f"{title or 'NC against ' + _key_label(key)} ({how})", fontsize=9)
     return bool(save_figure(fig, path, dpi=dpi))
 
 
