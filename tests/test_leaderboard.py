@@ -35,7 +35,7 @@ def _truth(shape=(4, 4, 4)):
 
 def _row(track, scene, variation, options, solver, obs, nc, *, seed=0, status="ok",
          est=None, reference=False):
-    return dict(track=track, solver=solver, solver_version="1", config_hash="0" * 16,
+    return dict(track=track, solver=solver, solver_version="1.0.0", config_hash="0" * 16,
                 config="{}", scene=scene, variation=variation,
                 variation_options=json.dumps(options), seed=seed, observation=obs,
                 n_modes=options.get("n_modes", 10), n_modes_observed=10,
@@ -50,9 +50,12 @@ def _row(track, scene, variation, options, solver, obs, nc, *, seed=0, status="o
 
 @pytest.fixture(scope="module")
 def table(tmp_path_factory):
+    return make_run(tmp_path_factory.mktemp("run"))
+
+
+def make_run(root):
     """A run folder: tracks `zeta_first` (2 scenes, an n_modes sweep, 2 seeds, both sources),
     `drums` (membranes) and `alpha` (a vvt.alpha_v sweep) in that order; one invalid row."""
-    root = tmp_path_factory.mktemp("run")
     rng = np.random.default_rng(0)
     rows, k = [], 0
 

@@ -406,7 +406,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
             md.append(f"**{track}: {caption}**\n\n![{track}: {caption}]({rel})\n")
             body.append(f"<figure><figcaption>{html.escape(track)}: {html.escape(caption)}"
                         f"</figcaption><img src=\"{html.escape(rel)}\" alt=\""
-                        f"{html.escape(track)}: {html.escape(caption)}\" loading=\"lazy\">"
+                        f"{html.escape(track)}: {html.escape(caption)}\">"
                         "</figure>")
         body.append("</section>")
     summary_html = ("<table><tr><th>track</th><th>best ranked solver: NC w</th>"

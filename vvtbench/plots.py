@@ -336,7 +336,7 @@ def _colourbar(fig, im, cax, label: str, extend: str, ticks) -> None:
 
     bar = fig.colorbar(im, cax=cax, extend=extend)
     bar.set_label(label, fontsize=8)
-    bar.ax.tick_params(labelsize=7)
+    bar.ax.tick_params(which="both", labelsize=7)
     if ticks is not None:
         bar.set_ticks(ticks)
         bar.ax.yaxis.set_major_formatter(mticker.FuncFormatter(lambda x, _: f"×{x:.3g}"))
