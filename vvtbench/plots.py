@@ -285,7 +285,7 @@ def plot_field_grids(path: str | Path, truth_w: np.ndarray | None, truth_v: np.n
         fig_w = panel * (2 * layers + 0.24 + label_w + 1.1) + 1.2
         fig = plt.figure(figsize=(fig_w, n_rows * panel * 1.08 + 1.3))
         gs = fig.add_gridspec(n_rows, len(widths), width_ratios=widths, left=0.01,
-                              right=1 - 0.9 / fig_w, top=1 - 0.95 / (n_rows * panel * 1.08 + 1.3),
+                              right=1 - 0.9 / fig_w, top=1 - 0.8 / (n_rows * panel * 1.08 + 1.3),
                               bottom=0.04, wspace=0.06, hspace=0.08)
         for f in range(2):
             c0 = 1 if f == 0 else layers + 3
@@ -319,7 +319,7 @@ def plot_field_grids(path: str | Path, truth_w: np.ndarray | None, truth_v: np.n
                           + " — layers of the voxel grid, bottom to top", fontsize=8, pad=16)
             top.patch.set_alpha(0)
     what = "contrast to the matrix value" if normalized else "values"
-    head = title + f" ({what})" if title else what.capitalize()
+    head = title + f" ({what})" if title else f"Material fields: {what}"
     fig.suptitle(head + ("; grey: no material" if any(np.isnan(fields[0][0]).ravel())
                          else ""), fontsize=9)
     return save_figure(fig, path, dpi=dpi)
