@@ -1,18 +1,25 @@
-"""The leaderboard: Markdown + static HTML (no server) from a results table.
+"""The leaderboard: Markdown + static HTML (no server, no external URL) from a results table.
 
-Writes into the output folder (default ``leaderboard/``): ``README.md`` (one ranking table per
-track), ``index.html`` (the same tables and the figures, images referenced relatively),
-``results.csv`` (a copy of the table), and ``figures/``: NC vs number of modes per solver
-(per track and observation), intrinsic-resolution curves (NC against the blur sigma of the
-truth), and slices of estimated vs true fields (the paper's Fig. 5 style) read from each run's
+Writes into the output folder (default ``leaderboard/``): ``README.md`` and ``index.html`` (a
+summary, then per track in the order of the suite (first appearance in the table) one ranking
+table per observation source and the track's figures), ``results.csv`` (a copy of the table),
+``figures/`` and ``leaderboard.json``, which marks the folder as written by vvtbench and lists
+its files. Figures (:mod:`vvtbench.plots`): NC against each swept value (number of modes, α_v,
+geometry scale, ...), intrinsic-resolution curves, and per scene the voxel fields of the truth
+and of every solver and observation source (values and contrast views), read from each run's
 ``fields.npz`` (the ``estimate_path`` column, relative to the results file's folder).
+
+Data safety: the output folder may hold only files listed in its ``leaderboard.json``; a folder
+holding other files is refused unless ``overwrite=True``, and even then only the leaderboard's
+own files are written or removed. Every file is written atomically (temp file + rename), and
+nothing is written through a symbolic link.
 """
 
 from __future__ import annotations
 
 import html
 import json
-import shutil
+import os
 import sys
 from pathlib import Path
 
@@ -44,7 +51,11 @@ def ranking(df):
         df = df.assign(reference=False)
     ok = df[df.status == "ok"]
     groups = []
-    for (track, obs), g in df.groupby(["track", "observation"], sort=True):
+    keys = list(dict.fromkeys(zip(df.track, df.observation, strict=True)))
+    order = {t: i for i, t in enumerate(dict.fromkeys(df.track))}
+    keys.sort(key=lambda k: (order[k[0]], {"true": 0, "extracted": 1}.get(k[1], 2), k[1]))
+    for track, obs in keys:
+        g = df[(df.track == track) & (df.observation == obs)]
         gok = ok[(ok.track == track) & (ok.observation == obs)]
         agg = gok.groupby("solver")[[c for c, _ in RANK_COLUMNS]].mean(numeric_only=True)
         counts = g.groupby("solver").size().rename("runs")
@@ -92,186 +103,346 @@ def _md_table(t) -> str:
 def _html_table(t) -> str:
     rows = ["<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in _HEAD) + "</tr>"]
     for rank, label, vals, runs, errs, bad in _cells(t):
-        rows.append("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in
-                                     [rank, label, *vals, runs, errs, bad]) + "</tr>")
+        cls = ' class="ref"' if rank == "ref" else ""
+        rows.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in
+                                           [rank, label, *vals, runs, errs, bad]) + "</tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
-def plot_nc_vs_modes(df, track: str, path: Path) -> bool:
-    d = df[(df.track == track) & (df.status == "ok")]
-    if d["n_modes"].nunique() < 2:
-        return False
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
-    for ax, field in zip(axes, ("w", "v"), strict=True):
-        for (solver, obs, scene), g in d.groupby(["solver", "observation", "scene"]):
-            m = g.groupby("n_modes")[f"nc_{field}"].mean()
-            ax.plot(m.index, m.values, "o-" if obs == "true" else "s--", ms=3,
-                    label=f"{solver} ({obs}) {scene}")
-        ax.set_xlabel("number of modes")
-        ax.set_ylabel(f"NC of {field}")
-        ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=6, loc="best")
-    fig.suptitle(f"{track}: NC vs number of modes", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return True
-
-
-def plot_intrinsic_resolution(df, track: str, base: Path, path: Path) -> bool:
-    from .metrics import intrinsic_resolution
-
-    d = df[(df.track == track) & (df.status == "ok") & df.estimate_path.notna()]
-    if d.empty:
-        return False
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
-    drawn = False
-    for ax, field in zip(axes, ("w", "v"), strict=True):
-        for (solver, obs), g in d.groupby(["solver", "observation"]):
-            curves = []
-            for p in g.estimate_path:
-                f = base / p
-                if not f.is_file():
-                    continue
-                z = np.load(f)
-                ir = intrinsic_resolution(z[field], z[f"{field}_true"])
-                curves.append(ir["nc"])
-                sig = ir["sigmas"]
-            if curves:
-                drawn = True
-                ax.plot(sig, np.mean(curves, axis=0), "-" if obs == "true" else "--",
-                        label=f"{solver} ({obs})")
-        ax.set_xlabel("σ of the Gaussian blur of the truth (voxels)")
-        ax.set_ylabel(f"NC of {field} with blurred truth")
-        ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=7)
-    fig.suptitle(f"{track}: intrinsic resolution (mean over runs)", fontsize=9)
-    fig.tight_layout()
-    if drawn:
-        fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return drawn
-
-
-def plot_slices(df, track: str, base: Path, path: Path, max_rows: int = 6) -> bool:
-    """Rows: truth, then each solver's estimate of the track's first scene/variation; columns:
-    slices of w (and v), like the paper's figures."""
-    d = df[(df.track == track) & (df.status == "ok") & df.estimate_path.notna()]
-    if d.empty:
-        return False
-    first = d.iloc[0]
-    sel = d[(d.scene == first.scene) & (d.variation == first.variation)
-            & (d.seed == first.seed)]
-    rows = []
-    for r in sel.itertuples():
-        f = base / r.estimate_path
-        if f.is_file():
-            rows.append((f"{r.solver} ({r.observation})", np.load(f)))
-    if not rows:
-        return False
-    rows = rows[:max_rows]
-    truth = rows[0][1]
-    grids = [("truth", truth["w_true"], truth["v_true"])] + [
-        (label, z["w"], z["v"]) for label, z in rows]
-    plt = _plt()
-    w_true = truth["w_true"]
-    membrane = w_true.ndim == 2
-    cols = [None] if membrane else sorted({w_true.shape[1] // 4, w_true.shape[1] // 2,
-                                           (3 * w_true.shape[1]) // 4})
-    fig, axes = plt.subplots(len(grids), 2 * len(cols),
-                             figsize=(1.7 * 2 * len(cols) + 1, 1.6 * len(grids)),
-                             squeeze=False)
-    for i, (label, w, v) in enumerate(grids):
-        for f_i, (name, g) in enumerate((("w", w), ("v", v))):
-            vmin, vmax = _colour_range(g)
-            for c_i, j in enumerate(cols):
-                ax = axes[i, f_i * len(cols) + c_i]
-                img = g if membrane else g[:, j, :]
-                ax.imshow(np.asarray(img).T, origin="lower", cmap="viridis", vmin=vmin, vmax=vmax)
-                ax.set_xticks([])
-                ax.set_yticks([])
-                if i == 0:
-                    ax.set_title(name if membrane else f"{name}, y={j}", fontsize=7)
-                if f_i == 0 and c_i == 0:
-                    ax.set_ylabel(label, fontsize=6)
-    fig.suptitle(f"{track}: {first.scene} [{first.variation}] (colour scale per row and field)",
-                 fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return True
-
-
-def _colour_range(field: np.ndarray) -> tuple[float, float]:
-    """Min and max of a field over all its slices; a (nearly) uniform field gets +-5 % around
-    its value so that round-off is not shown as structure."""
-    lo, hi = float(np.nanmin(field)), float(np.nanmax(field))
-    mid = 0.5 * (lo + hi)
-    if hi - lo <= 1e-6 * max(abs(mid), 1e-30):
-        return mid - 0.05 * abs(mid), mid + 0.05 * abs(mid)
-    return lo, hi
-
-
+# --------------------------------------------------------------------------- figures
 def _slug(s: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in str(s))
 
 
-def build(results: str | Path, out: str | Path = "leaderboard") -> Path:
-    from .bench import check_results, read_results
+def _load_fields(base: Path, rel) -> dict | None:
+    """The ``fields.npz`` of a row (None when missing or unreadable); no pickle."""
+    if not isinstance(rel, str) or not rel:
+        return None
+    f = base / rel
+    if not f.is_file():
+        return None
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            return {k: np.asarray(z[k]) for k in ("w", "v", "w_true", "v_true") if k in z}
+    except (OSError, ValueError):
+        return None
 
-    results = Path(results)
-    df = read_results(results)
-    base = results if results.is_dir() else results.parent
-    problems = check_results(df)
-    out = Path(out)
-    (out / "figures").mkdir(parents=True, exist_ok=True)
-    df.to_csv(out / "results.csv", index=False)
-    md = ["# vvtbench leaderboard\n",
-          f"Generated by vvtbench {__version__} from `{results}` ({len(df)} runs, "
-          f"{df.solver.nunique()} solvers, {df.track.nunique()} tracks). Ranked by mean NC of "
-          "the stiffness field w over the track's runs (centered normalized correlation, "
-          "docs/metrics.md); errors count failed runs.\n"]
-    if problems:
-        md.append("**Schema problems:** " + "; ".join(problems[:5]) + "\n")
-    body = []
-    for track, obs, t in ranking(df):
-        md.append(f"## {track} — {obs} modes\n")
-        md.append(_md_table(t) + "\n")
-        body.append(f"<h2>{html.escape(track)} — {html.escape(obs)} modes</h2>{_html_table(t)}")
-    figs = []
-    for track in sorted(df.track.unique()):
-        for kind, fn in (("nc_vs_modes", lambda p, tr=track: plot_nc_vs_modes(df, tr, p)),
-                         ("intrinsic_resolution",
-                          lambda p, tr=track: plot_intrinsic_resolution(df, tr, base, p)),
-                         ("slices", lambda p, tr=track: plot_slices(df, tr, base, p))):
-            rel = f"figures/{_slug(track)}_{kind}.png"
-            try:
-                if fn(out / rel):
-                    figs.append((track, kind, rel))
-            except Exception as error:  # a figure must not stop the leaderboard
-                print(f"warning: {track} {kind}: {error}", file=sys.stderr)
-    if figs:
-        md.append("## Figures\n")
-        for track, kind, rel in figs:
-            md.append(f"### {track}: {kind.replace('_', ' ')}\n\n![{track} {kind}]({rel})\n")
-    (out / "README.md").write_text("\n".join(md))
-    fig_html = "".join(f"<h3>{html.escape(t)}: {html.escape(k.replace('_', ' '))}</h3>"
-                       f"<img src='{html.escape(r)}' alt='{html.escape(t)} {k}'>"
-                       for t, k, r in figs)
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>vvtbench leaderboard</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}}
-table{{border-collapse:collapse;margin:.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;
-text-align:right}}th{{background:#eee}}img{{max-width:100%}}</style></head><body>
-<h1>vvtbench leaderboard</h1><p>vvtbench {__version__}; {len(df)} runs from
-<code>{html.escape(str(results))}</code>. Ranked by mean NC of w. Data:
-<a href="results.csv">results.csv</a>.</p>{''.join(body)}<h2>Figures</h2>{fig_html}
-</body></html>"""
-    (out / "index.html").write_text(page)
-    (out / "leaderboard.json").write_text(json.dumps(
-        {"vvtbench": __version__, "source": str(results), "figures": figs}, indent=1))
+
+def _solver_order(d) -> list[str]:
+    """Reference solvers first, then the others by name."""
+    ref = set(d.loc[d["reference"].astype(bool), "solver"]) if "reference" in d else set()
+    return sorted(d.solver.unique(), key=lambda s: (s not in ref, s))
+
+
+def shown_variation(d) -> str:
+    """The variation drawn in a track's field figures: the middle of its variations in run
+    order (the paper's default of a sweep, e.g. n_modes=14 of 8...20, α_v=1e-7 of 1e-9...1e-5)."""
+    variations = list(dict.fromkeys(d.variation))
+    return variations[len(variations) // 2]
+
+
+def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles) -> list:
+    """Per scene of ``track``: the truth and every solver × observation source of the shown
+    variation and first seed, values and contrast views. Returns [(caption, rel path)]."""
+    from .plots import plot_field_grids
+
+    d = df[(df.track == track) & (df.status == "ok")]
+    if d.empty or "estimate_path" not in d:
+        return []
+    variation = shown_variation(d)
+    out = []
+    for n, scene in enumerate(dict.fromkeys(d.scene)):
+        ds = d[(d.scene == scene) & (d.variation == variation)]
+        if ds.empty:
+            continue
+        ds = ds[ds.seed == ds.seed.iloc[0]]
+        truth, estimates, notes = None, {}, {}
+        for solver in _solver_order(ds):
+            for obs in ("true", "extracted", *sorted(set(ds.observation) - {"true", "extracted"})):
+                r = ds[(ds.solver == solver) & (ds.observation == obs)]
+                if r.empty:
+                    continue
+                r = r.iloc[0]
+                z = _load_fields(base, r.get("estimate_path"))
+                if z is None or "w" not in z:
+                    continue
+                if truth is None and "w_true" in z:
+                    truth = (z["w_true"], z["v_true"])
+                ref = " (ref.)" if bool(r.get("reference", False)) else ""
+                label = f"{solver}{ref}, {obs} modes"
+                estimates[label] = (z["w"], z["v"])
+                notes[label] = f"NC w {r.nc_w:.2f}, v {r.nc_v:.2f}"
+        if not estimates or truth is None:
+            continue
+        stem = f"{_slug(track)}_slices" + ("" if n == 0 else f"_{_slug(scene)}")
+        seed = ds.seed.iloc[0]
+        for normalized, suffix, what in ((False, "", "values"),
+                                         (True, "_normalized", "contrast to the matrix")):
+            rel = f"{rel_dir}/{stem}{suffix}.png"
+            plot_field_grids(folder / Path(rel).name, truth[0], truth[1], estimates,
+                             normalized=normalized, notes=notes,
+                             title=f"{track}: {scene} [{variation}, seed {seed}]")
+            out.append((f"{scene} [{variation}]: fields, {what}", rel))
     return out
 
 
-__all__ = ["build", "ranking", "shutil"]
+def curve_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles) -> list:
+    """NC against every swept value of the track and the intrinsic-resolution curves."""
+    from .metrics import intrinsic_resolution
+    from .plots import plot_intrinsic_resolution, plot_sweep, sweep_keys
+
+    d = df[df.track == track]
+    out = []
+    for key in sweep_keys(d):
+        name = "nc_vs_modes" if key == "n_modes" else f"nc_vs_{_slug(key)}"
+        rel = f"{rel_dir}/{_slug(track)}_{name}.png"
+        if plot_sweep(folder / Path(rel).name, d, key, styles,
+                      title=f"{track}: NC against {key}"):
+            out.append((f"NC against {key}", rel))
+    ok = d[d.status == "ok"]
+    if ok.empty or "estimate_path" not in ok:
+        return out
+    variation = shown_variation(ok)
+    curves: dict = {}
+    for r in ok[ok.variation == variation].itertuples():
+        z = _load_fields(base, getattr(r, "estimate_path", None))
+        if z is None or "w" not in z:
+            continue
+        c = curves.setdefault((r.solver, r.observation), {"w": [], "v": []})
+        for field in ("w", "v"):
+            ir = intrinsic_resolution(z[field], z[f"{field}_true"])
+            c[field].append(ir["nc"])
+            c["sigmas"] = ir["sigmas"]
+    rel = f"{rel_dir}/{_slug(track)}_intrinsic_resolution.png"
+    if curves and plot_intrinsic_resolution(folder / Path(rel).name, curves, styles,
+                                            title=f"{track} [{variation}]: intrinsic "
+                                                  "resolution (mean over instances)"):
+        out.append((f"intrinsic resolution [{variation}]", rel))
+    return out
+
+
+# --------------------------------------------------------------------------- output safety
+class LeaderboardError(ValueError):
+    """The leaderboard cannot be written (unsafe output folder, unreadable table)."""
+
+
+MANIFEST = "leaderboard.json"
+
+
+def _owned(out: Path) -> set[str]:
+    """Files (relative, POSIX) a previous ``build`` wrote into ``out``, from its manifest."""
+    f = out / MANIFEST
+    if not f.is_file() or f.is_symlink():
+        return set()
+    try:
+        m = json.loads(f.read_text())
+    except (OSError, ValueError):
+        return set()
+    if not isinstance(m, dict):
+        return set()
+    if m.get("generator") == "vvtbench" and isinstance(m.get("files"), list):
+        names = {str(x) for x in m["files"]} | {MANIFEST}
+    elif "vvtbench" in m and isinstance(m.get("figures"), list):  # before it listed files
+        names = {str(x[2]) for x in m["figures"] if isinstance(x, list) and len(x) == 3}
+        names |= {"README.md", "index.html", "results.csv", MANIFEST}
+    else:
+        return set()
+    # only plain relative names inside the folder (a planted manifest must not name others)
+    return {n for n in names if n and not Path(n).is_absolute() and ".." not in Path(n).parts
+            and "\\" not in n}
+
+
+def _existing(out: Path) -> set[str]:
+    found = set()
+    for root, dirs, files in os.walk(out):
+        dirs[:] = [d for d in dirs if not d.startswith(".vvtbench-figures-")]
+        for name in files + [d for d in dirs if (Path(root) / d).is_symlink()]:
+            found.add((Path(root) / name).relative_to(out).as_posix())
+    return found
+
+
+def prepare_output(out: Path, source: Path, overwrite: bool = False) -> set[str]:
+    """Check that ``build`` may write into ``out``; returns the files it wrote there before."""
+    if out.is_symlink():
+        raise LeaderboardError(f"{out} is a symbolic link; refusing to write through it")
+    if out.exists() and not out.is_dir():
+        raise LeaderboardError(f"{out} exists and is not a folder")
+    owned = _owned(out) if out.is_dir() else set()
+    if out.is_dir():
+        foreign = sorted(_existing(out) - owned)
+        if foreign and not overwrite:
+            shown = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more"
+                                              if len(foreign) > 4 else "")
+            raise LeaderboardError(
+                f"{out} holds files the leaderboard did not write ({shown}); choose an empty "
+                "or new folder, or pass --overwrite to replace only the leaderboard's own "
+                "files (README.md, index.html, results.csv, leaderboard.json, figures/) and "
+                "keep the others")
+        for name in ("figures", *sorted(owned)):
+            p = out / name
+            if p.is_symlink():
+                raise LeaderboardError(f"{p} is a symbolic link; refusing to write through it")
+    src = source.resolve()
+    copy = (out / "results.csv").resolve()
+    if src == copy and "results.csv" not in owned:
+        raise LeaderboardError(f"the input {source} would be overwritten by the leaderboard's "
+                               "copy of the table; choose another output folder")
+    return owned
+
+
+# --------------------------------------------------------------------------- pages
+def summary(df) -> list[dict]:
+    """Per track (first-appearance order): the best ranked (non-reference) solver and
+    observation by mean NC of w, the best reference, and the counts of runs, failed and
+    invalid rows."""
+    out = []
+    groups = ranking(df)
+    for track in dict.fromkeys(df.track):
+        g = df[df.track == track]
+        best = ref = None
+        for tr, obs, t in groups:
+            if tr != track:
+                continue
+            ranked = t[~t.reference.astype(bool) & np.isfinite(t.nc_w)]
+            if len(ranked) and (best is None or ranked.nc_w.iloc[0] > best[2]):
+                best = (ranked.index[0], obs, float(ranked.nc_w.iloc[0]))
+            refs = t[t.reference.astype(bool) & np.isfinite(t.nc_w)]
+            if len(refs) and (ref is None or refs.nc_w.max() > ref[2]):
+                ref = (refs.nc_w.idxmax(), obs, float(refs.nc_w.max()))
+        out.append({"track": track, "best": best, "reference": ref, "runs": len(g),
+                    "failed": int((g.status == "error").sum()),
+                    "invalid": int((g.status == "invalid").sum())})
+    return out
+
+
+def _fmt_best(b) -> str:
+    return "–" if b is None else f"{b[0]} ({b[1]} modes): {b[2]:.3f}"
+
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1250px;margin:auto;padding:1em;
+color:#222}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.9em}
+td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}th{background:#eee}
+td:nth-child(2){text-align:left}tr.ref td{color:#666;font-style:italic;background:#f7f7f7}
+img{max-width:100%;display:block;margin:.3em 0 1em;border:1px solid #eee}
+nav a{margin-right:.8em}.note{color:#555;font-size:.9em}
+figure{margin:0}figcaption{font-size:.85em;color:#444}"""
+
+
+def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool = False) -> Path:
+    """Write the leaderboard of ``results`` (a table or a run folder) into ``out``.
+
+    Refuses an ``out`` holding files it did not write (see :func:`prepare_output`) unless
+    ``overwrite``; then writes and removes only its own files."""
+    import tempfile
+
+    from .bench import check_results, read_results
+    from .io import write_json, write_text
+    from .plots import Styles
+
+    results = Path(results)
+    source = results / "results.parquet" if results.is_dir() else results
+    out = Path(out)
+    owned = prepare_output(out, source, overwrite)
+    df = read_results(results)
+    if "reference" not in df.columns:
+        df = df.assign(reference=False)
+    base = results if results.is_dir() else results.parent
+    problems = check_results(df)
+    styles = Styles(df.solver.unique(), df.observation.unique())
+    tracks = list(dict.fromkeys(df.track))
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "figures").mkdir(exist_ok=True)
+    figs: dict[str, list] = {}
+    with tempfile.TemporaryDirectory(prefix=".vvtbench-figures-", dir=out) as tmp:
+        tmp = Path(tmp)
+        for track in tracks:
+            figs[track] = []
+            for fn in (curve_figures, field_figures):
+                try:
+                    figs[track] += fn(df, track, base, tmp, "figures", styles)
+                except Exception as error:  # a figure must not stop the leaderboard
+                    print(f"warning: {track} {fn.__name__}: {type(error).__name__}: {error}",
+                          file=sys.stderr)
+        written = {"README.md", "index.html", "results.csv", MANIFEST}
+        for track in tracks:
+            for _, rel in figs[track]:
+                os.replace(tmp / Path(rel).name, out / rel)  # atomic, replaces a link itself
+                written.add(rel)
+
+    rows = summary(df)
+    n_failed = int((df.status == "error").sum())
+    n_invalid = int((df.status == "invalid").sum())
+    intro = (f"Generated by vvtbench {__version__} from `{results}`: {len(df)} runs "
+             f"({n_failed} failed, {n_invalid} invalid), {df.solver.nunique()} solvers, "
+             f"{len(tracks)} tracks. Solvers are ranked per track and observation source by "
+             "mean NC of the stiffness field w over the track's valid runs (centered "
+             "normalized correlation, docs/metrics.md). Reference solvers (they saw the "
+             "truth: an upper bound) are marked `ref` and not ranked; failed and invalid "
+             "runs are counted and never ranked.")
+    md = ["# vvtbench leaderboard\n", intro + "\n"]
+    if problems:
+        md.append("**Schema problems:** " + "; ".join(problems[:5]) + "\n")
+    md.append("## Summary\n")
+    md.append("| track | best ranked solver: NC w | reference: NC w | runs | failed | invalid |")
+    md.append("|---|---|---|---|---|---|")
+    for r in rows:
+        md.append(f"| [{r['track']}](#{_slug(r['track'])}) | {_fmt_best(r['best'])} | "
+                  f"{_fmt_best(r['reference'])} | {r['runs']} | {r['failed']} | "
+                  f"{r['invalid']} |")
+    md.append("")
+    body = []
+    groups = ranking(df)
+    for track in tracks:
+        md.append(f'<a id="{_slug(track)}"></a>\n\n## {track}\n')
+        body.append(f'<section id="{_slug(track)}"><h2>{html.escape(track)}</h2>')
+        for tr, obs, t in groups:
+            if tr != track:
+                continue
+            md.append(f"### {track} — {obs} modes\n\n" + _md_table(t) + "\n")
+            body.append(f"<h3>{html.escape(track)} — {html.escape(obs)} modes</h3>"
+                        + _html_table(t))
+        for caption, rel in figs[track]:
+            md.append(f"**{track}: {caption}**\n\n![{track}: {caption}]({rel})\n")
+            body.append(f"<figure><figcaption>{html.escape(track)}: {html.escape(caption)}"
+                        f"</figcaption><img src=\"{html.escape(rel)}\" alt=\""
+                        f"{html.escape(track)}: {html.escape(caption)}\">"
+                        "</figure>")
+        body.append("</section>")
+    summary_html = ("<table><tr><th>track</th><th>best ranked solver: NC w</th>"
+                    "<th>reference: NC w</th><th>runs</th><th>failed</th><th>invalid</th></tr>"
+                    + "".join(f"<tr><td><a href=\"#{_slug(r['track'])}\">"
+                              f"{html.escape(r['track'])}</a></td>"
+                              f"<td>{html.escape(_fmt_best(r['best']))}</td>"
+                              f"<td>{html.escape(_fmt_best(r['reference']))}</td>"
+                              f"<td>{r['runs']}</td><td>{r['failed']}</td>"
+                              f"<td>{r['invalid']}</td></tr>" for r in rows) + "</table>")
+    schema = ("<p class=\"note\"><b>Schema problems:</b> "
+              + html.escape("; ".join(problems[:5])) + "</p>") if problems else ""
+    nav = "".join(f"<a href=\"#{_slug(t)}\">{html.escape(t)}</a>" for t in tracks)
+    page = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>vvtbench leaderboard</title><link rel="icon" href="data:,">
+<style>{_CSS}</style></head><body>
+<h1>vvtbench leaderboard</h1>
+<p>{html.escape(intro).replace("`", "")} Data: <a href="results.csv">results.csv</a>.</p>
+{schema}<nav>{nav}</nav><h2>Summary</h2>{summary_html}
+{''.join(body)}
+</body></html>
+"""
+    write_text(out / "README.md", "\n".join(md))
+    write_text(out / "index.html", page)
+    write_text(out / "results.csv", df.to_csv(index=False))
+    for stale in sorted(owned - written):  # own files of an earlier build, no longer made
+        p = out / stale
+        if p.is_file() or p.is_symlink():
+            p.unlink()
+    write_json(out / MANIFEST, {
+        "generator": "vvtbench", "vvtbench": __version__, "source": str(results),
+        "files": sorted(written),
+        "figures": [[t, c, r] for t in tracks for c, r in figs[t]]})
+    return out
+
+
+__all__ = ["LeaderboardError", "build", "prepare_output", "ranking", "summary"]

@@ -9,15 +9,21 @@ from ..leaderboard import build
 
 
 def main_leaderboard(argv: list[str] | None = None) -> int:
-    """``vvtbench leaderboard RESULTS [-o leaderboard]``."""
+    """``vvtbench leaderboard RESULTS [-o leaderboard] [--overwrite]``."""
     p = argparse.ArgumentParser(prog="vvtbench leaderboard",
                                 description="Markdown + static HTML leaderboard of a results "
                                             "table")
     p.add_argument("results", help="results.parquet/.csv, or a run folder")
-    p.add_argument("-o", "--output", default="leaderboard", help="output folder")
+    p.add_argument("-o", "--output", default="leaderboard",
+                   help="output folder: new, empty, or one an earlier `vvtbench leaderboard` "
+                        "wrote (its leaderboard.json lists its files)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="write into a folder that also holds other files: replace only the "
+                        "leaderboard's own files (README.md, index.html, results.csv, "
+                        "leaderboard.json, figures/*.png) and keep the others")
     args = p.parse_args(argv)
     try:
-        out = build(args.results, args.output)
+        out = build(args.results, args.output, overwrite=args.overwrite)
     except (OSError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -1,0 +1,254 @@
+"""Leaderboard and figures on a synthetic results table (no simulator): field figures with
+shared scales and every solver x observation source, curves with fixed colours, the summary,
+reference and invalid rows, suite order, and the data safety of ``leaderboard -o``."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from vvtbench.cli.leaderboard import main_leaderboard
+from vvtbench.io import write_npz
+from vvtbench.leaderboard import LeaderboardError, build, ranking, summary
+from vvtbench.plots import (  # noqa: I001  (scale rules)
+    Styles,
+    _ratio_limit,
+    _value_norm,
+    bootstrap_band,
+    plot_field_grids,
+    plot_fields,
+)
+
+SOLVERS = ["vvt", "sensitivity", "homogeneous", "oracle"]
+
+
+def _truth(shape=(4, 4, 4)):
+    w, v = np.full(shape, 9000.0), np.full(shape, 1270.0)
+    w[2:, 1:3, -1] = 5e6
+    v[2:, 1:3, -1] = 7620.0
+    return w, v
+
+
+def _row(track, scene, variation, options, solver, obs, nc, *, seed=0, status="ok",
+         est=None, reference=False):
+    return dict(track=track, solver=solver, solver_version="1.0.0", config_hash="0" * 16,
+                config="{}", scene=scene, variation=variation,
+                variation_options=json.dumps(options), seed=seed, observation=obs,
+                n_modes=options.get("n_modes", 10), n_modes_observed=10,
+                nc_w=nc if status == "ok" else np.nan, nc_v=nc / 2 if status == "ok" else np.nan,
+                nc_w_uncentered=0.5, nc_v_uncentered=0.5, sigma_star_w=1.0,
+                sigma_star_v=1.0, nc_at_sigma_star_w=0.5, nc_at_sigma_star_v=0.5,
+                mode_mac=0.9, freq_err_raw=0.01, freq_err_scaled=0.01, runtime_s=1.0,
+                status=status, error="" if status == "ok" else "non-finite w",
+                vvtbench_version="0.1.0", dataset_revision="0" * 16, estimate_path=est,
+                traceback_path=None, reference=reference)
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory):
+    return make_run(tmp_path_factory.mktemp("run"))
+
+
+def make_run(root):
+    """A run folder: tracks `zeta_first` (2 scenes, an n_modes sweep, 2 seeds, both sources),
+    `drums` (membranes) and `alpha` (a vvt.alpha_v sweep) in that order; one invalid row."""
+    rng = np.random.default_rng(0)
+    rows, k = [], 0
+
+    def fields(w_true, v_true, scale):
+        nonlocal k
+        k += 1
+        rel = f"cache/evaluate/{k:04d}/fields.npz"
+        (root / rel).parent.mkdir(parents=True)
+        w = w_true ** scale * 9000 ** (1 - scale) * (1 + 0.02 * rng.standard_normal(w_true.shape))
+        v = v_true ** scale * 1270 ** (1 - scale)
+        write_npz(root / rel, {"w": w, "v": v, "w_true": w_true, "v_true": v_true})
+        return rel
+
+    wt, vt = _truth()
+    for scene in ("cube_top", "cube_bottom"):
+        for n in (8, 12, 16):
+            for seed in (0, 1):
+                for solver in SOLVERS:
+                    for obs in ("true", "extracted"):
+                        nc = {"oracle": 0.9, "vvt": 0.5, "sensitivity": 0.2,
+                              "homogeneous": 0.0}[solver] + 0.01 * n + 0.02 * seed
+                        status = "invalid" if (solver == "sensitivity" and n == 16
+                                               and scene == "cube_top" and seed == 1
+                                               and obs == "true") else "ok"
+                        est = fields(wt, vt, 0.3 if solver != "homogeneous" else 0.0) \
+                            if status == "ok" else None
+                        rows.append(_row("zeta_first", scene, f"n_modes={n}",
+                                         {"n_modes": n}, solver, obs, min(nc, 1.0),
+                                         seed=seed, status=status, est=est,
+                                         reference=solver == "oracle"))
+    dw, dv = np.full((6, 6, 1), 100.0), np.full((6, 6, 1), 0.2)
+    dw[0, 0, 0] = np.nan
+    dv[0, 0, 0] = np.nan
+    dw[3:5, 2:4, 0] = 300.0
+    for solver in SOLVERS:
+        for obs in ("true", "extracted"):
+            rows.append(_row("drums", "drum_a", "base", {"n_modes": 20}, solver, obs, 0.4,
+                             est=fields(dw, dv, 0.5), reference=solver == "oracle"))
+    for a in (1e-9, 1e-8, 1e-7):
+        rows.append(_row("alpha", "cube_top", f"vvt.alpha_v={a:g}",
+                         {"n_modes": 10, "vvt.alpha_v": a}, "vvt", "true", 0.3,
+                         est=fields(wt, vt, 0.2)))
+    df = pd.DataFrame(rows)
+    df.to_csv(root / "results.csv", index=False)
+    return root
+
+
+def test_styles_fixed_colour_per_solver_and_line_per_source():
+    many = [f"solver{i:02d}" for i in range(16)] + SOLVERS
+    s = Styles(many, ["true", "extracted"])
+    assert len(set(s.colours.values())) == len(many)  # never one colour for two solvers
+    assert Styles(["vvt"]).colour("vvt") == s.colour("vvt")  # fixed, not position-dependent
+    assert s.line("true")[0] != s.line("extracted")[0]
+
+
+def test_bootstrap_band_contains_mean_and_one_value_has_none():
+    x = np.array([0.1, 0.2, 0.3, 0.4, 0.5])
+    lo, hi = bootstrap_band(x)
+    assert lo < x.mean() < hi
+    assert np.isnan(bootstrap_band([0.3])).all()
+
+
+def test_colour_scales_do_not_invent_structure():
+    const = np.full((4, 4, 4), 9000.0) + 5e-12 * np.arange(64).reshape(4, 4, 4)
+    norm, how = _value_norm([const], "auto")
+    assert how == "linear" and norm.vmax - norm.vmin >= 0.1 * 9000 * 0.99
+    w, _ = _truth()
+    assert _value_norm([w, const], "auto")[1] == "log"  # clay in Jello: 555x
+    assert _ratio_limit([const / 9000]) >= 1.1
+
+
+def test_plot_fields_keeps_the_solve_signature(tmp_path):
+    wt, vt = _truth((3, 3, 2))
+
+    class Problem:  # the part of InverseProblem plot_fields uses
+        n_params, kind = 18, "solid"
+
+        def to_grid(self, x):
+            return np.asarray(x, float).reshape(3, 3, 2)
+
+    class Truth:
+        w, v = wt.ravel(), vt.ravel()
+
+    out = plot_fields(tmp_path / "slices.png", Problem(), {"vvt": (wt.ravel() * 1.1,
+                                                                   vt.ravel())}, Truth())
+    assert out.is_file() and out.stat().st_size > 5000
+    normalized = plot_field_grids(tmp_path / "n.png", wt[:, :, 0], vt[:, :, 0],
+                                  {"a": (wt[:, :, 0], vt[:, :, 0])}, normalized=True)
+    assert normalized.is_file()
+
+
+def test_ranking_keeps_suite_order_and_never_ranks_references_or_invalid(table):
+    df = pd.read_csv(table / "results.csv")
+    groups = ranking(df)
+    assert [g[0] for g in groups][::2][:2] == ["zeta_first", "drums"]  # not alphabetical
+    t = dict(((tr, obs), t) for tr, obs, t in groups)[("zeta_first", "true")]
+    assert t.index[-1] == "oracle" and bool(t.loc["oracle", "reference"])
+    assert t.loc["sensitivity", "invalid"] == 1
+    s = {r["track"]: r for r in summary(df)}
+    assert s["zeta_first"]["best"][0] == "vvt" and s["zeta_first"]["reference"][0] == "oracle"
+    assert s["zeta_first"]["invalid"] == 1 and s["alpha"]["runs"] == 3
+
+
+def test_build_writes_every_figure_kind_and_a_summary(table, tmp_path):
+    out = tmp_path / "lb"
+    build(table / "results.csv", out)
+    manifest = json.loads((out / "leaderboard.json").read_text())
+    assert manifest["generator"] == "vvtbench"
+    files = set(manifest["files"])
+    assert {"README.md", "index.html", "results.csv", "leaderboard.json"} <= files
+    for f in files:
+        assert (out / f).is_file()
+    figs = [f for f in files if f.startswith("figures/")]
+    assert "figures/zeta_first_nc_vs_modes.png" in figs
+    assert "figures/alpha_nc_vs_vvt_alpha_v.png" in figs
+    assert "figures/zeta_first_intrinsic_resolution.png" in figs
+    # one field figure per scene (values and normalized), every solver x source in it
+    assert "figures/zeta_first_slices.png" in figs
+    assert "figures/zeta_first_slices_cube_bottom_normalized.png" in figs
+    assert "figures/drums_slices.png" in figs
+    page = (out / "index.html").read_text()
+    assert page.index("zeta_first") < page.index("drums") < page.index("id=\"alpha\"")
+    assert "Summary" in page and 'class="ref"' in page and "http" not in page
+    assert "<img" in page and all(f in page for f in figs)
+    md = (out / "README.md").read_text()
+    assert "| ref | oracle (reference)" in md and "## Summary" in md
+
+
+def test_field_figure_has_a_row_per_solver_and_source(table, tmp_path):
+    from vvtbench.leaderboard import field_figures
+
+    df = pd.read_csv(table / "results.csv")
+    seen = {}
+
+    import vvtbench.plots as plots
+
+    real = plots.plot_field_grids
+
+    def spy(path, tw, tv, estimates, *a, **k):
+        seen[path.name] = list(estimates)
+        return real(path, tw, tv, estimates, *a, **k)
+
+    plots.plot_field_grids = spy
+    try:
+        field_figures(df, "drums", table, tmp_path, "figures", Styles(SOLVERS))
+    finally:
+        plots.plot_field_grids = real
+    labels = seen["drums_slices.png"]
+    assert len(labels) == 8 and labels[0].startswith("oracle (ref.)")
+    assert {lab.split(", ")[1] for lab in labels} == {"true modes", "extracted modes"}
+
+
+def test_output_refuses_foreign_files_and_keeps_them_with_overwrite(table, tmp_path):
+    out = tmp_path / "lb"
+    out.mkdir()
+    (out / "README.md").write_text("my own notes")
+    assert main_leaderboard([str(table / "results.csv"), "-o", str(out)]) == 2
+    assert (out / "README.md").read_text() == "my own notes"
+    (out / "keep.txt").write_text("keep")
+    assert main_leaderboard([str(table / "results.csv"), "-o", str(out), "--overwrite"]) == 0
+    assert (out / "keep.txt").read_text() == "keep"
+    assert (out / "README.md").read_text().startswith("# vvtbench leaderboard")
+
+
+def test_rebuild_replaces_only_own_files(table, tmp_path):
+    out = tmp_path / "lb"
+    build(table / "results.csv", out)
+    (out / "figures" / "old_only_mine.png").write_bytes(b"x")
+    m = json.loads((out / "leaderboard.json").read_text())
+    m["files"] += ["figures/old_only_mine.png", "../outside.txt"]
+    (out / "leaderboard.json").write_text(json.dumps(m))
+    (tmp_path / "outside.txt").write_text("not yours")
+    build(table / "results.csv", out)  # own folder: no --overwrite needed
+    assert not (out / "figures" / "old_only_mine.png").exists()  # stale own file removed
+    assert (tmp_path / "outside.txt").read_text() == "not yours"
+    assert not list(out.rglob("*.tmp*"))
+
+
+def test_output_never_writes_through_symlinks_or_over_its_input(table, tmp_path):
+    real = tmp_path / "real"
+    real.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    with pytest.raises(LeaderboardError, match="symbolic link"):
+        build(table / "results.csv", link)
+    out = tmp_path / "lb"
+    out.mkdir()
+    (out / "figures").symlink_to(real)
+    with pytest.raises(LeaderboardError, match="symbolic link"):
+        build(table / "results.csv", out, overwrite=True)
+    assert not os.listdir(real)
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "results.csv").write_text((table / "results.csv").read_text())
+    with pytest.raises(LeaderboardError, match="overwritten"):
+        build(src / "results.csv", src, overwrite=True)
