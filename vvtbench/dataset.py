@@ -266,7 +266,7 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
             problems.append(f"{rel}: {p.stat().st_size} bytes, the manifest says "
                             f"{entry['bytes']} (truncated or modified)")
         elif sha256_file(p) != entry["sha256"]:
-            problems.append(f"{rel}: sha256 differs from the manifest (modified)")
+            problems.append(f"{rel}: sha256 mismatch")
 
     video = info.get("video") if isinstance(info.get("video"), dict) else {}
     video_file = video.get("file")
@@ -277,11 +277,11 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
     else:
         wanted = [*CHECKED_FILES, *(rel for rel in listed if rel.startswith("truth.zarr/"))]
         extra = [rel for rel in on_disk if rel.startswith("truth.zarr/") and rel not in listed]
+    if video_file is not None:
+        problems += _check_video(path, str(video_file), video, listed, full)
     for rel in dict.fromkeys(wanted):
         check(rel)
     problems += [f"{rel}: not in the manifest" for rel in extra]
-    if video_file is not None:
-        problems += _check_video(path, str(video_file), video, listed, full)
     return problems
 
 
@@ -295,20 +295,21 @@ def _check_video(path: Path, name: str, video: dict, listed: dict, full: bool) -
         return [f"{name}: not in the manifest"]
     if not p.is_file():
         return [] if full else [f"{name}: missing"]  # full: reported by the hash check
-    problems = []
+    problems = []  # what the video holds first, then its size (the more telling first)
+    size = []
     if not full and isinstance(entry.get("bytes"), int) and p.stat().st_size != entry["bytes"]:
-        problems.append(f"{name}: {p.stat().st_size} bytes, the manifest says "
-                        f"{entry['bytes']} (truncated or modified)")
+        size.append(f"{name}: {p.stat().st_size} bytes, the manifest says "
+                    f"{entry['bytes']} (truncated or modified)")
     try:
         vi = probe_video(p)
         n = count_frames(p) if full else vi.n_frames
     except (VideoError, OSError) as error:
-        return [*problems, f"{name}: {_strip(str(error), p)}"]
+        return [f"{name}: {_strip(str(error), p)}", *size]
     try:
         want_hw = (int(video["height"]), int(video["width"]))
         want_n = int(video["frames"])
     except (KeyError, TypeError, ValueError):
-        return [*problems, "truth.json: video.height, video.width or video.frames missing"]
+        return ["truth.json: video.height, video.width or video.frames missing", *size]
     if (vi.height, vi.width) != want_hw:
         problems.append(f"{name}: frames are {vi.width}x{vi.height} px, truth.json "
                         f"(video.width x video.height) says {want_hw[1]}x{want_hw[0]}")
@@ -320,7 +321,7 @@ def _check_video(path: Path, name: str, video: dict, listed: dict, full: bool) -
     if n is not None and n != want_n:
         problems.append(f"{name}: {n} frames, truth.json (video.frames) says {want_n} "
                         "(truncated or replaced video)")
-    return problems
+    return problems + size
 
 
 def _problems_error(path: Path, problems: list[str]) -> DatasetError:
