@@ -124,7 +124,7 @@ def explain(error: BaseException | str) -> str:
                 hint = suggest(m.group("name").strip(), names())
             except Exception:  # noqa: BLE001 -- a hint must never hide the error
                 hint = ""
-            text = text[:m.end()] + hint + text[m.end():]
+            text += hint
             break
     return text
 
