@@ -256,6 +256,16 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
 
 def _dispatch(argv: list[str]) -> int:
+    try:
+        return _command(argv)
+    except SystemExit as done:  # argparse's usage errors and --help: a status, not a raise
+        if done.code is None or isinstance(done.code, int):
+            return int(done.code or 0)
+        print(one_line(str(done.code)), file=sys.stderr)
+        return 1
+
+
+def _command(argv: list[str]) -> int:
     if argv and argv[0] in DELEGATED:
         return int(DELEGATED[argv[0]][0](argv[1:]) or 0)
     if argv and not argv[0].startswith("-") and argv[0] not in COMMANDS:
