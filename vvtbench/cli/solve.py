@@ -111,7 +111,7 @@ def _check_output(out: Path, target: Path) -> str | None:
     """The output folder may not be a file, nor the target sample or inside it."""
     if out.exists() and not out.is_dir():
         return f"-o {out}: exists and is not a folder"
-    if target.is_dir():
+    if target.is_dir() and (target / "manifest.json").is_file():
         o, t = out.resolve(), target.resolve()
         if o == t or t in o.parents:
             return (f"-o {out}: inside the sample {target} (it would change the sample and "
