@@ -330,7 +330,9 @@ def test_video_pixel_format_mismatch_is_an_error(tmp_path):
     with VideoWriter(path / "video.mkv", 64, 64, capture_fps=2000.0, pix_fmt="gray") as w:
         w.write(np.full((64, 64), 200, np.uint8))
     with pytest.raises(ds.DatasetError, match="video stream is gray, but truth.json"):
-        list(ds.open_sample(path).frames())
+        ds.open_sample(path)  # checked on open
+    with pytest.raises(ds.DatasetError, match="video stream is gray, but truth.json"):
+        list(ds.open_sample(path, verify=False).frames())  # and on reading
 
 
 def test_motion_scale_scales_image_motion_linearly(tmp_path):
@@ -565,7 +567,9 @@ def test_require_names_file_and_array_of_old_samples(tiny, tmp_path):
     (old / "truth.json").write_text(json.dumps(info))
     g = zarr.open_group(str(old / "truth.zarr"), mode="a")
     del g["mesh/fixed_nodes"]
-    s = ds.open_sample(old)
+    with pytest.raises(ds.DatasetError, match="truth.json"):
+        ds.open_sample(old)  # no longer matches its manifest
+    s = ds.open_sample(old, verify=False)
     assert s["mesh/points"].shape == (64, 3)  # what is there still reads
     with pytest.raises(ds.DatasetError, match=r"truth\.zarr: no array 'mesh/fixed_nodes'.*"
                                               r"format 1.*regenerate"):

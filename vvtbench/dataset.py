@@ -1,9 +1,13 @@
 """Sample reader: open, check and read a generated sample folder (video + ground truth).
 
 Samples are written by :func:`vvtbench.generate.generate`. ``open_sample(path)`` reads one
-back lazily; :meth:`Sample.require` reads a ground-truth array and says clearly when a sample
-is too old to hold it. The folder layout, every array's shape, dtype and unit, and the
-conventions are in ``docs/dataset.md``.
+back lazily after checking it against its manifest (:func:`check_sample`: the sha256 of
+``scene.toml``, ``truth.json``, ``camera.json`` and every file of ``truth.zarr``, the video's
+size in bytes, and its frame count, frame size and pixel format by probing); a sample that
+fails is a :class:`DatasetError` naming the file. :meth:`Sample.verify` also hashes the video
+and counts its frames. :meth:`Sample.require` reads a ground-truth array and says clearly when
+a sample is too old to hold it. The folder layout, every array's shape, dtype and unit, and
+the conventions are in ``docs/dataset.md``.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ __all__ = [
     "DatasetError",
     "FORMAT_VERSION",
     "Sample",
+    "check_sample",
     "open_sample",
     "sha256_file",
 ]
@@ -192,39 +197,181 @@ class Sample:
         return np.stack(out) if out else np.zeros((0, *self.shape), dtype)
 
     def verify(self) -> list[str]:
-        """Files whose sha256 differs from the manifest, or are missing or not listed."""
-        bad = []
-        listed = self.manifest["files"]
-        for rel, entry in listed.items():
-            p = self.path / rel
-            if not p.is_file():
-                bad.append(f"{rel}: missing")
-            elif sha256_file(p) != entry["sha256"]:
-                bad.append(f"{rel}: sha256 mismatch")
-        for p in self.path.rglob("*"):
-            rel = p.relative_to(self.path).as_posix()
-            if p.is_file() and rel != "manifest.json" and rel not in listed:
-                bad.append(f"{rel}: not in the manifest")
-        return bad
+        """Everything wrong with the sample, one ``"FILE: what is wrong"`` line each (empty
+        when it matches its manifest): :func:`check_sample` with ``full=True`` (every file
+        hashed, the video's frames counted)."""
+        return check_sample(self.path, self.manifest, self.info, full=True)
+
+    def __repr__(self) -> str:
+        import zarr
+
+        try:
+            n_arrays = sum(1 for _, obj in self.truth.members(max_depth=None)
+                           if isinstance(obj, zarr.Array))
+        except Exception:  # noqa: BLE001 -- a repr must not raise
+            n_arrays = "?"
+        H, W = self.shape
+        video = (f"{self.n_frames} frames of {W}x{H} px at {self.fps:g} fps" if self.has_video
+                 else "modes only (no video)")
+        return f"Sample({self.scene.name!r}: {video}, {n_arrays} arrays, {str(self.path)!r})"
 
 
-def open_sample(path: str | Path) -> Sample:
-    """Open a sample folder written by :func:`vvtbench.generate.generate`."""
+#: The small files checked against the manifest on every open (with all of ``truth.zarr``).
+CHECKED_FILES = ("scene.toml", "truth.json", "camera.json")
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise DatasetError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: not a JSON object")
+    return data
+
+
+def _strip(message: str, path: Path) -> str:
+    prefix = f"{path}: "
+    return message[len(prefix):] if message.startswith(prefix) else message
+
+
+def check_sample(path: str | Path, manifest: dict, info: dict, *,
+                 full: bool = False) -> list[str]:
+    """What is wrong with the sample folder ``path``, one ``"FILE: problem"`` line each
+    (``FILE`` relative to ``path``; empty when the sample matches its manifest).
+
+    Always checked (cheap; :func:`open_sample` does it on every open): the sha256 of
+    ``scene.toml``, ``truth.json``, ``camera.json`` and of every file of ``truth.zarr``
+    (missing, truncated or unlisted chunks included), the video's size in bytes, and its
+    frame size, pixel format (lossless videos) and frame count (from the container's
+    duration) against ``truth.json``. With ``full``, every file listed in the manifest is
+    hashed (the video too), unlisted files are reported, and the video's frames are counted
+    packet by packet (a video cut short but with its header intact is caught too).
+    """
+    path = Path(path)
+    listed = manifest.get("files")
+    if not isinstance(listed, dict):
+        return ["manifest.json: no 'files' table (not a manifest written by vvtbench)"]
+    problems: list[str] = []
+
+    def check(rel: str) -> None:
+        entry, p = listed.get(rel), path / rel
+        if not isinstance(entry, dict) or not isinstance(entry.get("sha256"), str):
+            problems.append(f"{rel}: not in the manifest")
+        elif not p.is_file():
+            problems.append(f"{rel}: missing" + (" (a deleted zarr chunk would read as "
+                                                 "zeros)" if rel.startswith("truth.zarr/")
+                                                 else ""))
+        elif isinstance(entry.get("bytes"), int) and p.stat().st_size != entry["bytes"]:
+            problems.append(f"{rel}: {p.stat().st_size} bytes, the manifest says "
+                            f"{entry['bytes']} (truncated or modified)")
+        elif sha256_file(p) != entry["sha256"]:
+            problems.append(f"{rel}: sha256 mismatch")
+
+    video = info.get("video") if isinstance(info.get("video"), dict) else {}
+    video_file = video.get("file")
+    on_disk = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file())
+    if full:
+        wanted = [rel for rel in listed]
+        extra = [rel for rel in on_disk if rel != "manifest.json" and rel not in listed]
+    else:
+        wanted = [*CHECKED_FILES, *(rel for rel in listed if rel.startswith("truth.zarr/"))]
+        extra = [rel for rel in on_disk if rel.startswith("truth.zarr/") and rel not in listed]
+    if video_file is not None:
+        problems += _check_video(path, str(video_file), video, listed, full)
+    for rel in dict.fromkeys(wanted):
+        check(rel)
+    problems += [f"{rel}: not in the manifest" for rel in extra]
+    return problems
+
+
+def _check_video(path: Path, name: str, video: dict, listed: dict, full: bool) -> list[str]:
+    from .video import VideoError, count_frames, probe_video
+
+    if Path(name).name != name or name in ("", ".", ".."):
+        return [f"truth.json: video.file {name!r} is not a file name inside the sample"]
+    p, entry = path / name, listed.get(name)
+    if not isinstance(entry, dict):
+        return [f"{name}: not in the manifest"]
+    if not p.is_file():
+        return [] if full else [f"{name}: missing"]  # full: reported by the hash check
+    problems = []  # what the video holds first, then its size (the more telling first)
+    size = []
+    if not full and isinstance(entry.get("bytes"), int) and p.stat().st_size != entry["bytes"]:
+        size.append(f"{name}: {p.stat().st_size} bytes, the manifest says "
+                    f"{entry['bytes']} (truncated or modified)")
+    try:
+        vi = probe_video(p)
+        n = count_frames(p) if full else vi.n_frames
+    except (VideoError, OSError) as error:
+        return [f"{name}: {_strip(str(error), p)}", *size]
+    try:
+        want_hw = (int(video["height"]), int(video["width"]))
+        want_n = int(video["frames"])
+    except (KeyError, TypeError, ValueError):
+        return ["truth.json: video.height, video.width or video.frames missing", *size]
+    if (vi.height, vi.width) != want_hw:
+        problems.append(f"{name}: frames are {vi.width}x{vi.height} px, truth.json "
+                        f"(video.width x video.height) says {want_hw[1]}x{want_hw[0]}")
+    pix = video.get("pixel_format")
+    if video.get("lossless") and pix and vi.pix_fmt != pix:
+        problems.append(f"{name}: video stream is {vi.pix_fmt or 'of unknown pixel format'}, "
+                        f"but truth.json (video.pixel_format) says {pix}; regenerate the "
+                        "sample with this vvtbench")
+    if n is not None and n != want_n:
+        problems.append(f"{name}: {n} frames, truth.json (video.frames) says {want_n} "
+                        "(truncated or replaced video)")
+    return problems + size
+
+
+def _problems_error(path: Path, problems: list[str]) -> DatasetError:
+    rel, _, what = problems[0].partition(": ")
+    more = (f"; {len(problems) - 1} more problem(s), list them with `vvtbench verify {path}`"
+            if len(problems) > 1 else "")
+    return DatasetError(f"{path / rel}: {what} (sample {path} does not match its "
+                        f"manifest.json: regenerate it){more}")
+
+
+def open_sample(path: str | Path, *, verify: bool = True) -> Sample:
+    """Open a sample folder written by :func:`vvtbench.generate.generate`.
+
+    With ``verify`` (the default) the sample is checked first (:func:`check_sample`: the
+    truth files and arrays against the manifest's sha256, the video's size, frame count,
+    frame size and pixel format); the first problem is raised as a :class:`DatasetError`
+    naming the file. ``verify=False`` opens a damaged sample for inspection.
+    """
     import zarr
 
     from .render import Camera
 
     path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: " + ("not a folder (a sample is a folder)" if path.exists()
+                                          else "no such sample folder"))
     needed = ("manifest.json", "truth.json", "camera.json", "scene.toml", "truth.zarr")
     missing = [n for n in needed if not (path / n).exists()]
     if missing:
         raise DatasetError(f"{path}: not a vvtbench sample (missing {', '.join(missing)})")
-    manifest = json.loads((path / "manifest.json").read_text())
-    info = json.loads((path / "truth.json").read_text())
-    if info.get("format", 0) > FORMAT_VERSION:
+    manifest = _read_json(path / "manifest.json")
+    info = _read_json(path / "truth.json")
+    fmt = info.get("format", 0)
+    if not isinstance(fmt, int) or isinstance(fmt, bool):
+        raise DatasetError(f"{path / 'truth.json'}: format must be an integer, got {fmt!r}")
+    if fmt > FORMAT_VERSION:
         raise DatasetError(f"{path}: dataset format {info['format']} is newer than this "
                            f"vvtbench ({__version__}) reads ({FORMAT_VERSION}); upgrade vvtbench")
+    if verify:
+        problems = check_sample(path, manifest, info)
+        if problems:
+            raise _problems_error(path, problems)
     scene = load_scene(path / "scene.toml")
-    camera = Camera.from_dict(json.loads((path / "camera.json").read_text()))
-    truth = zarr.open_group(str(path / "truth.zarr"), mode="r")
+    try:
+        camera = Camera.from_dict(_read_json(path / "camera.json"))
+    except (KeyError, TypeError, ValueError) as error:
+        raise DatasetError(f"{path / 'camera.json'}: not a camera ({error})") from None
+    try:
+        truth = zarr.open_group(str(path / "truth.zarr"), mode="r")
+    except (OSError, ValueError, KeyError) as error:
+        raise DatasetError(f"{path / 'truth.zarr'}: cannot be opened as a zarr group "
+                           f"({error})") from None
     return Sample(path, scene, camera, info, manifest, truth)

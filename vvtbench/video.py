@@ -7,7 +7,10 @@
   of time stamps).
 * :class:`VideoWriter` encodes integer gray frames: lossless FFV1 (``gray16le`` or ``gray``)
   in Matroska, or H.264 (the consumer track and previews); :func:`concat_videos` joins
-  segments.
+  segments. Both write a temporary file unique to the process next to the output and rename
+  it into place when done (atomic; a symbolic link at the output is replaced, never written
+  through).
+* :func:`count_frames` counts a file's frames packet by packet (no decoding).
 * :func:`open_video` opens any frame source for motion extraction as float32 gray frames.
 
 Frame sources of :func:`open_video`: any container/codec that the ``imageio-ffmpeg`` binary
@@ -29,8 +32,12 @@ written by :class:`VideoWriter` carry the capture rate as the stream tag ``CAPTU
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import subprocess
+import tempfile
+import uuid
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -49,6 +56,7 @@ __all__ = [
     "VideoWriter",
     "average_frames",
     "concat_videos",
+    "count_frames",
     "open_video",
     "probe_video",
     "read_frames",
@@ -182,7 +190,8 @@ def probe_video(path: str | Path) -> VideoInfo:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video file not found: {path}")
-    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-nostats", "-v", "verbose", "-i", str(path),
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-nostats", "-v", "verbose", "-i",
+           f"file:{path}",
            "-map", "0:v:0", "-frames:v", "1", "-vf", "showinfo", "-f", "null", "-"]
     proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
     err = proc.stderr
@@ -230,6 +239,29 @@ def probe_video(path: str | Path) -> VideoInfo:
                      duration)
 
 
+def count_frames(path: str | Path) -> int:
+    """The number of video frames in ``path``, counted packet by packet (stream copy, no
+    decoding: the whole file is read once). A file cut short with its header intact (whose
+    container duration still claims every frame) gives the frames actually there."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"video file not found: {path}")
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "error", "-stats", "-i",
+           f"file:{path}", "-map", "0:v:0", "-c", "copy", "-f", "null", "-"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    found = re.findall(r"frame=\s*(\d+)", proc.stderr)
+    if not found:
+        tail = "; ".join(proc.stderr.strip().splitlines()[-2:]) or "no output"
+        raise VideoError(f"{path}: cannot count the frames: {tail}")
+    return int(found[-1])
+
+
+def _temporary_name(out: Path) -> Path:
+    """A temporary file name next to ``out``, unique to this process and call, with the same
+    suffix (ffmpeg picks the container by it)."""
+    return out.with_name(f".{out.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{out.suffix}")
+
+
 # --------------------------------------------------------------------------- reader
 def read_frames(
     path: str | Path,
@@ -266,7 +298,7 @@ def read_frames(
     limit = ["-frames:v", str(int(stop) - int(start))] if stop is not None else []
     if stop is not None and stop <= start:
         return
-    cmd = [ffmpeg_exe(), "-v", "error", "-nostdin", *pre, "-i", str(path), "-map", "0:v:0",
+    cmd = [ffmpeg_exe(), "-v", "error", "-nostdin", *pre, "-i", f"file:{path}", "-map", "0:v:0",
            *filters, "-fps_mode", "passthrough", *limit, "-f", "rawvideo", "-pix_fmt", pix, "-"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     size = h * w * dtype.itemsize
@@ -331,8 +363,11 @@ class VideoWriter:
             params = ["-crf", str(int(crf)), "-preset", "medium", "-threads", "1",
                       *BITEXACT, *tag]
         size = (width + self._pad[1], height + self._pad[0])
+        self.path = Path(path)
+        self._tmp = _temporary_name(self.path)
+        self._closed = False
         self._gen = imageio_ffmpeg.write_frames(
-            str(path), size, pix_fmt_in=pix_fmt, pix_fmt_out=out_fmt, codec=vcodec,
+            f"file:{self._tmp}", size, pix_fmt_in=pix_fmt, pix_fmt_out=out_fmt, codec=vcodec,
             quality=None, fps=playback_fps, macro_block_size=1, output_params=params,
             ffmpeg_log_level="error",
         )
@@ -348,32 +383,90 @@ class VideoWriter:
         self._gen.send(np.ascontiguousarray(a))
 
     def close(self) -> None:
-        self._gen.close()
+        """Finish the file and rename it to ``path`` (atomic)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._gen.close()
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            raise
+        os.replace(self._tmp, self.path)
+
+    def abort(self) -> None:
+        """Stop encoding and remove the partial file; ``path`` is left as it was."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._gen.close()
+        except Exception:  # noqa: BLE001 -- the partial file is removed either way
+            pass
+        self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> VideoWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _concat_line(p: Path) -> str:
+    """One ``file`` line of ffmpeg's concat list: the path in single quotes, each ``'``
+    written as ``'\\''`` (close the quote, an escaped quote, reopen)."""
+    return "file '" + str(p).replace("'", "'\\''") + "'\n"
 
 
 def concat_videos(segments: list[Path], out: Path, *, capture_fps: float | Fraction | None = None,
                   crf: int | None = None) -> None:
     """Join video segments into ``out``: stream copy, or (``crf``) re-encode as 8-bit gray
-    H.264 at that CRF. The listing file is written next to ``out`` and removed."""
-    listing = out.with_name(out.name + ".segments.txt")
-    listing.write_text("".join(f"file '{Path(p).resolve()}'\n" for p in segments))
-    codec = ["-c", "copy"] if crf is None else [
-        "-c:v", "libx264", "-preset", "medium", "-crf", str(int(crf)), "-pix_fmt", "gray",
-        "-threads", "2", "-r", str(PLAYBACK_FPS)]
-    tag = [] if capture_fps is None else [
-        "-metadata:s:v:0", f"CAPTURE_FPS={rate_fraction(capture_fps)}"]
-    cmd = [ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "concat", "-safe", "0", "-i",
-           str(listing), *codec, *BITEXACT, *tag, str(out)]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    listing.unlink()
-    if proc.returncode != 0:
-        raise VideoError(f"ffmpeg failed joining the video segments: {proc.stderr.strip()}")
+    H.264 at that CRF.
+
+    Works for any path: the segments are linked under plain names into a private temporary
+    folder, and the listing names those (a path with a quote or a newline cannot break it).
+    The output is written to a temporary name unique to the process and renamed to ``out``.
+    """
+    out = Path(out)
+    if not segments:
+        raise VideoError(f"{out}: no video segments to join")
+    work = Path(tempfile.mkdtemp(prefix="vvtbench-concat-"))
+    tmp = _temporary_name(out)
+    try:
+        lines = []
+        for i, seg in enumerate(segments):
+            seg = Path(seg).resolve()
+            if not seg.is_file():
+                raise VideoError(f"{seg}: video segment not found")
+            link = work / f"seg_{i:06d}{seg.suffix}"
+            try:
+                link.symlink_to(seg)
+                lines.append(_concat_line(link))
+            except OSError:  # no symbolic links here: quote the path itself
+                if "\n" in str(seg) or "\r" in str(seg):
+                    raise VideoError(f"{seg!r}: a segment path with a line break cannot be "
+                                     "joined on this file system") from None
+                lines.append(_concat_line(seg))
+        listing = work / "segments.txt"
+        listing.write_text("".join(lines))
+        codec = ["-c", "copy"] if crf is None else [
+            "-c:v", "libx264", "-preset", "medium", "-crf", str(int(crf)), "-pix_fmt", "gray",
+            "-threads", "2", "-r", str(PLAYBACK_FPS)]
+        tag = [] if capture_fps is None else [
+            "-metadata:s:v:0", f"CAPTURE_FPS={rate_fraction(capture_fps)}"]
+        cmd = [ffmpeg_exe(), "-nostdin", "-y", "-loglevel", "error", "-f", "concat", "-safe",
+               "0", "-i", f"file:{listing}", *codec, *BITEXACT, *tag, f"file:{tmp.resolve()}"]
+        proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+        if proc.returncode != 0:
+            raise VideoError(f"{out}: ffmpeg failed joining the video segments: "
+                             + "; ".join(proc.stderr.strip().splitlines()[-3:]))
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+        shutil.rmtree(work, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------- float frames

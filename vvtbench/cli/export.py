@@ -8,6 +8,7 @@ import json
 import sys
 from pathlib import Path
 
+from vvtbench.dataset import DatasetError
 from vvtbench.export import check_output, find_samples, pack
 from vvtbench.packed import ExportError
 
@@ -69,12 +70,16 @@ def main(argv: list[str] | None = None) -> int:
             raise ExportError(f"{src}: no generated samples found")
         out = pack(samples, args.output, fmt, str(args.source), overwrite=args.overwrite,
                    inputs=inputs)
-    except (ValueError, OSError) as error:  # ExportError, SuiteError, SceneError are ValueError
-        print(f"error: {error}", file=sys.stderr)
+    except (ValueError, OSError, DatasetError) as error:  # Export/Suite/SceneError: ValueError
+        from . import explain
+
+        print(f"error: {explain(error)}", file=sys.stderr)
         return 2
     print(f"{len(samples)} sample(s) -> {out}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from vvtbench.cli import main as vvtbench_main
+
+    sys.exit(vvtbench_main(["export", *sys.argv[1:]]))

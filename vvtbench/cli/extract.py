@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..modes.extract import extract_modes
 from ..video import VIDEO_SUFFIXES, open_video
+from . import bounded, nonnegative_float, positive_float, positive_int
 
 
 def _parse_roi(s: str) -> tuple[int, int, int, int]:
@@ -36,20 +37,50 @@ def _sample_fps(path: Path) -> float | None:
         return None
 
 
-def _resolve_source(path: Path) -> Path:
+def _sample_of(path: Path) -> Path | None:
+    """The sample folder ``path`` is, or whose video it is, else None."""
     if path.is_dir() and (path / "manifest.json").is_file():
-        for name in ("video.mkv", "video.mp4"):
-            if (path / name).is_file():
-                return path / name
+        return path
+    if path.is_file() and (path.parent / "manifest.json").is_file() \
+            and (path.parent / "truth.json").is_file():
+        return path.parent
+    return None
+
+
+def _resolve_source(path: Path) -> Path:
+    """The video file to read; a sample (folder or its video) is verified first
+    (:func:`vvtbench.dataset.open_sample`: truth and video against the manifest)."""
+    from ..dataset import DatasetError, open_sample
+
+    if not path.exists():
+        raise FileNotFoundError(2, "no such file or folder", str(path))
+    sample = _sample_of(path)
+    if sample is not None:
+        s = open_sample(sample)
+        if path.is_dir() or path.resolve() == s.video_path.resolve():
+            return s.video_path
+        return path
     if path.is_dir():
         found = sorted(p for p in path.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
         if len(found) != 1:
-            raise SystemExit(
-                f"error: {path} is a directory with {len(found)} video files "
+            raise DatasetError(
+                f"{path}: a folder with {len(found)} video files "
                 f"({', '.join(p.name for p in found) or 'none'}); give the file"
             )
         return found[0]
     return path
+
+
+def _check_output(out: Path, video: Path) -> None:
+    """The output folder may not be a file, nor inside a sample folder."""
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(17, "-o must be a folder, and this is a file", str(out))
+    sample = _sample_of(video)
+    if sample is not None:
+        o, s = out.resolve(), sample.resolve()
+        if o == s or s in o.parents:
+            raise ValueError(f"-o {out}: inside the sample {sample} (it would change the "
+                             "sample and break its manifest); give another folder")
 
 
 def _note_fps(given: Path, src: Path, fps: float | None) -> None:
@@ -82,27 +113,34 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     )
     ap.add_argument(
         "--fps",
-        type=float,
+        type=positive_float,
         default=None,
-        help="recording frame rate (Hz); default: a sample's truth.json, else the container's",
+        help="recording frame rate (Hz, > 0); default: a sample's truth.json, else the "
+        "container's",
     )
     ap.add_argument("-o", "--out", type=Path, required=True, help="output directory")
-    ap.add_argument("--fmin", type=float, default=None, help="lowest mode frequency (Hz)")
-    ap.add_argument("--fmax", type=float, default=None, help="highest (Hz, <= fps/2)")
-    ap.add_argument("--prominence", type=float, default=0.5, help="peak prominence (decades)")
-    ap.add_argument("--min-sep", type=float, default=None, help="min peak separation (Hz)")
-    ap.add_argument("--max-modes", type=int, default=20)
-    ap.add_argument(
-        "--min-power-ratio", type=float, default=1e-6, help="vs the strongest peak in band"
-    )
-    ap.add_argument("--scales", type=int, default=3)
-    ap.add_argument("--orientations", type=int, default=4)
-    ap.add_argument("--sigma", type=float, default=2.0, help="smoothing sigma (px)")
-    ap.add_argument("--batch", type=int, default=32)
-    ap.add_argument("--workers", type=int, default=1, help="threads (-1 = all CPUs)")
-    ap.add_argument("--average", type=int, default=1, help="average N consecutive frames")
+    ap.add_argument("--fmin", type=nonnegative_float, default=None,
+                    help="lowest mode frequency (Hz, >= 0)")
+    ap.add_argument("--fmax", type=positive_float, default=None,
+                    help="highest (Hz, > fmin, <= fps/2)")
+    ap.add_argument("--prominence", type=nonnegative_float, default=0.5,
+                    help="peak prominence (decades, >= 0)")
+    ap.add_argument("--min-sep", type=positive_float, default=None,
+                    help="min peak separation (Hz, > 0)")
+    ap.add_argument("--max-modes", type=positive_int, default=20)
+    ap.add_argument("--min-power-ratio", type=bounded(float, ge=0, le=1), default=1e-6,
+                    help="vs the strongest peak in band (0..1)")
+    ap.add_argument("--scales", type=bounded(int, ge=1, le=8), default=3)
+    ap.add_argument("--orientations", type=bounded(int, ge=1, le=16), default=4)
+    ap.add_argument("--sigma", type=nonnegative_float, default=2.0,
+                    help="smoothing sigma (px, >= 0)")
+    ap.add_argument("--batch", type=positive_int, default=32)
+    ap.add_argument("--workers", type=bounded(int, ge=1, also=(-1,)), default=1,
+                    help="threads (-1 = all CPUs)")
+    ap.add_argument("--average", type=positive_int, default=1,
+                    help="average N consecutive frames")
     ap.add_argument("--roi", type=_parse_roi, default=None, help="crop y0,y1,x0,x1")
-    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--max-frames", type=positive_int, default=None)
     ap.add_argument("--weighting", choices=("confidence", "none"), default="confidence")
     ap.add_argument(
         "--window", choices=("hann", "none"), default="hann", help="temporal taper of the FFT"
@@ -113,7 +151,7 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
         action="store_true",
         help="keep peaks that are harmonics / intermodulation products of stronger ones",
     )
-    ap.add_argument("--memory-budget-mb", type=float, default=1024.0)
+    ap.add_argument("--memory-budget-mb", type=positive_float, default=1024.0)
     ap.add_argument("--tmpdir", default=None, help="where displacements spill to disk")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -123,6 +161,13 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
 def main_extract(argv: list[str] | None = None) -> int:
     """``vvtbench extract VIDEO --fps F -o DIR [...]``; returns the exit status."""
     args = build_parser().parse_args(argv)
+    if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
+        raise ValueError(f"--fmin {args.fmin:g} must be below --fmax {args.fmax:g}")
+    if args.roi is not None:
+        y0, y1, x0, x1 = args.roi
+        if not (0 <= y0 < y1 and 0 <= x0 < x1):
+            raise ValueError(f"--roi {y0},{y1},{x0},{x1}: need 0 <= y0 < y1 and 0 <= x0 < x1")
+    _check_output(args.out, args.video)
     src = _resolve_source(args.video)
     fps = args.fps if args.fps is not None else _sample_fps(args.video)
     if args.fps is None:
@@ -154,7 +199,9 @@ def main_extract(argv: list[str] | None = None) -> int:
             progress=not args.quiet,
         )
     except (ValueError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        from . import explain
+
+        print(f"error: {explain(e)}", file=sys.stderr)
         return 2
     ms.save(args.out)
     if not args.no_plots:
@@ -181,4 +228,6 @@ def main_extract(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main_extract())
+    from . import main
+
+    raise SystemExit(main(["extract", *sys.argv[1:]]))

@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from .._version import __version__
+from . import positive_int
 
 DEFAULT_SCENE = "jello_cube_defect_top"
 
@@ -17,7 +18,8 @@ def build_simulate_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser
     """The options of ``vvtbench simulate`` added to ``p``."""
     p.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
                    help=f"scene file or shipped scene name (default: {DEFAULT_SCENE})")
-    p.add_argument("--modes", type=int, default=None, help="number of modes (overrides scene)")
+    p.add_argument("--modes", type=positive_int, default=None,
+                   help="number of modes, >= 1 (overrides the scene)")
     p.add_argument("--transient", action="store_true", help="also run the transient response")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return p
@@ -27,14 +29,14 @@ def run_simulate(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from ..scene import load_scene
+    from ..scene import load_scene, parse_scene
     from ..simulate import simulate
 
     scene = load_scene(args.scene)
-    if args.modes is not None:
-        scene = scene.model_copy(
-            update={"simulation": scene.simulation.model_copy(update={"n_modes": args.modes})}
-        )
+    if args.modes is not None:  # validated like the scene file's simulation.n_modes
+        data = scene.to_toml_dict()
+        data.setdefault("simulation", {})["n_modes"] = args.modes
+        scene = parse_scene(data, f"{scene.source} with --modes {args.modes}")
     t0 = time.perf_counter()
     result = simulate(scene, transient=args.transient)
     elapsed = time.perf_counter() - t0

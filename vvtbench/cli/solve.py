@@ -17,6 +17,7 @@ from ..plugins import (
     parse_overrides,
     run_solver,
 )
+from . import bounded, explain, positive_float, positive_int
 
 
 def main_solvers(argv: list[str] | None = None) -> int:
@@ -42,10 +43,12 @@ def build_solve_parser() -> argparse.ArgumentParser:
                    "image-space modes)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="solver config override (repeatable)")
-    p.add_argument("--modes", type=int, default=10, help="number of observed modes (10)")
-    p.add_argument("--grid", type=int, nargs="+", default=None,
-                   help="inference voxel grid (default 8 8 8; drums 20 20)")
-    p.add_argument("--geometry-scale", type=float, default=1.0,
+    p.add_argument("--modes", type=positive_int, default=10,
+                   help="number of observed modes, >= 1 (10)")
+    p.add_argument("--grid", type=bounded(int, ge=1, le=256), nargs="+", default=None,
+                   help="inference voxel grid, 3 integers in 1..256 (default 8 8 8), drums 2 "
+                   "(default 20 20)")
+    p.add_argument("--geometry-scale", type=positive_float, default=1.0,
                    help="inference mesh width / true width (x), geometry-mismatch track")
     p.add_argument("--visibility", choices=("depth", "normals"), default="depth",
                    help="visible vertices: facing the camera and not occluded in the rest "
@@ -65,9 +68,55 @@ def build_solve_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _fail(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr)
+def _fail(message: str | BaseException) -> int:
+    print(f"error: {explain(message)}", file=sys.stderr)
     return 2
+
+
+def _check_config(cls, config, overrides: list[str]) -> str | None:
+    """What is wrong with the solver ``config`` built from ``--set`` overrides (None if
+    nothing): a value that is not finite, one outside the bounds the field declares in its
+    metadata (``ge``, ``gt``, ``le``, ``lt``), or an iteration or count limit below 1 (an
+    integer field named ``max_*``, ``n_*`` or ``*_iter``/``*_iters``)."""
+    import dataclasses
+    import math
+
+    given = {item.partition("=")[0].strip() for item in overrides}
+    for f in dataclasses.fields(config):
+        if f.name not in given:
+            continue
+        value = getattr(config, f.name)
+        values = value if isinstance(value, (tuple, list)) else (value,)
+        for x in values:
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                continue
+            where = f"--set {f.name}={x!r}: {cls.name} config key {f.name!r}"
+            if not math.isfinite(x):
+                return f"{where} must be a finite number"
+            bounds = [(op, f.metadata[op]) for op in ("ge", "gt", "le", "lt")
+                      if op in f.metadata]
+            name = f.name
+            if isinstance(x, int) and not bounds and (
+                    name.startswith(("max_", "n_")) or name.endswith(("_iter", "_iters"))):
+                bounds = [("ge", 1)]
+            for op, bound in bounds:
+                ok = {"ge": x >= bound, "gt": x > bound, "le": x <= bound, "lt": x < bound}[op]
+                if not ok:
+                    sign = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}[op]
+                    return f"{where} must be {sign} {bound}"
+    return None
+
+
+def _check_output(out: Path, target: Path) -> str | None:
+    """The output folder may not be a file, nor the target sample or inside it."""
+    if out.exists() and not out.is_dir():
+        return f"-o {out}: exists and is not a folder"
+    if target.is_dir() and (target / "manifest.json").is_file():
+        o, t = out.resolve(), target.resolve()
+        if o == t or t in o.parents:
+            return (f"-o {out}: inside the sample {target} (it would change the sample and "
+                    "break its manifest); give another folder")
+    return None
 
 
 def main_solve(argv: list[str] | None = None) -> int:
@@ -76,27 +125,46 @@ def main_solve(argv: list[str] | None = None) -> int:
     from ..bench.stages import write_evaluation
     from ..dataset import DatasetError, open_sample
     from ..io import write_json
-    from ..observe import ObserveError, observe
+    from ..observe import ObserveError, ObserveOptions, observe
     from ..plots import plot_fields
     from ..scene import SceneError, load_scene
 
     args = build_solve_parser().parse_args(argv)
+    if args.grid is not None and len(args.grid) not in (2, 3):
+        return _fail(f"--grid: give 3 integers (boxes: nx ny nz) or 2 (drums), got "
+                     f"{len(args.grid)}")
     try:
         cls = load_solver(args.solver)
+    except PluginError as error:  # an unknown name gets a "did you mean" (explain)
+        return _fail(error)
+    try:
         config = parse_overrides(args.overrides, cls.Config)
     except PluginError as error:
-        return _fail(str(error))
+        return _fail(f"{cls.name} config: {explain(error)}")
+    message = _check_config(cls, config, args.overrides)
+    if message:
+        return _fail(message)
     target, out = Path(args.target), Path(args.output)
+    message = _check_output(out, target)
+    if message:
+        return _fail(message)
     t0 = time.perf_counter()
     options = dict(n_modes=args.modes, geometry_scale=args.geometry_scale,
                    inference_shape=tuple(args.grid) if args.grid else None,
                    visibility=args.visibility, clicks=args.clicks)
+    try:  # the options are checked before any work
+        ObserveOptions(**options)
+    except (ObserveError, ValueError) as error:
+        return _fail(error)
     info: dict = {"target": str(target)}
+    if target.exists() and not target.is_dir():
+        if target.suffix.lower() != ".toml":
+            return _fail(f"{target}: not a sample folder nor a scene .toml file")
     if target.is_dir():
         try:
             source = open_sample(target)
         except DatasetError as error:
-            return _fail(str(error))
+            return _fail(error)
         observation = args.observation or ("extracted" if source.has_video else "true")
         if args.clicks is not None:
             n_clicks, message = _check_clicks(args.clicks)
@@ -121,11 +189,12 @@ def main_solve(argv: list[str] | None = None) -> int:
         try:
             source = load_scene(args.target)
         except SceneError as error:
-            return _fail(str(error))
+            return _fail(error)
     try:
         problem, truth = observe(source, observation=observation, **options)
     except (ObserveError, DatasetError, SceneError, ValueError) as error:
-        return _fail(f"{target}: {error}")
+        text = explain(error)
+        return _fail(text if text.startswith(str(target)) else f"{target}: {text}")
     if args.clicks is not None:
         print(f"camera from {n_clicks} clicks ({args.clicks}): reprojection rms "
               f"{problem.meta['clicks_rms_px']:.3f} px")
