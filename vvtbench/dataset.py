@@ -220,7 +220,7 @@ class Sample:
 CHECKED_FILES = ("scene.toml", "truth.json", "camera.json")
 
 
-def _read_json(path: Path) -> dict:
+def read_json(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
@@ -352,8 +352,8 @@ def open_sample(path: str | Path, *, verify: bool = True) -> Sample:
     missing = [n for n in needed if not (path / n).exists()]
     if missing:
         raise DatasetError(f"{path}: not a vvtbench sample (missing {', '.join(missing)})")
-    manifest = _read_json(path / "manifest.json")
-    info = _read_json(path / "truth.json")
+    manifest = read_json(path / "manifest.json")
+    info = read_json(path / "truth.json")
     fmt = info.get("format", 0)
     if not isinstance(fmt, int) or isinstance(fmt, bool):
         raise DatasetError(f"{path / 'truth.json'}: format must be an integer, got {fmt!r}")
@@ -366,7 +366,7 @@ def open_sample(path: str | Path, *, verify: bool = True) -> Sample:
             raise _problems_error(path, problems)
     scene = load_scene(path / "scene.toml")
     try:
-        camera = Camera.from_dict(_read_json(path / "camera.json"))
+        camera = Camera.from_dict(read_json(path / "camera.json"))
     except (KeyError, TypeError, ValueError) as error:
         raise DatasetError(f"{path / 'camera.json'}: not a camera ({error})") from None
     try:

@@ -59,12 +59,12 @@ def _kind(path: Path) -> str:
 
 def verify_sample(path: Path, *, full: bool = True) -> list[str]:
     """Problems of a sample folder, each ``FILE: problem`` with FILE under ``path``."""
-    from ..dataset import DatasetError, _read_json, check_sample
+    from ..dataset import DatasetError, read_json, check_sample
     from ..scene import SceneError, load_scene
 
     try:
-        manifest = _read_json(path / "manifest.json")
-        info = _read_json(path / "truth.json") if (path / "truth.json").is_file() else {}
+        manifest = read_json(path / "manifest.json")
+        info = read_json(path / "truth.json") if (path / "truth.json").is_file() else {}
     except DatasetError as error:
         return [str(error)]
     problems = [f"{path / line}" for line in check_sample(path, manifest, info, full=full)]
