@@ -59,7 +59,7 @@ def _kind(path: Path) -> str:
 
 def verify_sample(path: Path, *, full: bool = True) -> list[str]:
     """Problems of a sample folder, each ``FILE: problem`` with FILE under ``path``."""
-    from ..dataset import DatasetError, read_json, check_sample
+    from ..dataset import DatasetError, check_sample, read_json
     from ..scene import SceneError, load_scene
 
     try:
