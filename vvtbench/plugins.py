@@ -191,9 +191,41 @@ def config_from_mapping(config_cls, values: Mapping[str, Any] | None):
         else:
             out[key] = value
     try:
-        return config_cls(**out)
+        config = config_cls(**out)
     except (TypeError, ValueError) as error:
         raise PluginError(f"{config_cls.__name__}: {error}") from None
+    _check_values(config, set(out))
+    return config
+
+
+_BOUNDS = {"ge": (">=", lambda x, b: x >= b), "gt": (">", lambda x, b: x > b),
+           "le": ("<=", lambda x, b: x <= b), "lt": ("<", lambda x, b: x < b)}
+
+
+def _check_values(config, keys: set[str]) -> None:
+    """The values given for ``keys`` must be finite and within the bounds the field declares
+    in its metadata (``ge``, ``gt``, ``le``, ``lt``); an integer iteration or count limit
+    (``max_*``, ``n_*``, ``*_iter``) must be >= 1."""
+    import math
+
+    for f in dataclasses.fields(config):
+        if f.name not in keys:
+            continue
+        value = getattr(config, f.name)
+        for x in value if isinstance(value, (tuple, list)) else (value,):
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                continue
+            where = f"--set {f.name}={x!r}: {type(config).__name__}.{f.name}"
+            if not math.isfinite(x):
+                raise PluginError(f"{where} must be a finite number")
+            bounds = [(op, f.metadata[op]) for op in _BOUNDS if op in f.metadata]
+            if isinstance(x, int) and not bounds and (
+                    f.name.startswith(("max_", "n_")) or f.name.endswith(("_iter", "_iters"))):
+                bounds = [("ge", 1)]
+            for op, bound in bounds:
+                sign, ok = _BOUNDS[op]
+                if not ok(x, bound):
+                    raise PluginError(f"{where} must be {sign} {bound}")
 
 
 def run_solver(cls, config, problem, truth=None):

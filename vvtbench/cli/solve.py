@@ -73,40 +73,6 @@ def _fail(message: str | BaseException) -> int:
     return 2
 
 
-def _check_config(cls, config, overrides: list[str]) -> str | None:
-    """What is wrong with the solver ``config`` built from ``--set`` overrides (None if
-    nothing): a value that is not finite, one outside the bounds the field declares in its
-    metadata (``ge``, ``gt``, ``le``, ``lt``), or an iteration or count limit below 1 (an
-    integer field named ``max_*``, ``n_*`` or ``*_iter``/``*_iters``)."""
-    import dataclasses
-    import math
-
-    given = {item.partition("=")[0].strip() for item in overrides}
-    for f in dataclasses.fields(config):
-        if f.name not in given:
-            continue
-        value = getattr(config, f.name)
-        values = value if isinstance(value, (tuple, list)) else (value,)
-        for x in values:
-            if isinstance(x, bool) or not isinstance(x, (int, float)):
-                continue
-            where = f"--set {f.name}={x!r}: {cls.name} config key {f.name!r}"
-            if not math.isfinite(x):
-                return f"{where} must be a finite number"
-            bounds = [(op, f.metadata[op]) for op in ("ge", "gt", "le", "lt")
-                      if op in f.metadata]
-            name = f.name
-            if isinstance(x, int) and not bounds and (
-                    name.startswith(("max_", "n_")) or name.endswith(("_iter", "_iters"))):
-                bounds = [("ge", 1)]
-            for op, bound in bounds:
-                ok = {"ge": x >= bound, "gt": x > bound, "le": x <= bound, "lt": x < bound}[op]
-                if not ok:
-                    sign = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}[op]
-                    return f"{where} must be {sign} {bound}"
-    return None
-
-
 def _check_output(out: Path, target: Path) -> str | None:
     """The output folder may not be a file, nor the target sample or inside it."""
     if out.exists() and not out.is_dir():
@@ -141,9 +107,6 @@ def main_solve(argv: list[str] | None = None) -> int:
         config = parse_overrides(args.overrides, cls.Config)
     except PluginError as error:
         return _fail(f"{cls.name} config: {explain(error)}")
-    message = _check_config(cls, config, args.overrides)
-    if message:
-        return _fail(message)
     target, out = Path(args.target), Path(args.output)
     message = _check_output(out, target)
     if message:
