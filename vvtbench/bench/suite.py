@@ -131,6 +131,10 @@ class SuiteFile(_Strict):
     tracks: list[TrackFile] | None = Field(None, description="[[tracks]] tables")
     variations: list[Options] | None = Field(None, description="a list of tables of options")
     sweep: Options | None = Field(None, description="a table of key = [values]")
+    timeout: Annotated[float, Field(gt=0, le=30 * 86400, allow_inf_nan=False)] | None = Field(
+        None, description="seconds > 0 (at most 30 days): the time limit of one solve")
+    memory_gb: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = Field(
+        None, description="GB > 0: the memory limit of one solve")
 
 
 INFERENCE_KEYS = tuple(InferenceOptions.model_fields)
@@ -309,6 +313,8 @@ class Suite:
     description: str = ""
     source: str = ""
     raw: dict = field(default_factory=dict)
+    timeout: float | None = None     # seconds per solve (None: the runner's default)
+    memory_gb: float | None = None   # memory limit per solve (None: the runner's default)
 
     @property
     def scene_names(self) -> list[str]:
@@ -454,8 +460,11 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
         dup = sorted({n for n in names if names.count(n) > 1})
         raise SuiteError(f"{source}: key 'tracks': duplicate track names {dup} (allowed: "
                          "distinct names)")
+    timeout, memory_gb = data.get("timeout"), data.get("memory_gb")
     return Suite(name, tracks, list(solvers), solver_config, extract,
-                 data.get("description", ""), source, data)
+                 data.get("description", ""), source, data,
+                 None if timeout is None else float(timeout),
+                 None if memory_gb is None else float(memory_gb))
 
 
 def scene_ref(name: str, source: str) -> str:
