@@ -33,6 +33,10 @@ PositiveNumber = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeNumber = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 Count = Annotated[int, Field(ge=1)]
+ModeCount = Annotated[int, Field(ge=1, le=2000)]
+Cells = Annotated[int, Field(ge=1, le=256)]
+Frequency = Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)]
+SmallCount = Annotated[int, Field(ge=1, le=64)]
 Name = Annotated[str, Field(min_length=1)]
 Observation = Literal["true", "extracted"]
 Options = dict[str, Any]  # scene overrides and inference options, checked by _split_options
@@ -47,9 +51,9 @@ class _Strict(BaseModel):
 class InferenceOptions(_Strict):
     """The inference options of a variation (docs/suites.md)."""
 
-    n_modes: Count | None = Field(None, description="an integer >= 1")
-    inference_shape: Annotated[list[Count], Field(min_length=2, max_length=3)] | None = Field(
-        None, description="a list of 3 integers >= 1 (drums: 2)")
+    n_modes: ModeCount | None = Field(None, description="an integer in [1, 2000]")
+    inference_shape: Annotated[list[Cells], Field(min_length=2, max_length=3)] | None = Field(
+        None, description="a list of 3 integers in [1, 256] (drums: 2)")
     geometry_scale: (PositiveNumber | Annotated[list[PositiveNumber],
                                                 Field(min_length=3, max_length=3)] | None) = Field(
         None, description="a number > 0 (scales x), or [sx, sy, sz] of numbers > 0")
@@ -66,14 +70,15 @@ class InferenceOptions(_Strict):
 class ExtractOptions(_Strict):
     """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging."""
 
-    fmin: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
-    fmax: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    fmin: Frequency | None = Field(None, description="a frequency in (0, 1e7] (Hz)")
+    fmax: Frequency | None = Field(None, description="a frequency in (0, 1e7] (Hz)")
     prominence: NonNegativeNumber | None = Field(None, description="a number >= 0 (decades)")
-    min_separation_hz: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
-    max_modes: Count | None = Field(None, description="an integer >= 1")
+    min_separation_hz: Frequency | None = Field(None,
+                                                description="a frequency in (0, 1e7] (Hz)")
+    max_modes: ModeCount | None = Field(None, description="an integer in [1, 2000]")
     min_power_ratio: NonNegativeNumber | None = Field(None, description="a number >= 0")
-    n_scales: Count | None = Field(None, description="an integer >= 1")
-    n_orientations: Count | None = Field(None, description="an integer >= 1")
+    n_scales: SmallCount | None = Field(None, description="an integer in [1, 64]")
+    n_orientations: SmallCount | None = Field(None, description="an integer in [1, 64]")
     sigma: NonNegativeNumber | None = Field(None, description="a number >= 0 (pixels)")
     weighting: Literal["confidence", "none"] | None = Field(
         None, description="'confidence' or 'none'")
@@ -235,7 +240,7 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
-        if isinstance(v, dict) and key.split(".")[0] in SCENE_SECTIONS:
+        if isinstance(v, dict) and v and key.split(".")[0] in SCENE_SECTIONS:
             out.update(_flatten(v, key + "."))
         else:
             out[key] = v
