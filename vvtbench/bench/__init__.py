@@ -18,7 +18,8 @@ tasks that depend on it only. A task writes into ``<key>.tmp-<pid>-<random>/`` a
 to ``<key>/`` at the end, so a crash leaves no half result; its ``task.json`` records the sha256
 of every file, checked when the output is reused (a damaged output is recomputed and
 reported). One run at a time writes a run folder (a lock on ``OUT/.lock``, :mod:`.lock`).
-Every solve runs in a child process with a time and a memory limit (:mod:`.child`). A failing task writes
+Every solve runs in a child process with a time and a memory limit (:mod:`.child`).
+A failing task writes
 ``OUT/cache/<stage>/<key>.error/`` (error.json, traceback.txt) and its dependants are skipped;
 the failure becomes a row with ``status = "error"`` and is retried on the next run.
 

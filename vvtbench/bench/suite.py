@@ -51,9 +51,9 @@ class _Strict(BaseModel):
 class InferenceOptions(_Strict):
     """The inference options of a variation (docs/suites.md)."""
 
-    n_modes: ModeCount | None = Field(None, description="an integer in [1, 2000]")
+    n_modes: ModeCount | None = Field(None, description="an integer >= 1 (at most 2000)")
     inference_shape: Annotated[list[Cells], Field(min_length=2, max_length=3)] | None = Field(
-        None, description="a list of 3 integers in [1, 256] (drums: 2)")
+        None, description="a list of 3 integers >= 1 (at most 256; drums: 2)")
     geometry_scale: (PositiveNumber | Annotated[list[PositiveNumber],
                                                 Field(min_length=3, max_length=3)] | None) = Field(
         None, description="a number > 0 (scales x), or [sx, sy, sz] of numbers > 0")
@@ -70,15 +70,15 @@ class InferenceOptions(_Strict):
 class ExtractOptions(_Strict):
     """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging."""
 
-    fmin: Frequency | None = Field(None, description="a frequency in (0, 1e7] (Hz)")
-    fmax: Frequency | None = Field(None, description="a frequency in (0, 1e7] (Hz)")
+    fmin: Frequency | None = Field(None, description="a frequency > 0 (Hz, at most 1e7)")
+    fmax: Frequency | None = Field(None, description="a frequency > 0 (Hz, at most 1e7)")
     prominence: NonNegativeNumber | None = Field(None, description="a number >= 0 (decades)")
     min_separation_hz: Frequency | None = Field(None,
-                                                description="a frequency in (0, 1e7] (Hz)")
-    max_modes: ModeCount | None = Field(None, description="an integer in [1, 2000]")
+                                                description="a frequency > 0 (Hz, at most 1e7)")
+    max_modes: ModeCount | None = Field(None, description="an integer >= 1 (at most 2000)")
     min_power_ratio: NonNegativeNumber | None = Field(None, description="a number >= 0")
-    n_scales: SmallCount | None = Field(None, description="an integer in [1, 64]")
-    n_orientations: SmallCount | None = Field(None, description="an integer in [1, 64]")
+    n_scales: SmallCount | None = Field(None, description="an integer >= 1 (at most 64)")
+    n_orientations: SmallCount | None = Field(None, description="an integer >= 1 (at most 64)")
     sigma: NonNegativeNumber | None = Field(None, description="a number >= 0 (pixels)")
     weighting: Literal["confidence", "none"] | None = Field(
         None, description="'confidence' or 'none'")
