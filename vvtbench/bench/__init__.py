@@ -7,15 +7,19 @@ problem) are computed once:
 
     generate(scene)            -> sample folder (video.mkv + truth), vvtbench.dataset.generate
     extract(generate)          -> modes.npz/json, vvtbench.modes.extract_modes
-    observe(scene, options, [extract...]) -> problem.pkl, the InverseProblem a solver sees
+    observe(scene, options, [extract...]) -> problem.npz/json + truth.npz/json (no pickle)
     solve(observe, solver, config)         -> estimate.npz/json
     evaluate(solve, observe)               -> metrics.json + fields.npz (estimate and truth grids)
 
 Every task's output lives in ``OUT/cache/<stage>/<key>/`` where ``key`` is a content hash of
 the task's inputs (resolved scene dict, stage options, vvtbench version, upstream keys): a
 rerun finds the folder and recomputes nothing; a changed parameter changes the keys of the
-tasks that depend on it only. A task writes into ``<key>.tmp-<random>/`` and renames it to
-``<key>/`` at the end, so a crash leaves no half result. A failing task writes
+tasks that depend on it only. A task writes into ``<key>.tmp-<pid>-<random>/`` and renames it
+to ``<key>/`` at the end, so a crash leaves no half result; its ``task.json`` records the sha256
+of every file, checked when the output is reused (a damaged output is recomputed and
+reported). One run at a time writes a run folder (a lock on ``OUT/.lock``, :mod:`.lock`).
+Every solve runs in a child process with a time and a memory limit (:mod:`.child`).
+A failing task writes
 ``OUT/cache/<stage>/<key>.error/`` (error.json, traceback.txt) and its dependants are skipped;
 the failure becomes a row with ``status = "error"`` and is retried on the next run.
 

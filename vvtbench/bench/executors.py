@@ -1,13 +1,31 @@
-"""Where tasks run: in process, on a local process pool, or on a Dask cluster."""
+"""Where tasks run: in process, on a local process pool, or on a Dask cluster; the progress
+display; Ctrl-C.
+
+Solve tasks run in a child process of whichever process executes them (:mod:`.child`), so a
+plug-in that hangs, exits or crashes never takes a worker (or the run) with it. A pool worker
+that dies anyway (a crash in another stage) breaks the pool: the pool is restarted and the
+tasks that were running are retried once; a task that breaks it twice is an error.
+"""
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from .graph import STAGES, Task
 from .stages import execute_task
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during a run: ``finished`` of ``total`` tasks have a result in the cache."""
+
+    def __init__(self, finished: int, total: int):
+        super().__init__(f"interrupted: {finished} of {total} tasks finished")
+        self.finished, self.total = finished, total
 
 
 class _Inline:
@@ -24,17 +42,47 @@ class _Inline:
     def wait_any(self, futures):
         return set(futures)
 
+    def restart(self):
+        pass
+
+    def terminate(self):
+        pass
+
     def close(self):
         pass
 
 
+def _worker_init():
+    """Pool workers: Ctrl-C is the parent's business; SIGTERM (the parent stopping the run)
+    ends the solve child and removes the half-written task folder before exiting."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def on_term(signum, frame):
+        import shutil
+
+        from .child import kill_running
+        from .stages import CURRENT
+
+        kill_running()
+        if CURRENT.get("tmp") is not None:
+            shutil.rmtree(CURRENT["tmp"], ignore_errors=True)
+        os._exit(128 + signum)
+
+    signal.signal(signal.SIGTERM, on_term)
+
+
 class _Pool:
     def __init__(self, workers: int):
+        self.workers = workers
+        self._start()
+
+    def _start(self):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
         ctx = mp.get_context("spawn" if sys.platform == "darwin" else "forkserver")
-        self.ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        self.ex = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx,
+                                      initializer=_worker_init)
 
     def submit(self, fn, *args):
         return self.ex.submit(fn, *args)
@@ -44,6 +92,24 @@ class _Pool:
 
         done, _ = wait(futures, return_when=FIRST_COMPLETED)
         return done
+
+    def restart(self):
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        self._start()
+
+    def terminate(self):
+        procs = list((getattr(self.ex, "_processes", None) or {}).values())
+        for p in procs:
+            try:
+                p.terminate()
+            except (OSError, AttributeError):
+                pass
+        self.ex.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            try:
+                p.join(timeout=5)
+            except (OSError, AttributeError, AssertionError):
+                pass
 
     def close(self):
         self.ex.shutdown(wait=True, cancel_futures=True)
@@ -58,15 +124,27 @@ class _Dask:
         else:  # a Client or a cluster object
             self.client = scheduler if hasattr(scheduler, "submit") else Client(scheduler)
             self.own = not hasattr(scheduler, "submit")
+        self.futures: list = []
 
     def submit(self, fn, *args):
-        return self.client.submit(fn, *args, pure=False)
+        fut = self.client.submit(fn, *args, pure=False)
+        self.futures.append(fut)
+        return fut
 
     def wait_any(self, futures):
         from distributed import wait
 
         done, _ = wait(list(futures), return_when="FIRST_COMPLETED")
         return set(done)
+
+    def restart(self):
+        pass
+
+    def terminate(self):
+        try:
+            self.client.cancel(self.futures)
+        except Exception:  # noqa: BLE001 -- best effort while stopping
+            pass
 
     def close(self):
         if self.own:
@@ -83,46 +161,159 @@ def make_executor(workers: int = 1, scheduler=None):
     return _Inline()
 
 
-def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool,
-             threads: int | None) -> dict[str, dict]:
-    from tqdm import tqdm
+# --------------------------------------------------------------------------- progress
+
+class Progress:
+    """Per-stage progress on stderr: one live ``rich`` display in a terminal; otherwise plain
+    log lines (no carriage returns, no cursor codes), at most one every ``every`` seconds
+    plus one when a stage completes. A stage's clock starts when its first task is submitted,
+    so its rate and remaining time are its own."""
+
+    def __init__(self, counts: dict[str, int], enabled: bool = True, stream=None,
+                 every: float = 15.0):
+        self.counts = {s: n for s, n in counts.items() if n}
+        self.done = dict.fromkeys(self.counts, 0)
+        self.failed = dict.fromkeys(self.counts, 0)
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = enabled and bool(self.counts)
+        self.every = every
+        self.t0 = time.monotonic()
+        self.last = self.t0
+        self.started: set[str] = set()
+        self.live = None
+        if not self.enabled:
+            return
+        isatty = getattr(self.stream, "isatty", lambda: False)
+        if isatty() and os.environ.get("TERM") != "dumb":
+            from rich.console import Console
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+            from rich.progress import (
+                Progress as RichProgress,
+            )
+
+            self.live = RichProgress(
+                TextColumn("{task.description:9s}"), BarColumn(), MofNCompleteColumn(),
+                TextColumn("{task.fields[failed]}", style="red"), TimeElapsedColumn(),
+                TextColumn("eta"), TimeRemainingColumn(),
+                TextColumn("{task.fields[last]}", style="dim"),
+                console=Console(file=self.stream), refresh_per_second=4)
+            self.ids = {s: self.live.add_task(s, total=n, start=False, failed="", last="")
+                        for s, n in self.counts.items()}
+            self.live.start()
+        else:
+            total = sum(self.counts.values())
+            self._line(f"{total} tasks: " + ", ".join(f"{s} {n}" for s, n in self.counts.items()))
+
+    def _line(self, text: str) -> None:
+        el = time.monotonic() - self.t0
+        print(f"[{int(el // 60):02d}:{el % 60:04.1f}] {text}", file=self.stream, flush=True)
+
+    def start(self, stage: str) -> None:
+        if not self.enabled or stage in self.started:
+            return
+        self.started.add(stage)
+        if self.live is not None:
+            self.live.start_task(self.ids[stage])
+
+    def advance(self, stage: str, label: str, ok: bool) -> None:
+        if not self.enabled or stage not in self.counts:
+            return
+        self.start(stage)
+        self.done[stage] += 1
+        self.failed[stage] += 0 if ok else 1
+        if self.live is not None:
+            f = self.failed[stage]
+            self.live.update(self.ids[stage], advance=1, failed=f"{f} failed" if f else "",
+                             last=label[:30])
+            return
+        now = time.monotonic()
+        complete = self.done[stage] == self.counts[stage]
+        if complete or now - self.last >= self.every:
+            self.last = now
+            parts = [f"{s} {self.done[s]}/{n}" + (f" ({self.failed[s]} failed)"
+                                                   if self.failed[s] else "")
+                     for s, n in self.counts.items()]
+            self._line(("done " + stage + "; " if complete else "") + ", ".join(parts))
+
+    def close(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+            self.live = None
+
+
+# --------------------------------------------------------------------------- the graph
+
+def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool | Progress,
+                  threads: int | None, limits: dict | None = None) -> dict[str, dict]:
+    """Run every task as soon as its dependencies are done; a status dict per task key.
+    Ctrl-C terminates what runs (no half-written output stays) and raises
+    :class:`Interrupted`."""
+    from concurrent.futures.process import BrokenProcessPool
 
     remaining = dict(tasks)
     done: dict[str, dict] = {}
-    bars = {}
-    for stage in STAGES:
-        n = sum(t.stage == stage for t in tasks.values())
-        if n:
-            bars[stage] = tqdm(total=n, desc=f"{stage:9s}", position=len(bars), leave=True,
-                               disable=not progress, file=sys.stderr, unit="task")
+    counts = {s: sum(t.stage == s for t in tasks.values()) for s in STAGES}
+    bar = progress if isinstance(progress, Progress) else Progress(counts, bool(progress))
     running: dict[Any, str] = {}
+    retried: set[str] = set()
     try:
         while remaining or running:
             ready = [k for k, t in remaining.items() if all(d in done for d in t.deps)]
             for k in ready:
                 task = remaining.pop(k)
+                bar.start(task.stage)
                 try:
-                    running[executor.submit(execute_task, str(cache), task, threads)] = k
+                    running[executor.submit(execute_task, str(cache), task, threads,
+                                            limits)] = k
+                except KeyboardInterrupt:
+                    raise
                 except Exception as error:  # e.g. a broken process pool
                     done[k] = {"key": k, "status": "error", "computed": True, "seconds": 0.0,
                                "error": f"{task.stage}: cannot submit: "
                                         f"{type(error).__name__}: {error}"}
+                    bar.advance(task.stage, task.label, False)
             if not running:
                 break
+            broken = False
             for fut in executor.wait_any(list(running)):
                 k = running.pop(fut)
                 try:
                     res = fut.result()
-                except Exception as error:  # worker died etc.
+                except BrokenProcessPool:
+                    broken = True
+                    if k not in retried:  # maybe an innocent bystander: once more
+                        retried.add(k)
+                        remaining[k] = tasks[k]
+                        continue
+                    res = {"key": k, "status": "error", "computed": True, "seconds": 0.0,
+                           "error": f"{tasks[k].stage}: crashed: the worker process died "
+                                    "(twice) while running this task"}
+                except Exception as error:  # noqa: BLE001 -- worker died etc.
                     res = {"key": k, "status": "error", "computed": True, "seconds": 0.0,
                            "error": f"{tasks[k].stage}: worker failure: "
                                     f"{type(error).__name__}: {error}"}
                 done[k] = res
-                bar = bars.get(tasks[k].stage)
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix_str(tasks[k].label[:30])
+                bar.advance(tasks[k].stage, tasks[k].label, res.get("status") != "error")
+            if broken:
+                for fut, k in list(running.items()):  # every one of them failed with the pool
+                    running.pop(fut)
+                    remaining[k] = tasks[k]
+                    retried.add(k)
+                executor.restart()
+    except KeyboardInterrupt:
+        bar.close()
+        executor.terminate()
+        from .child import kill_running
+
+        kill_running()
+        raise Interrupted(sum(r.get("status") == "ok" for r in done.values()),
+                          len(tasks)) from None
     finally:
-        for b in bars.values():
-            b.close()
+        bar.close()
     return done

@@ -78,9 +78,12 @@ def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
     scene = load_scene(scene_ref(ref, source))
     data = apply_overrides(scene.to_toml_dict(), {**overrides, "seed": seed})
     try:
-        parsed = parse_scene(data, f"{scene.source} (suite overrides)")
+        parsed = parse_scene(data, "(suite overrides)")
     except Exception as error:
-        raise SuiteError(str(error)) from None
+        msg = str(error).removeprefix("(suite overrides): ")
+        raise SuiteError(f"{source or '<suite>'}: scene {scene.name!r} with the suite's "
+                         f"overrides (defaults, variations, sweep; seed {seed}): {msg}"
+                         ) from None
     return parsed.to_toml_dict()
 
 
@@ -89,7 +92,43 @@ def solver_setup(spec: str, overrides: dict | None):
     from ..plugins import config_from_mapping, load_solver
 
     cls = load_solver(spec)
-    return cls, dataclasses.asdict(config_from_mapping(cls.Config, overrides))
+    config = config_from_mapping(cls.Config, overrides)
+    _check_types(cls, config, overrides or {})
+    return cls, dataclasses.asdict(config)
+
+
+def _check_types(cls, config, overrides: dict) -> None:
+    """A suite's solver config value has its field's type (a table is not an int; true is not
+    a number); numbers are finite."""
+    import math
+    import types
+    import typing
+
+    from ..plugins import PluginError
+
+    hints = typing.get_type_hints(cls.Config)
+    for key in overrides:
+        value = getattr(config, key)
+        tp = hints.get(key)
+        if tp is None:
+            continue
+        args = typing.get_args(tp) if typing.get_origin(tp) in (typing.Union,
+                                                                types.UnionType) else (tp,)
+        plain = [a for a in args if a in (int, float, str, bool, type(None))]
+        if not plain or len(plain) != len(args):
+            continue  # a list, a dict or a custom type: the solver checks it
+        if value is None and type(None) in plain:
+            continue
+        ok = any(isinstance(value, a) and not (isinstance(value, bool) and a is not bool)
+                 for a in plain if a is not type(None))
+        if isinstance(value, int) and not isinstance(value, bool) and float in plain:
+            ok = True
+        names = " or ".join(a.__name__ if a is not type(None) else "none" for a in plain)
+        if not ok:
+            raise PluginError(f"{cls.name} config {key!r}: {value!r} is not allowed (allowed: "
+                              f"{names})")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise PluginError(f"{cls.name} config {key!r}: {value!r} is not a finite number")
 
 
 def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = None,

@@ -112,18 +112,82 @@ def write_results(df, out_dir: Path) -> tuple[Path, Path]:
     return pq, csv
 
 
-def read_results(path: str | Path):
+# The type of every column (docs/results.md): how a CSV cell is read, what a Parquet column
+# may hold.
+_INT = ("seed", "n_modes", "n_modes_observed")
+_FLOAT = (*METRIC_COLUMNS, "runtime_s")
+_BOOL = ("reference",)
+_OPTIONAL_STR = ("estimate_path", "traceback_path")
+# Columns a table may lack (older tables: before `reference`); every other column is required.
+OPTIONAL = ("reference",)
+
+
+def _parse_csv(raw) -> tuple[object, list[str]]:
+    """Typed columns from a CSV read as strings; the cells that are not of their column's type
+    (a problem each)."""
+    import pandas as pd
+
+    df = raw.copy()
+    problems = []
+    for c in raw.columns:
+        if c in _FLOAT or c in _INT:
+            vals = []
+            for i, text in raw[c].items():
+                t = text.strip()
+                if t == "" and c in _FLOAT:
+                    vals.append(float("nan"))
+                    continue
+                try:
+                    x = float(t) if c in _FLOAT else int(t)
+                except ValueError:
+                    try:  # an integer written as 3.0
+                        f = float(t)
+                        if c in _INT and f.is_integer():
+                            vals.append(int(f))
+                            continue
+                    except ValueError:
+                        pass
+                    problems.append(f"column {c!r}, row {i}: {text!r} is not "
+                                    f"{'a number' if c in _FLOAT else 'an integer'}")
+                    x = float("nan") if c in _FLOAT else None
+                vals.append(x)
+            df[c] = pd.Series(vals, index=raw.index, dtype="float64" if c in _FLOAT
+                              else ("int64" if all(v is not None for v in vals) else object))
+        elif c in _BOOL:
+            table = {"true": True, "false": False}
+            vals = []
+            for i, text in raw[c].items():
+                v = table.get(text.strip().lower())
+                if v is None:
+                    problems.append(f"column {c!r}, row {i}: {text!r} is not True or False")
+                vals.append(bool(v))
+            df[c] = pd.Series(vals, index=raw.index, dtype=bool)
+        elif c in _OPTIONAL_STR:
+            df[c] = raw[c].astype(object).where(raw[c] != "", None)
+    return df, problems
+
+
+def _read(path: str | Path):
+    """(typed table, problems found while typing it)."""
     import pandas as pd
 
     path = Path(path)
     if path.is_dir():
         path = path / "results.parquet"
     if path.suffix == ".parquet":
-        return pd.read_parquet(path)
+        return pd.read_parquet(path), []
     if path.suffix == ".csv":
-        return pd.read_csv(path, keep_default_na=True)
+        # every cell as written: pandas would read the observation "true" as a boolean and a
+        # version "1.0" as a float
+        raw = pd.read_csv(path, dtype=str, keep_default_na=False, na_filter=False)
+        return _parse_csv(raw)
     raise ValueError(f"{path}: results must be .parquet or .csv")
 
+
+def read_results(path: str | Path):
+    """A results table (``.parquet``, ``.csv`` or a run folder) with its columns typed as
+    written by :func:`write_results` (strings stay strings in CSV too)."""
+    return _read(path)[0]
 
 
 _ALLOWED = {"status": ("ok", "error", "invalid"), "observation": OBSERVATIONS}
@@ -132,10 +196,10 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
            "sigma_star_w": (0.0, None), "sigma_star_v": (0.0, None), "mode_mac": (0.0, 1.0),
            "freq_err_raw": (0.0, None), "freq_err_scaled": (0.0, None),
            "runtime_s": (0.0, None)}
-REQUIRED = ("solver", "solver_version", "config_hash", "config", "scene", "variation", "seed",
-            "observation", "n_modes", *METRIC_COLUMNS, "runtime_s", "status", "error",
-            "vvtbench_version", "dataset_revision")
-_STRINGS = ("solver", "solver_version", "config_hash", "scene", "variation",
+REQUIRED = tuple(c for c in COLUMNS if c not in OPTIONAL)
+# finite on every row with status ok
+SCORED = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "runtime_s")
+_STRINGS = ("track", "solver", "solver_version", "config_hash", "scene", "variation",
             "vvtbench_version", "dataset_revision")
 
 
@@ -147,29 +211,59 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
     """
     import pandas as pd
 
+    errors: list[str] = []
     if isinstance(path_or_df, pd.DataFrame):
         df = path_or_df
     else:
         try:
-            df = read_results(path_or_df)
+            df, errors = _read(path_or_df)
         except Exception as error:
             return [f"{path_or_df}: cannot read: {type(error).__name__}: {error}"]
-    errors: list[str] = []
 
     def err(msg):
         errors.append(msg)
 
-    missing = [c for c in REQUIRED if c not in df.columns]
+    missing = [c for c in COLUMNS if c not in df.columns and c not in OPTIONAL]
     if missing:
-        err(f"missing column(s): {', '.join(missing)} (required: {', '.join(REQUIRED)})")
+        err(f"missing column(s): {', '.join(missing)} (required: "
+            f"{', '.join(c for c in COLUMNS if c not in OPTIONAL)})")
+    extra = [str(c) for c in df.columns if c not in COLUMNS]
+    if extra:
+        err(f"unknown column(s): {', '.join(extra)} (allowed: {', '.join(COLUMNS)})")
     if len(df) == 0:
         err("the table has no rows")
+    status = df["status"] if "status" in df.columns else pd.Series([None] * len(df),
+                                                                   index=df.index)
     for c in _STRINGS:
         if c not in df.columns:
             continue
         for i, val in df[c].items():
+            if c == "solver_version" and status[i] == "error" and val == "":
+                continue  # a solver that failed to load has no version
             if not isinstance(val, str) or not val.strip():
                 err(f"column {c!r}, row {i}: {val!r} must be a non-empty string")
+    for c in ("config", "variation_options", "error", "observation", "status"):
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if not isinstance(val, str):
+                err(f"column {c!r}, row {i}: {val!r} must be a string")
+    for c in _OPTIONAL_STR:
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if val is not None and not (isinstance(val, float) and np.isnan(val)) \
+                    and not (isinstance(val, str) and val.strip()):
+                err(f"column {c!r}, row {i}: {val!r} must be a path or empty")
+    for c in _FLOAT:
+        if c in df.columns and not pd.api.types.is_numeric_dtype(df[c]):
+            err(f"column {c!r}: type {df[c].dtype} (allowed: float numbers, NaN when missing)")
+    if "reference" in df.columns and not pd.api.types.is_bool_dtype(df["reference"]):
+        err(f"column 'reference': type {df['reference'].dtype} (allowed: True or False)")
+    if "n_modes_observed" in df.columns:
+        for i, val in df["n_modes_observed"].items():
+            if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < -1:
+                err(f"column 'n_modes_observed', row {i}: {val!r} must be an integer >= -1")
     for c, allowed in _ALLOWED.items():
         if c not in df.columns:
             continue
@@ -181,9 +275,8 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
         if c not in df.columns:
             continue
         for i, val in df[c].items():
-            ok = isinstance(val, (int, np.integer)) or (
-                isinstance(val, (float, np.floating)) and float(val).is_integer())
-            if not ok or (c == "n_modes" and val < 1):
+            ok = isinstance(val, (int, np.integer)) and not isinstance(val, (bool, np.bool_))
+            if not ok or (c == "n_modes" and val < 1) or val < 0:
                 err(f"column {c!r}, row {i}: {val!r} must be an integer"
                     + (" >= 1" if c == "n_modes" else ""))
     if "config" in df.columns:
@@ -213,16 +306,18 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
     if "status" in df.columns:
         for i, row in df.iterrows():
             if row["status"] == "ok":
-                for c in ("nc_w", "nc_v", "runtime_s"):
-                    if c in df.columns and pd.isna(pd.to_numeric(row[c], errors="coerce")):
-                        err(f"column {c!r}, row {i}: rows with status 'ok' need a number")
+                for c in SCORED:
+                    if c in df.columns and not np.isfinite(
+                            pd.to_numeric(pd.Series([row[c]]), errors="coerce").iloc[0]):
+                        err(f"column {c!r}, row {i}: rows with status 'ok' need a finite "
+                            f"number, got {row[c]!r}")
             elif row["status"] in ("error", "invalid") and "error" in df.columns:
                 if not isinstance(row["error"], str) or not row["error"].strip():
                     err(f"column 'error', row {i}: rows with status {row['status']!r} need "
                         "the reason")
     key = [c for c in ("track", "solver", "config_hash", "scene", "variation", "seed",
                        "observation") if c in df.columns]
-    if len(key) >= 6:
+    if len(key) >= 6 and len(df):
         dup = df.duplicated(subset=key, keep="first")
         for i in df.index[dup]:
             err(f"row {i}: duplicate of an earlier row in columns {', '.join(key)}")

@@ -3,6 +3,7 @@ which runs one task into the cache atomically."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
-from ..io import jsonable, write_json, write_npz
+from ..io import jsonable, write_json, write_npz, write_text
 from .graph import Task
 
 
@@ -128,33 +129,105 @@ STAGE_FUNCS = {"generate": _stage_generate, "extract": _stage_extract,
                "observe": _stage_observe, "solve": _stage_solve, "evaluate": _stage_evaluate}
 
 
-def execute_task(cache: str, task: Task, threads: int | None = None) -> dict:
-    """Run one task unless its output exists; never raises. Returns a status dict:
-    ``{"key", "status": ok|error|skipped, "computed": bool, "seconds", "result"|"error"}``."""
+def file_hashes(folder: Path) -> dict[str, str]:
+    """sha256 of every file under ``folder`` (relative POSIX paths), ``task.json`` excepted."""
+    out = {}
+    for f in sorted(folder.rglob("*")):
+        if f.is_file() and f.name != "task.json":
+            out[f.relative_to(folder).as_posix()] = _sha256(f)
+    return out
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def verify_cached(folder: Path, info: dict) -> str | None:
+    """Why a cached task output cannot be reused (a file edited, truncated or deleted since its
+    ``task.json`` recorded its sha256; no hashes recorded), or None when it is intact."""
+    files = info.get("files")
+    if not isinstance(files, dict) or not files:
+        return "no recorded sha256 (written by an older vvtbench)"
+    for rel, digest in files.items():
+        f = folder / rel
+        if not f.is_file():
+            return f"{rel}: deleted"
+        if _sha256(f) != digest:
+            return f"{rel}: sha256 mismatch (edited or truncated)"
+    return None
+
+
+def _tmp_name(key: str) -> str:
+    return f"{key}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+# the task this process is writing (for a SIGTERM handler: see executors)
+CURRENT: dict[str, Path | None] = {"tmp": None}
+
+
+def execute_task(cache: str, task: Task, threads: int | None = None,
+                 limits: dict | None = None) -> dict:
+    """Run one task unless its output exists and is intact; never raises (but for Ctrl-C).
+    Returns a status dict: ``{"key", "status": ok|error|skipped, "computed": bool,
+    "seconds", "result"|"error"}``; ``"recomputed"``: why a cached output was not reused.
+
+    ``limits``: ``{"timeout": s, "memory_bytes": n, "isolate": bool}`` for solve tasks, which
+    run in a child process (:mod:`.child`) unless ``isolate`` is False."""
     cache = Path(cache)
+    limits = limits or {}
     final = cache / task.key
     done = final / "task.json"
+    recomputed = None
     if done.is_file():
         try:
             info = json.loads(done.read_text())
+            recomputed = verify_cached(final, info)
+        except (OSError, ValueError):
+            recomputed = "task.json unreadable"
+        if recomputed is None:
             return {"key": task.key, "status": "ok", "computed": False, "seconds": 0.0,
                     "result": info.get("result", {})}
-        except (OSError, ValueError):
-            shutil.rmtree(final, ignore_errors=True)
+        # never reuse it: move it aside atomically, then delete
+        trash = cache / f"{_tmp_name(task.key)}.stale"
+        try:
+            os.replace(final, trash)
+        except OSError:
+            pass
+        shutil.rmtree(trash, ignore_errors=True)
     for dep in task.deps:
         if not (cache / dep / "task.json").is_file():
             err_file = cache / f"{dep}.error" / "error.json"
             msg = "upstream task failed"
             if err_file.is_file():
-                msg = json.loads(err_file.read_text()).get("error", msg)
+                try:
+                    msg = json.loads(err_file.read_text()).get("error", msg)
+                except (OSError, ValueError):
+                    pass
             return {"key": task.key, "status": "skipped", "computed": False, "seconds": 0.0,
                     "error": msg, "upstream": dep}
-    tmp = cache / f"{task.key}.tmp-{uuid.uuid4().hex[:8]}"
+    tmp = cache / _tmp_name(task.key)
     tmp.mkdir(parents=True)
+    CURRENT["tmp"] = tmp
     err_dir = cache / f"{task.key}.error"
     t0 = time.perf_counter()
     try:
-        if threads:
+        if task.stage == "solve" and limits.get("isolate", True):
+            from .child import DEFAULT_TIMEOUT, run_isolated
+
+            result = run_isolated(cache, task, tmp,
+                                  timeout=limits.get("timeout", DEFAULT_TIMEOUT),
+                                  memory_bytes=limits.get("memory_bytes"), threads=threads)
+            shutil.rmtree(tmp / ".child", ignore_errors=True)
+            if not (tmp / "estimate.npz").is_file():  # the parent checks what the child wrote
+                from .child import IsolationError
+
+                raise IsolationError("crashed", "the solver process reported success but "
+                                                "wrote no estimate.npz")
+        elif threads:
             from threadpoolctl import threadpool_limits
 
             with threadpool_limits(limits=threads):
@@ -165,23 +238,37 @@ def execute_task(cache: str, task: Task, threads: int | None = None) -> dict:
         write_json(tmp / "task.json", {"stage": task.stage, "key": task.key,
                                         "deps": task.deps, "payload": task.payload,
                                         "result": result, "seconds": seconds,
-                                        "vvtbench": __version__})
+                                        "vvtbench": __version__, "files": file_hashes(tmp)})
         if final.exists():  # a concurrent duplicate finished first
             shutil.rmtree(tmp, ignore_errors=True)
         else:
             os.replace(tmp, final)
         shutil.rmtree(err_dir, ignore_errors=True)
-        return {"key": task.key, "status": "ok", "computed": True, "seconds": seconds,
-                "result": jsonable(result)}
+        out = {"key": task.key, "status": "ok", "computed": True, "seconds": seconds,
+               "result": jsonable(result)}
+        if recomputed:
+            out["recomputed"] = recomputed
+        return out
     except BaseException as error:  # noqa: BLE001 -- a task must never stop the suite
-        if isinstance(error, KeyboardInterrupt):
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         shutil.rmtree(tmp, ignore_errors=True)
-        msg = f"{task.stage}: {type(error).__name__}: {error}"
+        if isinstance(error, KeyboardInterrupt):
+            raise
+        from .child import ChildError, IsolationError
+
+        if isinstance(error, ChildError):
+            msg, tb = str(error), error.log
+        elif isinstance(error, IsolationError):
+            msg, tb = f"{task.stage}: {error}", f"{task.stage}: {error}\n{error.log}"
+        else:
+            msg, tb = f"{task.stage}: {type(error).__name__}: {error}", traceback.format_exc()
         err_dir.mkdir(parents=True, exist_ok=True)
-        (err_dir / "traceback.txt").write_text(traceback.format_exc())
+        write_text(err_dir / "traceback.txt", tb)
         write_json(err_dir / "error.json", {"error": msg, "task": task.key})
-        return {"key": task.key, "status": "error", "computed": True,
-                "seconds": time.perf_counter() - t0, "error": msg,
-                "traceback": f"{task.key}.error/traceback.txt"}
+        out = {"key": task.key, "status": "error", "computed": True,
+               "seconds": time.perf_counter() - t0, "error": msg,
+               "traceback": f"{task.key}.error/traceback.txt"}
+        if recomputed:
+            out["recomputed"] = recomputed
+        return out
+    finally:
+        CURRENT["tmp"] = None

@@ -33,6 +33,10 @@ PositiveNumber = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeNumber = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
 Count = Annotated[int, Field(ge=1)]
+ModeCount = Annotated[int, Field(ge=1, le=2000)]
+Cells = Annotated[int, Field(ge=1, le=256)]
+Frequency = Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)]
+SmallCount = Annotated[int, Field(ge=1, le=64)]
 Name = Annotated[str, Field(min_length=1)]
 Observation = Literal["true", "extracted"]
 Options = dict[str, Any]  # scene overrides and inference options, checked by _split_options
@@ -47,9 +51,9 @@ class _Strict(BaseModel):
 class InferenceOptions(_Strict):
     """The inference options of a variation (docs/suites.md)."""
 
-    n_modes: Count | None = Field(None, description="an integer >= 1")
-    inference_shape: Annotated[list[Count], Field(min_length=2, max_length=3)] | None = Field(
-        None, description="a list of 3 integers >= 1 (drums: 2)")
+    n_modes: ModeCount | None = Field(None, description="an integer >= 1 (at most 2000)")
+    inference_shape: Annotated[list[Cells], Field(min_length=2, max_length=3)] | None = Field(
+        None, description="a list of 3 integers >= 1 (at most 256; drums: 2)")
     geometry_scale: (PositiveNumber | Annotated[list[PositiveNumber],
                                                 Field(min_length=3, max_length=3)] | None) = Field(
         None, description="a number > 0 (scales x), or [sx, sy, sz] of numbers > 0")
@@ -66,14 +70,15 @@ class InferenceOptions(_Strict):
 class ExtractOptions(_Strict):
     """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging."""
 
-    fmin: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
-    fmax: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
+    fmin: Frequency | None = Field(None, description="a frequency > 0 (Hz, at most 1e7)")
+    fmax: Frequency | None = Field(None, description="a frequency > 0 (Hz, at most 1e7)")
     prominence: NonNegativeNumber | None = Field(None, description="a number >= 0 (decades)")
-    min_separation_hz: PositiveNumber | None = Field(None, description="a frequency > 0 (Hz)")
-    max_modes: Count | None = Field(None, description="an integer >= 1")
+    min_separation_hz: Frequency | None = Field(None,
+                                                description="a frequency > 0 (Hz, at most 1e7)")
+    max_modes: ModeCount | None = Field(None, description="an integer >= 1 (at most 2000)")
     min_power_ratio: NonNegativeNumber | None = Field(None, description="a number >= 0")
-    n_scales: Count | None = Field(None, description="an integer >= 1")
-    n_orientations: Count | None = Field(None, description="an integer >= 1")
+    n_scales: SmallCount | None = Field(None, description="an integer >= 1 (at most 64)")
+    n_orientations: SmallCount | None = Field(None, description="an integer >= 1 (at most 64)")
     sigma: NonNegativeNumber | None = Field(None, description="a number >= 0 (pixels)")
     weighting: Literal["confidence", "none"] | None = Field(
         None, description="'confidence' or 'none'")
@@ -131,6 +136,10 @@ class SuiteFile(_Strict):
     tracks: list[TrackFile] | None = Field(None, description="[[tracks]] tables")
     variations: list[Options] | None = Field(None, description="a list of tables of options")
     sweep: Options | None = Field(None, description="a table of key = [values]")
+    timeout: Annotated[float, Field(gt=0, le=30 * 86400, allow_inf_nan=False)] | None = Field(
+        None, description="seconds > 0 (at most 30 days): the time limit of one solve")
+    memory_gb: Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)] | None = Field(
+        None, description="GB > 0: the memory limit of one solve")
 
 
 INFERENCE_KEYS = tuple(InferenceOptions.model_fields)
@@ -231,7 +240,7 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
-        if isinstance(v, dict) and key.split(".")[0] in SCENE_SECTIONS:
+        if isinstance(v, dict) and v and key.split(".")[0] in SCENE_SECTIONS:
             out.update(_flatten(v, key + "."))
         else:
             out[key] = v
@@ -309,6 +318,8 @@ class Suite:
     description: str = ""
     source: str = ""
     raw: dict = field(default_factory=dict)
+    timeout: float | None = None     # seconds per solve (None: the runner's default)
+    memory_gb: float | None = None   # memory limit per solve (None: the runner's default)
 
     @property
     def scene_names(self) -> list[str]:
@@ -454,8 +465,11 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
         dup = sorted({n for n in names if names.count(n) > 1})
         raise SuiteError(f"{source}: key 'tracks': duplicate track names {dup} (allowed: "
                          "distinct names)")
+    timeout, memory_gb = data.get("timeout"), data.get("memory_gb")
     return Suite(name, tracks, list(solvers), solver_config, extract,
-                 data.get("description", ""), source, data)
+                 data.get("description", ""), source, data,
+                 None if timeout is None else float(timeout),
+                 None if memory_gb is None else float(memory_gb))
 
 
 def scene_ref(name: str, source: str) -> str:

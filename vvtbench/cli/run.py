@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import shlex
 import sys
 from pathlib import Path
 
@@ -55,20 +57,58 @@ def format_table(df) -> str:
     return text
 
 
+def _positive(what: str):
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number ({what})") from None
+        if not math.isfinite(x) or x <= 0:
+            raise argparse.ArgumentTypeError(f"{text!r}: allowed: {what}")
+        return x
+    return parse
+
+
+def _workers(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer >= 1") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: allowed: an integer >= 1")
+    return n
+
+
 def main_run(argv: list[str] | None = None) -> int:
-    """``vvtbench run SUITE [--solvers a,b] [--workers N] [--scheduler ADDR] -o DIR``."""
+    """``vvtbench run SUITE [--solvers a,b] [--workers N] [--scheduler ADDR] -o DIR``.
+
+    Exit 0 when every row is ok; 1 when a row failed or is invalid, when there are no rows, or
+    when the run folder is in use; 2 for bad input; 130 on Ctrl-C."""
+    from ..bench.executors import Interrupted
+    from ..bench.lock import RunLocked
+    from ..plugins import PluginError
+
     p = argparse.ArgumentParser(prog="vvtbench run", description=(
-        "run a benchmark suite: generate -> extract -> solve -> evaluate, cached"))
+        "run a benchmark suite: generate -> extract -> solve -> evaluate, cached; every solve "
+        "in a child process with a time and a memory limit"))
     p.add_argument("suite", help="suite name (scenes/suites/NAME.toml) or file")
     p.add_argument("--solvers", default=None,
                    help="comma-separated solver names or path/file.py:Class "
                         "(default: the suite's list)")
     p.add_argument("--set", dest="overrides", action="append", default=[],
                    metavar="SOLVER.KEY=VALUE", help="solver config override (repeatable)")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (1)")
+    p.add_argument("--workers", type=_workers, default=1, help="local worker processes (1)")
     p.add_argument("--scheduler", default=None,
                    help="address of a Dask distributed scheduler, e.g. tcp://host:8786")
     p.add_argument("-o", "--output", default=None, help="run folder (default runs/SUITE)")
+    p.add_argument("--timeout", type=_positive("seconds > 0"), default=None,
+                   help="time limit of one solve in seconds (default: the suite's `timeout`, "
+                        "else 3600); a solve over it is an error row 'timeout'")
+    p.add_argument("--memory-gb", type=_positive("GB > 0"), default=None,
+                   help="memory limit of one solve (default: the suite's `memory_gb`, else "
+                        "75%% of the machine's memory / workers)")
+    p.add_argument("--wait", action="store_true",
+                   help="if another run uses the folder, wait for it (default: refuse)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     try:
@@ -79,13 +119,41 @@ def main_run(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     out = Path(args.output or f"runs/{suite.name}")
-    df = run_suite(suite, solvers, out, workers=args.workers, scheduler=args.scheduler,
-                   solver_config=overrides, progress=not args.no_progress)
+    try:
+        df = run_suite(suite, solvers, out, workers=args.workers, scheduler=args.scheduler,
+                       solver_config=overrides, progress=not args.no_progress,
+                       timeout=args.timeout, memory_gb=args.memory_gb, wait=args.wait)
+    except Interrupted as stop:
+        resume = f"vvtbench run {args.suite} -o {shlex.quote(str(out))}"
+        print(f"\ninterrupted: {stop.finished} of {stop.total} tasks finished (kept in "
+              f"{out / 'cache'}); resume with `{resume}`: finished tasks are reused",
+              file=sys.stderr)
+        return 130
+    except RunLocked as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except (SuiteError, PluginError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    for key, label, why in df.attrs.get("recomputed", []):
+        print(f"recomputed {key} ({label}): the cached output was damaged: {why}",
+              file=sys.stderr)
+    if len(df) == 0:
+        print(f"error: no rows: {df.attrs.get('no_rows', 'the suite expands to no run')}",
+              file=sys.stderr)
+        return 1
     print(format_table(df))
     st = df.attrs.get("stats", {})
     summary = ", ".join(f"{s} {v['computed']} new/{v['cached']} cached"
                         + (f"/{v['failed']} failed" if v["failed"] else "")
+                        + (f"/{v['recomputed']} recomputed" if v.get("recomputed") else "")
                         for s, v in st.items() if v["tasks"])
     print(f"\n{len(df)} rows in {df.attrs.get('wall_s', 0):.1f} s ({summary}) -> "
           f"{out / 'results.parquet'}, {out / 'results.csv'}")
+    bad = df[df["status"] != "ok"]
+    if len(bad):
+        kinds = ", ".join(f"{n} {s}" for s, n in bad["status"].value_counts().items())
+        print(f"error: {len(bad)} of {len(df)} rows not ok ({kinds}); see the errors above",
+              file=sys.stderr)
+        return 1
     return 0
