@@ -84,7 +84,7 @@ class SensitivityConfig:
         "help": "maximum LM iterations on each coarse level of the continuation"})
     levels: int = field(default=2, metadata={
         "help": "coarse levels before the full grid (blocks of 2^l voxels per axis); 0: none"})
-    tol: float = field(default=1e-3, metadata={
+    tol: float = field(default=5e-3, metadata={
         "help": "stop a level when an accepted step lowers the cost by less than this fraction"})
     weight_eig: float = field(default=1.0, metadata={
         "help": "weight of the log-eigenvalue residuals"})
@@ -158,6 +158,40 @@ def coarsening(voxel_map, level: int) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(n), (np.arange(n), block)), shape=(n, block.max() + 1))
 
 
+# --------------------------------------------------------------------------- eigenpairs
+
+
+def _shift(lam: np.ndarray) -> float:
+    """A shift below the spectrum: K - sigma M is definite (also without fixed DOFs)."""
+    top = float(np.abs(lam).max())
+    return -1e-3 * max(float(lam[0]), 1e-3 * top) if lam[0] > 0 else -1e-3 * top - 1.0
+
+
+def warm_eigenpairs(K, M, factor, X0, n, tol=1e-9, max_it=8):
+    """The ``n`` lowest eigenpairs of K x = lam M x by shift-invert subspace iteration with
+    Rayleigh-Ritz, started from ``X0`` (n_free, p >= n; the previous iteration's modes plus
+    guard vectors), ``factor`` solving (K - sigma M). None when not converged within
+    ``max_it`` iterations (the caller then solves from scratch)."""
+    from vvtbench.fem.modal import backward_errors
+
+    norms = (abs(K).sum(axis=1).max(), abs(M).sum(axis=1).max())
+    X = X0
+    for _ in range(max_it):
+        B = np.hstack([X, factor(np.asarray(M @ X))])
+        for _ in range(2):  # M-orthonormal basis (CGS by the Gram's eigenvectors)
+            g = B.T @ (M @ B)
+            d, V = np.linalg.eigh((g + g.T) / 2)
+            keep = d > 1e-12 * d.max()
+            B = B @ (V[:, keep] / np.sqrt(d[keep]))
+        kr = B.T @ (K @ B)
+        theta, Y = np.linalg.eigh((kr + kr.T) / 2)
+        X = B @ Y[:, :X0.shape[1]]
+        lam = theta[:X0.shape[1]]
+        if backward_errors(K, M, lam[:n], X[:, :n], norms).max() < tol:
+            return lam, X
+    return None
+
+
 # --------------------------------------------------------------------------- derivatives
 
 
@@ -174,7 +208,8 @@ class ShapeDerivatives:
     series_terms, gap_rtol : see :class:`SensitivityConfig`.
     """
 
-    def __init__(self, model, P, w, v, lam, phi, series_terms=3, gap_rtol=1e-5) -> None:
+    def __init__(self, model, P, w, v, lam, phi, series_terms=3, gap_rtol=1e-5,
+                 factor=None, sigma=None) -> None:
         from vvtbench.fem.modal import Factorization
 
         self.model, self.w, self.v = model, w, v
@@ -185,17 +220,18 @@ class ShapeDerivatives:
         K, M = model.K(w), model.M(v)
         self.M = M
         # a small negative shift keeps K_s definite even without fixed DOFs
-        self.sigma = -1e-3 * max(lam[0], 1e-3 * lam[-1]) if lam[0] > 0 else \
-            -1e-3 * abs(lam).max() - 1.0
+        self.sigma = _shift(lam) if sigma is None else sigma
         self.mu = lam - self.sigma
         self.Z = []
         if series_terms > 0:
-            fac = Factorization((K - self.sigma * M).tocsc())
+            fac = factor if factor is not None else Factorization((K - self.sigma * M).tocsc())
             z = fac(np.asarray(self.P.T.toarray()))
             self.Z.append(z)
             for _ in range(series_terms - 1):
                 z = fac(np.asarray(M @ z))
                 self.Z.append(z)
+        # one sparse product per mode: [phi, Z_0, Z_1, ...]
+        self._right = np.hstack([phi] + self.Z)
 
     def mode(self, j: int):
         """(dlam_j / dtheta (2m,), P dphi_j / dtheta (r, 2m)) of model mode j."""
@@ -210,7 +246,9 @@ class ShapeDerivatives:
         dlam = np.concatenate([w * gK, -lam * v * gM])
         F = sp.hstack([G @ sp.diags(-w), H @ sp.diags(lam * v)]).tocsr()  # (n, 2m)
         Ft = F.T.tocsr()
-        PhiF = np.asarray(Ft @ self.phi).T  # (N, 2m)
+        N, r = self.phi.shape[1], self.Q.shape[0]
+        prod = np.asarray(Ft @ self._right)  # (2m, N + T r)
+        PhiF = prod[:, :N].T  # (N, 2m)
         mu_i = self.mu[j]
         T = len(self.Z)
         series = sum(mu_i ** p / self.mu ** (p + 1) for p in range(T)) if T else 0.0
@@ -218,8 +256,8 @@ class ShapeDerivatives:
         far = np.abs(gap) > self.gap_rtol * abs(lam)
         coef = np.where(far, 1.0 / np.where(far, gap, 1.0), 0.0) - series
         dQ = self.Q @ (coef[:, None] * PhiF)
-        for p, z in enumerate(self.Z):
-            dQ += mu_i ** p * np.asarray(Ft @ z).T
+        for p in range(T):
+            dQ += mu_i ** p * prod[:, N + p * r:N + (p + 1) * r].T
         # mass normalization: c = -1/2 phi^T dM phi (v columns only)
         dQ[:, m:] += np.outer(self.Q[:, j], -0.5 * v * gM)
         return dlam, dQ
@@ -232,7 +270,7 @@ class _State:
     """Model quantities at one parameter vector."""
 
     __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "q", "s", "r_data",
-                 "cost", "data_cost", "K", "M")
+                 "cost", "data_cost", "K", "M", "factor", "sigma", "guard")
 
 
 class SensitivitySolver:
@@ -342,8 +380,25 @@ class SensitivitySolver:
         s.theta = theta
         s.w, s.v = np.exp(theta[:m]), np.exp(theta[m:])
         s.K, s.M = self.model.K(s.w), self.model.M(s.v)
-        modes = eigenmodes(s.K, s.M, self.n_model)
-        s.lam, phi = modes.eigenvalues, modes.vectors
+        s.factor = None
+        got = None
+        if prev is not None:
+            from vvtbench.fem.modal import Factorization
+
+            s.sigma = _shift(prev.lam)
+            s.factor = Factorization((s.K - s.sigma * s.M).tocsc())
+            got = warm_eigenpairs(s.K, s.M, s.factor, prev.guard, self.n_model)
+        if got is None:
+            n_guard = min(self.n_model + 6, self.model.n_free - 1)
+            modes = eigenmodes(s.K, s.M, n_guard)
+            lam_all, vec_all = modes.eigenvalues, modes.vectors
+            if s.factor is None or s.sigma > 0.5 * lam_all[0]:
+                s.sigma = _shift(lam_all)
+                s.factor = None
+        else:
+            lam_all, vec_all = got
+        s.guard = vec_all
+        s.lam, phi = lam_all[:self.n_model], vec_all[:, :self.n_model]
         Q = np.asarray(self.problem.P @ phi)
         qn = np.maximum(np.sum(Q * Q, axis=0), 1e-300)
         mac_obs = (self.gamma @ Q) ** 2 / qn[None, :]
@@ -374,7 +429,7 @@ class SensitivitySolver:
         """Dense (k + k r, 2m) Jacobian of the data residuals with respect to theta."""
         cfg = self.config
         der = ShapeDerivatives(self.model, self.problem.P, s.w, s.v, s.lam, s.phi,
-                               cfg.series_terms, cfg.gap_rtol)
+                               cfg.series_terms, cfg.gap_rtol, s.factor, s.sigma)
         k = self.k
         r = self.gamma.shape[1]
         J = np.empty((k + k * r, 2 * self.m))
@@ -432,6 +487,7 @@ class SensitivitySolver:
             T2 = sp.block_diag([Tm, Tm]).tocsr()
             cap = cfg.level_iters if level > 0 else cfg.max_iter
             level_it = 0
+            mu = max(mu, cfg.mu0)  # a new level: new parameters, start damped again
             while it < cfg.max_iter and level_it < cap:
                 t0 = time.perf_counter()
                 J = self._jacobian(state)
