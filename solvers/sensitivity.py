@@ -375,7 +375,7 @@ class SensitivitySolver:
 
         cfg = self.config
         theta = self._normalize(theta)
-        m, k = self.m, self.k
+        m = self.m
         s = _State()
         s.theta = theta
         s.w, s.v = np.exp(theta[:m]), np.exp(theta[m:])
