@@ -1,41 +1,61 @@
-"""``sensitivity``: classical FE model updating -- Levenberg-Marquardt on modal residuals.
+"""``sensitivity`` 2.x: FE model updating on eigenvalues and full projected mode shapes.
 
-The structural-dynamics peer of ``vvt``. Parameters are theta = [log w; log v] (positivity
-for free, relative steps). For a trial theta the model's lowest ``k + n_extra`` eigenpairs
-(lam_j, phi_j), mass-normalized, are computed; observed mode i is paired with model mode
-p(i) and the residuals are
+Parameters are theta = [log w; log v] (positivity for free, relative steps). For a trial
+theta the model's lowest ``N = k + n_extra`` eigenpairs (lam_j, phi_j), mass-normalized, are
+computed; observed mode i is paired with model mode p(i) (below) and the residuals are
 
-    r_lam_i = (lam_p(i) - lam_obs_i) / lam_obs_i
-    r_mac_i = sqrt(weight_mac) (1 - MAC(P phi_p(i), gamma_i)),  MAC(a, b) = (a.b)^2/(|a|^2 |b|^2)
-    r_reg   = sqrt(alpha_reg) [L log w; L log v]       (regularization="laplacian", L the grid
-              graph Laplacian of vvt) or sqrt(alpha_reg) (theta - theta_start) ("tikhonov")
+    r_eig_i   = sqrt(weight_eig c_i) log(lam_p(i) / lam_obs_i)
+    r_shape_i = sqrt(weight_shape c_i) (s_i q_i - gamma_i),  q_i = P phi_p(i),
+                s_i = gamma_i . q_i / |q_i|^2              (the least-squares scale)
 
-and LM minimizes |r|^2 with Marquardt damping mu diag(J^T J).
+with gamma_i of unit length and c_i the confidence of observed mode i (``mode_weights``; the
+problem carries no per-mode noise today, so the default is 1). The cost is
 
-Derivatives (analytic, no finite differences):
+    C = sum |r_eig|^2 + sum |r_shape|^2 + alpha_lap (|L log w|^2 + |L log v|^2)
+        + 2 alpha_tv sum_edges (sqrt((D log w)_e^2 + eps^2) + sqrt((D log v)_e^2 + eps^2))
 
-* eigenvalues: dlam_i/dw_e = phi_i^T K_e phi_i, dlam_i/dv_e = -lam_i phi_i^T M_e phi_i
-  (K_e, M_e the unit matrices of voxel e; computed element-wise, = G_i^T phi_i with
-  G_i = model.stiffness_columns(phi_i));
-* mode shapes: modal truncation (Fox & Kapoor) over the computed model modes,
-  dphi_i = sum_{j != i} phi_j phi_j^T (dK - lam_i dM) phi_i / (lam_i - lam_j)
-           - 1/2 (phi_i^T dM phi_i) phi_i,
-  an approximation of Nelson's exact derivative that drops the modes above the computed
-  ones (their share ~ lam_i / lam_j is small for the low modes). Pairs closer than
-  ``gap_rtol`` (repeated eigenvalues: symmetric cubes have them) are skipped; the phi_i term
-  is irrelevant to the scale-free MAC. The MAC derivative is then
-  dMAC_i = g_i^T P dphi_i, g_i = 2c/(|gamma|^2 |q|^2) (gamma - c q/|q|^2), q = P phi_i,
-  c = gamma . q.
+L the grid graph Laplacian (``solvers.vvt.grid_laplacian``), D the grid's first differences
+(anisotropic total variation, smoothed by ``tv_eps``). Levenberg-Marquardt minimizes C; the TV
+term enters the Gauss-Newton system by its IRLS majorizer alpha_tv D^T diag(1/psi) D; a step is
+accepted only when the true cost decreases.
+
+Derivatives (exact up to a controlled series truncation; no finite differences, no solve per
+parameter):
+
+* eigenvalues: dlam_i/dlog w_e = w_e phi_i^T K_e phi_i, dlam_i/dlog v_e = -lam_i v_e
+  phi_i^T M_e phi_i (``stiffness_columns`` / ``mass_columns`` of phi_i, since dK/dw_e = K_e).
+* mode shapes, Nelson's form: dphi_i = A_i^+ g + c phi_i, g = -(dK - lam_i dM) phi_i,
+  c = -1/2 phi_i^T dM phi_i, A_i^+ the inverse of K - lam_i M on the M-orthogonal complement
+  of phi_i, A_i^+ = sum_{j != i} phi_j phi_j^T / (lam_j - lam_i). Over the N computed modes
+  this sum is exact; the rest (j > N) is the expansion 1/(mu_j - mu_i) = sum_p mu_i^p /
+  mu_j^(p+1) (mu = lam - sigma), i.e. sum_p mu_i^p [K_s^-1 (M K_s^-1)^p - sum_{j<=N} phi_j
+  phi_j^T / mu_j^(p+1)] with K_s = K - sigma M, truncated after ``series_terms`` terms (error
+  ~ (lam_i / lam_(N+1))^series_terms). Only the projections are needed, so one sparse
+  Cholesky of K_s per iteration and ``series_terms`` multi-right-hand-side solves with P^T,
+  Z_p = K_s^-1 (M K_s^-1)^p P^T, serve every mode and every parameter: P A_i^+ g =
+  Q diag(coef_i) Phi^T g + sum_p mu_i^p Z_p^T g. Pairs of (near-)repeated eigenvalues
+  (relative gap < ``gap_rtol``) are left out (no derivative exists there).
+  d r_shape_i = (s_i I + q_i b_i^T) P dphi_i, b_i = (gamma_i - 2 s_i q_i) / |q_i|^2.
 
 Mode tracking: at the start observed modes are paired with model modes by projected-mode MAC
 (optimal assignment); afterwards each paired model mode is followed by the 3-D MAC
 (phi_old^T M phi_new)^2 with the previous iteration's modes (``pairing="track"``), or
-re-paired with the observations every iteration (``pairing="observed"``).
+re-paired with the observations every iteration (``pairing="observed"``). Inside a cluster of
+repeated model eigenvalues (the symmetric start) the basis is rotated towards the paired
+observations (any basis of the cluster is an eigenbasis).
 
-Mean anchor on w: the eigenvalues and mode shapes are invariant under (w, v) -> c (w, v), so
-mean(w) = w_mean is imposed exactly by rescaling both fields at every evaluation; an anchor
-row in J removes that null direction from the LM system. The start is the best uniform field
-(the ``homogeneous`` solver).
+Continuation: coarse-to-fine voxels. Level l uses blocks of 2^l x 2^l x 2^l voxels (theta =
+T theta_coarse, piecewise constant prolongation), at most ``level_iters`` LM iterations per
+coarse level, then the full grid for the rest of ``max_iter``.
+
+Mean anchor on w: the modes are invariant under (w, v) -> c (w, v) (and so are the priors on
+log-parameters), so mean(w) = w_mean is imposed exactly by rescaling both fields at every
+evaluation; an anchor row removes that null direction from the LM system.
+
+Uncertainty (Laplace approximation at the optimum): Cov(theta) = s^2 H^-1, H = J^T J +
+alpha_lap L^T L (+ TV majorizer) + anchor, s^2 = (data cost) / (number of data residuals);
+w_std = w sqrt(diag Cov_w) (delta method), likewise v_std, times ``std_scale``. Returned in
+``Estimate.extra`` as ``w_std``, ``v_std``.
 """
 
 from __future__ import annotations
@@ -50,61 +70,227 @@ from vvtbench.problem import Estimate, InverseProblem
 
 from .vvt import grid_laplacian
 
-__all__ = ["SensitivityConfig", "SensitivitySolver"]
+__all__ = ["SensitivityConfig", "SensitivitySolver", "grid_differences",
+           "coarsening", "ShapeDerivatives"]
 
 
 @dataclass
 class SensitivityConfig:
     """Options of the FE model-updating solver."""
 
-    max_iter: int = field(default=30, metadata={"help": "maximum number of LM iterations"})
-    tol: float = field(default=1e-4, metadata={
-        "help": "stop when an accepted step lowers the cost by less than this fraction"})
-    weight_mac: float = field(default=1.0, metadata={
-        "help": "weight of the (1 - MAC) residuals relative to the eigenvalue residuals"})
-    regularization: str = field(default="laplacian", metadata={
-        "help": "'laplacian' (graph Laplacian of log w, log v) or 'tikhonov' (to the start)"})
-    alpha_reg: float = field(default=1e-4, metadata={"help": "regularization weight"})
-    mu0: float = field(default=1e-2, metadata={"help": "initial Marquardt damping"})
-    n_extra: int = field(default=20, metadata={
-        "help": "model modes beyond the observed count (tracking, shape derivatives)"})
-    gap_rtol: float = field(default=1e-6, metadata={
-        "help": "skip mode pairs with |lam_i - lam_j| < gap_rtol lam_i in shape derivatives"})
+    max_iter: int = field(default=24, metadata={
+        "help": "maximum number of LM iterations over all levels"})
+    level_iters: int = field(default=4, metadata={
+        "help": "maximum LM iterations on each coarse level of the continuation"})
+    levels: int = field(default=2, metadata={
+        "help": "coarse levels before the full grid (blocks of 2^l voxels per axis); 0: none"})
+    tol: float = field(default=5e-3, metadata={
+        "help": "stop a level when an accepted step lowers the cost by less than this fraction"})
+    weight_eig: float = field(default=1.0, metadata={
+        "help": "weight of the log-eigenvalue residuals"})
+    weight_shape: float = field(default=1.0, metadata={
+        "help": "weight of the projected mode-shape residuals (unit-length gamma)"})
+    mode_weights: tuple[float, ...] = field(default=(), metadata={
+        "help": "confidence of each observed mode (multiplies both its residuals); "
+                "empty: 1 for every mode"})
+    alpha_lap: float = field(default=1e-3, metadata={
+        "help": "Laplacian prior weight on log w and log v"})
+    alpha_tv: float = field(default=1e-3, metadata={
+        "help": "total-variation prior weight on log w and log v"})
+    tv_eps: float = field(default=0.05, metadata={
+        "help": "smoothing of the TV prior (in log units)"})
+    v_prior_scale: float = field(default=3.0, metadata={
+        "help": "the priors on log v are this many times stronger than on log w"})
+    n_extra: int = field(default=10, metadata={
+        "help": "model modes beyond the observed count (tracking, exact part of dphi)"})
+    series_terms: int = field(default=3, metadata={
+        "help": "terms of the static-correction series for the modes above the computed ones"})
+    gap_rtol: float = field(default=1e-5, metadata={
+        "help": "leave out mode pairs with |lam_i - lam_j| < gap_rtol lam_i in dphi"})
     pairing: str = field(default="track", metadata={
-        "help": "'track' (MAC with the previous iteration's modes) or 'observed' (re-pair by "
-                "projected MAC every iteration)"})
+        "help": "'track' (3-D MAC with the previous iteration's modes) or 'observed' "
+                "(re-pair by projected MAC every iteration)"})
+    mu0: float = field(default=1e-2, metadata={"help": "initial Marquardt damping"})
     max_step: float = field(default=1.0, metadata={
         "help": "largest change of a log-parameter per step (trust region)"})
+    uncertainty: bool = field(default=True, metadata={
+        "help": "Laplace approximation at the optimum: extra['w_std'], extra['v_std']"})
+    std_scale: float = field(default=1.0, metadata={
+        "help": "multiplies the Laplace standard deviations (calibration)"})
     w_mean: float | None = field(default=None, metadata={
         "help": "anchor for mean(w) (default: the problem's prior)"})
+
+    def __post_init__(self) -> None:
+        if self.pairing not in ("track", "observed"):
+            raise ValueError(f"pairing must be 'track' or 'observed', got {self.pairing!r}")
+        if np.isscalar(self.mode_weights):
+            self.mode_weights = (float(self.mode_weights),)
+        self.mode_weights = tuple(float(x) for x in self.mode_weights)
+        if self.series_terms < 0 or self.levels < 0:
+            raise ValueError("series_terms and levels must be >= 0")
+
+
+# --------------------------------------------------------------------------- grid helpers
+
+
+def grid_differences(voxel_map) -> sp.csr_matrix:
+    """(n_edges, n_params) first differences over the 6-neighbour edges of the active voxels
+    (D^T D = ``grid_laplacian``)."""
+    L = sp.triu(grid_laplacian(voxel_map), k=1).tocoo()
+    n_e = L.nnz
+    rows = np.repeat(np.arange(n_e), 2)
+    cols = np.stack([L.row, L.col], axis=1).ravel()
+    vals = np.tile([1.0, -1.0], n_e)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n_e, voxel_map.n_params))
+
+
+def coarsening(voxel_map, level: int) -> sp.csr_matrix:
+    """(n_params, n_coarse) piecewise-constant prolongation from blocks of 2^level voxels per
+    axis (identity for level 0)."""
+    active = voxel_map.active
+    shape = voxel_map.grid.shape
+    n = len(active)
+    if level == 0:
+        return sp.identity(n, format="csr")
+    ijk = np.array(np.unravel_index(active, shape)).T // (2 ** level)
+    _, block = np.unique(ijk, axis=0, return_inverse=True)
+    block = np.asarray(block).ravel()
+    return sp.csr_matrix((np.ones(n), (np.arange(n), block)), shape=(n, block.max() + 1))
+
+
+# --------------------------------------------------------------------------- eigenpairs
+
+
+def _shift(lam: np.ndarray) -> float:
+    """A shift below the spectrum: K - sigma M is definite (also without fixed DOFs)."""
+    top = float(np.abs(lam).max())
+    return -1e-3 * max(float(lam[0]), 1e-3 * top) if lam[0] > 0 else -1e-3 * top - 1.0
+
+
+def warm_eigenpairs(K, M, factor, X0, n, tol=1e-9, max_it=8):
+    """The ``n`` lowest eigenpairs of K x = lam M x by shift-invert subspace iteration with
+    Rayleigh-Ritz, started from ``X0`` (n_free, p >= n; the previous iteration's modes plus
+    guard vectors), ``factor`` solving (K - sigma M). None when not converged within
+    ``max_it`` iterations (the caller then solves from scratch)."""
+    from vvtbench.fem.modal import backward_errors
+
+    norms = (abs(K).sum(axis=1).max(), abs(M).sum(axis=1).max())
+    X = X0
+    for _ in range(max_it):
+        B = np.hstack([X, factor(np.asarray(M @ X))])
+        for _ in range(2):  # M-orthonormal basis (CGS by the Gram's eigenvectors)
+            g = B.T @ (M @ B)
+            d, V = np.linalg.eigh((g + g.T) / 2)
+            keep = d > 1e-12 * d.max()
+            B = B @ (V[:, keep] / np.sqrt(d[keep]))
+        kr = B.T @ (K @ B)
+        theta, Y = np.linalg.eigh((kr + kr.T) / 2)
+        X = B @ Y[:, :X0.shape[1]]
+        lam = theta[:X0.shape[1]]
+        if backward_errors(K, M, lam[:n], X[:, :n], norms).max() < tol:
+            return lam, X
+    return None
+
+
+# --------------------------------------------------------------------------- derivatives
+
+
+class ShapeDerivatives:
+    """Eigenvalue and projected mode-shape derivatives at one (w, v) with respect to
+    theta = [log w; log v].
+
+    Parameters
+    ----------
+    model : the ParametricModel.
+    P : (r, n_free) observation operator (sparse or dense).
+    w, v : material.
+    lam, phi : the N lowest eigenpairs of the model at (w, v), mass-normalized.
+    series_terms, gap_rtol : see :class:`SensitivityConfig`.
+    """
+
+    def __init__(self, model, P, w, v, lam, phi, series_terms=3, gap_rtol=1e-5,
+                 factor=None, sigma=None) -> None:
+        from vvtbench.fem.modal import Factorization
+
+        self.model, self.w, self.v = model, w, v
+        self.lam, self.phi = lam, phi
+        self.P = sp.csr_matrix(P)
+        self.Q = np.asarray(self.P @ phi)
+        self.gap_rtol = gap_rtol
+        K, M = model.K(w), model.M(v)
+        self.M = M
+        # a small negative shift keeps K_s definite even without fixed DOFs
+        self.sigma = _shift(lam) if sigma is None else sigma
+        self.mu = lam - self.sigma
+        self.Z = []
+        if series_terms > 0:
+            fac = factor if factor is not None else Factorization((K - self.sigma * M).tocsc())
+            z = fac(np.asarray(self.P.T.toarray()))
+            self.Z.append(z)
+            for _ in range(series_terms - 1):
+                z = fac(np.asarray(M @ z))
+                self.Z.append(z)
+        # one sparse product per mode: [phi, Z_0, Z_1, ...]
+        self._right = np.hstack([phi] + self.Z)
+
+    def mode(self, j: int):
+        """(dlam_j / dtheta (2m,), P dphi_j / dtheta (r, 2m)) of model mode j."""
+        model, w, v = self.model, self.w, self.v
+        m = len(w)
+        phi = self.phi[:, j]
+        lam = self.lam[j]
+        G = model.stiffness_columns(phi)
+        H = model.mass_columns(phi)
+        gK = G.T @ phi
+        gM = H.T @ phi
+        dlam = np.concatenate([w * gK, -lam * v * gM])
+        F = sp.hstack([G @ sp.diags(-w), H @ sp.diags(lam * v)]).tocsr()  # (n, 2m)
+        Ft = F.T.tocsr()
+        N, r = self.phi.shape[1], self.Q.shape[0]
+        prod = np.asarray(Ft @ self._right)  # (2m, N + T r)
+        PhiF = prod[:, :N].T  # (N, 2m)
+        mu_i = self.mu[j]
+        T = len(self.Z)
+        series = sum(mu_i ** p / self.mu ** (p + 1) for p in range(T)) if T else 0.0
+        gap = self.lam - lam
+        far = np.abs(gap) > self.gap_rtol * abs(lam)
+        coef = np.where(far, 1.0 / np.where(far, gap, 1.0), 0.0) - series
+        dQ = self.Q @ (coef[:, None] * PhiF)
+        for p in range(T):
+            dQ += mu_i ** p * prod[:, N + p * r:N + (p + 1) * r].T
+        # mass normalization: c = -1/2 phi^T dM phi (v columns only)
+        dQ[:, m:] += np.outer(self.Q[:, j], -0.5 * v * gM)
+        return dlam, dQ
+
+
+# --------------------------------------------------------------------------- the solver
 
 
 class _State:
     """Model quantities at one parameter vector."""
 
-    __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "q", "res", "cost")
+    __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "q", "s", "r_data",
+                 "cost", "data_cost", "K", "M", "factor", "sigma", "guard")
 
 
 class SensitivitySolver:
-    """FE model updating: LM on eigenvalue and (1 - MAC) residuals, analytic sensitivities."""
+    """FE model updating: LM on eigenvalue and full projected mode-shape residuals, Nelson
+    shape derivatives, Laplacian + TV priors, coarse-to-fine continuation, Laplace
+    uncertainty."""
 
     name = "sensitivity"
-    version = "1.0.0"
-    description = ("Classical FE model updating: Levenberg-Marquardt on eigenvalue and MAC "
-                   "residuals with analytic eigen-sensitivities and mode tracking")
+    version = "2.0.0"
+    description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
+                   "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
+                   "per-voxel standard deviations")
     Config = SensitivityConfig
 
     def __init__(self, config: SensitivityConfig | None = None) -> None:
         self.config = config if config is not None else SensitivityConfig()
 
-    # ------------------------------------------------------------------ model evaluation
+    # ------------------------------------------------------------------ setup
     def _setup(self, problem: InverseProblem) -> None:
         cfg = self.config
-        if cfg.regularization not in ("laplacian", "tikhonov"):
-            raise ValueError("regularization must be 'laplacian' or 'tikhonov', got "
-                             f"{cfg.regularization!r}")
-        if cfg.pairing not in ("track", "observed"):
-            raise ValueError(f"pairing must be 'track' or 'observed', got {cfg.pairing!r}")
         self.problem = problem
         self.model = problem.model
         m = problem.n_params
@@ -112,33 +298,75 @@ class SensitivitySolver:
         self.k = problem.n_modes
         self.n_model = min(self.k + max(cfg.n_extra, 0), self.model.n_free - 1)
         self.w_mean = problem.w_mean if cfg.w_mean is None else cfg.w_mean
-        if cfg.regularization == "laplacian":
-            L = grid_laplacian(problem.voxel_map)
-            self.R = np.sqrt(cfg.alpha_reg) * sp.block_diag([L, L]).toarray()
-        else:
-            self.R = np.sqrt(cfg.alpha_reg) * np.eye(2 * m)
         self.gamma = problem.gamma / np.linalg.norm(problem.gamma, axis=1, keepdims=True)
-        mdl = self.model
-        self._rows = mdl.free_index[mdl.element_dofs]  # (ne, nd), -1 on fixed DOFs
-        self._param = mdl.voxel_map.element_param
+        cw = np.ones(self.k)
+        if cfg.mode_weights:
+            if len(cfg.mode_weights) != self.k:
+                raise ValueError(f"mode_weights has {len(cfg.mode_weights)} entries, the "
+                                 f"problem has {self.k} modes")
+            cw = np.asarray(cfg.mode_weights, dtype=float)
+        self.sq_eig = np.sqrt(cfg.weight_eig * cw)
+        self.sq_shape = np.sqrt(cfg.weight_shape * cw)
+        L = grid_laplacian(problem.voxel_map)
+        D = grid_differences(problem.voxel_map)
+        sv = cfg.v_prior_scale
+        self.LtL = sp.block_diag([L.T @ L, sv * (L.T @ L)]).tocsr() * cfg.alpha_lap
+        self.D2 = sp.block_diag([D, D]).tocsr()
+        self.tv_w = np.concatenate([np.ones(D.shape[0]), sv * np.ones(D.shape[0])]) \
+            * cfg.alpha_tv
 
     def _normalize(self, theta: np.ndarray) -> np.ndarray:
         """The anchor: shift log w and log v together so that mean(w) = w_mean."""
-        m = self.m
-        shift = np.log(self.w_mean / np.mean(np.exp(theta[:m])))
-        return theta + shift
+        return theta + np.log(self.w_mean / np.mean(np.exp(theta[:self.m])))
 
-    def _element(self, X: np.ndarray) -> np.ndarray:
-        """Free-DOF vectors (n, c) -> element arrays (ne, nd, c), zero on fixed DOFs."""
-        full = np.zeros((self.model.mesh.n_dofs, X.shape[1]))
-        full[self.model.free_dofs] = X
-        return full[self.model.element_dofs]
+    def _prior(self, theta: np.ndarray) -> float:
+        cfg = self.config
+        cost = float(theta @ (self.LtL @ theta))
+        if cfg.alpha_tv > 0:
+            psi = np.sqrt((self.D2 @ theta) ** 2 + cfg.tv_eps ** 2)
+            cost += 2.0 * float(self.tv_w @ psi)
+        return cost
 
-    def _voxel_sum(self, values: np.ndarray) -> np.ndarray:
-        """(ne, c) element values -> (m, c) per parameter."""
-        out = np.zeros((self.m, values.shape[1]))
-        np.add.at(out, self._param, values)
-        return out
+    def _prior_system(self, theta: np.ndarray):
+        """(Hessian surrogate, gradient / 2) of the prior at theta (IRLS for TV)."""
+        cfg = self.config
+        Hp = self.LtL.copy()
+        gp = self.LtL @ theta
+        if cfg.alpha_tv > 0:
+            d = self.D2 @ theta
+            psi = np.sqrt(d ** 2 + cfg.tv_eps ** 2)
+            Hp = Hp + self.D2.T @ sp.diags(self.tv_w / psi) @ self.D2
+            gp = gp + self.D2.T @ (self.tv_w * d / psi)
+        return Hp, gp
+
+    def _align_clusters(self, lam, phi, Q, M, pair):
+        """Rotate clusters of repeated eigenvalues towards the paired observations."""
+        from vvtbench.fem.modal import cluster_frequencies
+
+        phi, Q = phi.copy(), Q.copy()
+        for group in cluster_frequencies(lam, rtol=1e-6):
+            if len(group) < 2:
+                continue
+            obs = [i for i in range(self.k) if pair[i] in group]
+            if not obs:
+                continue
+            Qc = Q[:, group]
+            coef, *_ = np.linalg.lstsq(Qc, self.gamma[obs].T, rcond=None)  # (g, n_obs)
+            # basis: the best fits first, completed by the old basis; M-orthonormal (QR in
+            # coefficient space, the cluster's modes being M-orthonormal)
+            Cq, _ = np.linalg.qr(np.hstack([coef, np.eye(len(group))]))
+            Cq = Cq[:, :len(group)]
+            # keep each paired observation on the column it was paired with
+            order = [pair[i] for i in obs]
+            slots = [list(group).index(p) for p in order]
+            rest = [s for s in range(len(group)) if s not in slots]
+            perm = np.empty(len(group), dtype=int)
+            perm[slots] = np.arange(len(obs))
+            perm[rest] = np.arange(len(obs), len(group))
+            R = Cq[:, perm]
+            phi[:, group] = phi[:, group] @ R
+            Q[:, group] = Qc @ R
+        return phi, Q
 
     def _evaluate(self, theta: np.ndarray, prev: _State | None) -> _State:
         from scipy.optimize import linear_sum_assignment
@@ -147,78 +375,82 @@ class SensitivitySolver:
 
         cfg = self.config
         theta = self._normalize(theta)
-        m, k = self.m, self.k
+        m = self.m
         s = _State()
         s.theta = theta
         s.w, s.v = np.exp(theta[:m]), np.exp(theta[m:])
-        K, M = self.model.K(s.w), self.model.M(s.v)
-        modes = eigenmodes(K, M, self.n_model)
-        s.lam, s.phi = modes.eigenvalues, modes.vectors
-        Q = np.asarray(self.problem.P @ s.phi)  # (2 nv, n_model)
+        s.K, s.M = self.model.K(s.w), self.model.M(s.v)
+        s.factor = None
+        got = None
+        if prev is not None:
+            from vvtbench.fem.modal import Factorization
+
+            s.sigma = _shift(prev.lam)
+            s.factor = Factorization((s.K - s.sigma * s.M).tocsc())
+            got = warm_eigenpairs(s.K, s.M, s.factor, prev.guard, self.n_model)
+        if got is None:
+            n_guard = min(self.n_model + 6, self.model.n_free - 1)
+            modes = eigenmodes(s.K, s.M, n_guard)
+            lam_all, vec_all = modes.eigenvalues, modes.vectors
+            if s.factor is None or s.sigma > 0.5 * lam_all[0]:
+                s.sigma = _shift(lam_all)
+                s.factor = None
+        else:
+            lam_all, vec_all = got
+        s.guard = vec_all
+        s.lam, phi = lam_all[:self.n_model], vec_all[:, :self.n_model]
+        Q = np.asarray(self.problem.P @ phi)
         qn = np.maximum(np.sum(Q * Q, axis=0), 1e-300)
-        mac_obs = (self.gamma @ Q) ** 2 / qn[None, :]  # (k, n_model); |gamma| = 1
+        mac_obs = (self.gamma @ Q) ** 2 / qn[None, :]
         if prev is None or cfg.pairing == "observed":
             _, cols = linear_sum_assignment(-mac_obs)
-        else:  # follow each paired mode: 3-D MAC with the previous paired modes
+        else:
             old = prev.phi[:, prev.pair]
-            mac3 = (old.T @ (M @ s.phi)) ** 2  # both mass-normalized
+            mac3 = (old.T @ (s.M @ phi)) ** 2
             _, cols = linear_sum_assignment(-mac3)
         s.pair = np.asarray(cols)
-        s.mac = mac_obs[np.arange(k), s.pair]
-        s.q = Q[:, s.pair]
+        phi, Q = self._align_clusters(s.lam, phi, Q, s.M, s.pair)
+        s.phi = phi
+        q = Q[:, s.pair]
+        qn = np.maximum(np.sum(q * q, axis=0), 1e-300)
+        c = np.sum(self.gamma.T * q, axis=0)
+        s.mac = c ** 2 / qn
+        s.s = c / qn
+        s.q = q
         lam_obs = self.problem.eigenvalues
-        r_lam = (s.lam[s.pair] - lam_obs) / lam_obs
-        r_mac = np.sqrt(cfg.weight_mac) * (1.0 - s.mac)
-        if cfg.regularization == "laplacian":
-            r_reg = self.R @ theta
-        else:
-            r_reg = self.R @ (theta - self.theta_start)
-        s.res = np.concatenate([r_lam, r_mac, r_reg])
-        s.cost = float(s.res @ s.res)
+        r_eig = self.sq_eig * np.log(np.maximum(s.lam[s.pair], 1e-300) / lam_obs)
+        r_shape = (self.sq_shape[None, :] * (s.s[None, :] * q - self.gamma.T)).T.ravel()
+        s.r_data = np.concatenate([r_eig, r_shape])
+        s.data_cost = float(s.r_data @ s.r_data)
+        s.cost = s.data_cost + self._prior(theta)
         return s
 
     def _jacobian(self, s: _State) -> np.ndarray:
+        """Dense (k + k r, 2m) Jacobian of the data residuals with respect to theta."""
         cfg = self.config
-        mdl = self.model
-        m, k = self.m, self.k
-        lam_all = s.lam
-        lam = lam_all[s.pair]
-        phi = s.phi[:, s.pair]  # (n, k)
-        ue = self._element(phi)  # (ne, nd, k)
-        Kue = np.einsum("eij,ejk->eik", mdl.Ke, ue)
-        Mue = np.einsum("eij,ejk->eik", mdl.Me, ue)
-        # eigenvalue sensitivities per parameter: phi^T K_e phi, phi^T M_e phi
-        dlam_w = self._voxel_sum(np.einsum("eik,eik->ek", Kue, ue))  # (m, k)
-        dlam_v = -lam * self._voxel_sum(np.einsum("eik,eik->ek", Mue, ue))
-        # MAC sensitivities by modal truncation
-        gam = self.gamma.T  # (2 nv, k), unit columns
-        q = s.q
-        c = np.sum(gam * q, axis=0)
-        qn = np.sum(q * q, axis=0)
-        g = (2 * c / qn) * (gam - q * (c / qn))  # (2 nv, k)
-        Qall = np.asarray(self.problem.P @ s.phi)  # (2 nv, n_model)
-        S = g.T @ Qall  # (k, n_model): g_i^T P phi_j
-        gap = lam[:, None] - lam_all[None, :]
-        ok = np.abs(gap) > cfg.gap_rtol * np.abs(lam)[:, None]
-        ok[np.arange(k), s.pair] = False
-        C = np.where(ok, S / np.where(ok, gap, 1.0), 0.0)  # (k, n_model)
-        T = s.phi @ C.T  # (n, k): sum_j phi_j S_ij / (lam_i - lam_j)
-        te = self._element(T)
-        dmac_w = self._voxel_sum(np.einsum("eik,eik->ek", Kue, te))
-        dmac_v = -lam * self._voxel_sum(np.einsum("eik,eik->ek", Mue, te))
-        lam_obs = self.problem.eigenvalues
-        # d/dlog w_e = w_e d/dw_e
-        J_lam = np.hstack([(dlam_w * s.w[:, None]).T, (dlam_v * s.v[:, None]).T]) / lam_obs[:, None]
-        J_mac = -np.sqrt(cfg.weight_mac) * np.hstack([(dmac_w * s.w[:, None]).T,
-                                                       (dmac_v * s.v[:, None]).T])
-        anchor = np.zeros((1, 2 * m))
-        anchor[0, :m] = s.w / (m * np.mean(s.w))  # d log(mean w) / d log w_e
-        return np.vstack([J_lam, J_mac, self.R, anchor])
+        der = ShapeDerivatives(self.model, self.problem.P, s.w, s.v, s.lam, s.phi,
+                               cfg.series_terms, cfg.gap_rtol, s.factor, s.sigma)
+        k = self.k
+        r = self.gamma.shape[1]
+        J = np.empty((k + k * r, 2 * self.m))
+        for i in range(k):
+            j = s.pair[i]
+            dlam, dQ = der.mode(j)
+            J[i] = self.sq_eig[i] * dlam / s.lam[j]
+            q = s.q[:, i]
+            b = (self.gamma[i] - 2 * s.s[i] * q) / max(q @ q, 1e-300)
+            J[k + i * r:k + (i + 1) * r] = self.sq_shape[i] * (s.s[i] * dQ + np.outer(q, b @ dQ))
+        return J
+
+    def _anchor(self, s: _State) -> np.ndarray:
+        a = np.zeros(2 * self.m)
+        a[:self.m] = s.w / (self.m * np.mean(s.w))
+        return a
 
     # ------------------------------------------------------------------ the solver
     def solve(self, problem: InverseProblem, callback=None) -> Estimate:
         """Levenberg-Marquardt on log-parameters from the homogeneous start, fitting the
-        eigenvalue and (1 - MAC) residuals of the paired modes.
+        eigenvalues and the full projected mode shapes of the paired modes, coarse to fine.
 
         Parameters
         ----------
@@ -228,65 +460,108 @@ class SensitivitySolver:
         Returns
         -------
         Estimate
+            ``extra``: ``w_std``, ``v_std`` (per-voxel standard deviations, Laplace
+            approximation; when ``uncertainty``), ``eigenvalues``, ``mac``, ``pairing``.
         """
         from .homogeneous import HomogeneousSolver
 
         t_start = time.perf_counter()
         cfg = self.config
         self._setup(problem)
-        k = self.k
+        m = self.m
         start = HomogeneousSolver().solve(problem)
         theta = np.concatenate([np.log(start.w * self.w_mean / np.mean(start.w)),
                                 np.log(start.v * self.w_mean / np.mean(start.w))])
-        self.theta_start = theta.copy()
         state = self._evaluate(theta, None)
         mu = cfg.mu0
         history: list[dict] = []
         converged = False
         n_eval = 1
-        for it in range(1, cfg.max_iter + 1):
-            t0 = time.perf_counter()
-            J = self._jacobian(state)
-            r = np.concatenate([state.res, [0.0]])  # the anchor residual is 0 (exact)
-            A = J.T @ J
-            grad = J.T @ r
-            dA = np.maximum(np.diag(A), 1e-12 * max(np.diag(A).max(), 1e-300))
-            accepted = False
-            for _ in range(12):
-                delta = np.linalg.solve(A + mu * np.diag(dA), -grad)
-                big = np.abs(delta).max()
-                if big > cfg.max_step:
-                    delta *= cfg.max_step / big
-                trial = self._evaluate(state.theta + delta, state)
-                n_eval += 1
-                if trial.cost < state.cost:
-                    accepted = True
+        it = 0
+        J = None
+        levels = list(range(cfg.levels, -1, -1))
+        for level in levels:
+            Tm = coarsening(problem.voxel_map, level)
+            if level > 0 and Tm.shape[1] >= m:
+                continue
+            T2 = sp.block_diag([Tm, Tm]).tocsr()
+            cap = cfg.level_iters if level > 0 else cfg.max_iter
+            level_it = 0
+            mu = max(mu, cfg.mu0)  # a new level: new parameters, start damped again
+            while it < cfg.max_iter and level_it < cap:
+                t0 = time.perf_counter()
+                J = self._jacobian(state)
+                Hp, gp = self._prior_system(state.theta)
+                a = self._anchor(state)
+                H = J.T @ J + Hp.toarray() + np.outer(a, a)
+                g = J.T @ state.r_data + gp
+                Hc = np.asarray(T2.T @ (T2.T @ H).T)  # T^T H T (H symmetric)
+                gc = T2.T @ g
+                dA = np.maximum(np.diag(Hc), 1e-12 * max(np.diag(Hc).max(), 1e-300))
+                accepted = False
+                for _ in range(10):
+                    try:
+                        dc = -np.linalg.solve(Hc + mu * np.diag(dA), gc)
+                    except np.linalg.LinAlgError:
+                        mu *= 4.0
+                        continue
+                    delta = T2 @ dc
+                    big = np.abs(delta).max()
+                    if big > cfg.max_step:
+                        delta *= cfg.max_step / big
+                    trial = self._evaluate(state.theta + delta, state)
+                    n_eval += 1
+                    if trial.cost < state.cost:
+                        accepted = True
+                        break
+                    mu *= 4.0
+                it += 1
+                level_it += 1
+                if not accepted:
                     break
-                mu *= 4.0
-            if not accepted:
-                converged = True  # no descent direction left at any damping
-                break
-            decrease = (state.cost - trial.cost) / max(state.cost, 1e-300)
-            state = trial
-            mu = max(mu / 3.0, 1e-12)
-            rec = {
-                "iteration": it,
-                "time_s": time.perf_counter() - t0,
-                "cost": state.cost,
-                "eig_rel_rms": float(np.sqrt(np.mean(state.res[:k] ** 2))),
-                "mean_mac": float(np.mean(state.mac)),
-                "mu": mu,
-                "evaluations": n_eval,
-            }
-            history.append(rec)
-            if callback is not None:
-                callback(rec)
-            if decrease < cfg.tol:
-                converged = True
-                break
+                decrease = (state.cost - trial.cost) / max(state.cost, 1e-300)
+                state = trial
+                mu = max(mu / 3.0, 1e-9)
+                rec = {
+                    "iteration": it,
+                    "level": level,
+                    "time_s": time.perf_counter() - t0,
+                    "cost": state.cost,
+                    "data_cost": state.data_cost,
+                    "eig_rel_rms": float(np.sqrt(np.mean(
+                        (state.lam[state.pair] / problem.eigenvalues - 1) ** 2))),
+                    "mean_mac": float(np.mean(state.mac)),
+                    "mu": mu,
+                    "evaluations": n_eval,
+                }
+                history.append(rec)
+                if callback is not None:
+                    callback(rec)
+                if decrease < cfg.tol:
+                    break
+            if level == 0:
+                converged = it < cfg.max_iter
+        extra = {"eigenvalues": state.lam[state.pair], "mac": state.mac,
+                 "pairing": state.pair}
+        if cfg.uncertainty:
+            extra.update(self._uncertainty(state))
         return Estimate(
             w=state.w, v=state.v, history=history, runtime_s=time.perf_counter() - t_start,
             config=asdict(cfg), solver=self.name, version=self.version, converged=converged,
-            extra={"eigenvalues": state.lam[state.pair], "mac": state.mac,
-                   "pairing": state.pair},
+            extra=extra,
         )
+
+    def _uncertainty(self, state: _State) -> dict:
+        """Laplace approximation: per-voxel standard deviations of w and v."""
+        m = self.m
+        J = self._jacobian(state)
+        Hp, _ = self._prior_system(state.theta)
+        a = self._anchor(state)
+        H = J.T @ J + Hp.toarray() + np.outer(a, a)
+        s2 = state.data_cost / max(len(state.r_data), 1)
+        try:
+            cov_diag = np.diag(np.linalg.inv(H)) * s2
+        except np.linalg.LinAlgError:
+            cov_diag = np.diag(np.linalg.pinv(H)) * s2
+        sd = np.sqrt(np.clip(cov_diag, 0, None)) * self.config.std_scale
+        return {"w_std": state.w * sd[:m], "v_std": state.v * sd[m:]}

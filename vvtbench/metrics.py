@@ -169,3 +169,27 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -
         except Exception as error:  # a forward model without modes: say so, score the rest
             notes.append(f"mode match not computed: {type(error).__name__}: {error}")
     return {"metrics": metrics, "curves": curves, "notes": notes}
+
+
+# --------------------------------------------------------------------------- calibration
+# (uncertainty of solvers that report per-voxel standard deviations: issue 16)
+
+
+def interval_coverage(estimate, std, truth, z: float = 1.96) -> float:
+    """Calibration of stated per-voxel intervals: the fraction of voxels whose truth lies in
+    [estimate - z std, estimate + z std], over the voxels where all three are finite
+    (``z=1.96``: nominal 95 %; ``z=1``: nominal 68.3 %). A well-calibrated solver scores the
+    nominal coverage; lower means overconfident intervals, higher underconfident ones.
+    NaN when no voxel is finite."""
+    e = np.asarray(estimate, dtype=float).ravel()
+    s = np.asarray(std, dtype=float).ravel()
+    t = np.asarray(truth, dtype=float).ravel()
+    if not e.shape == s.shape == t.shape:
+        raise ValueError(f"estimate, std and truth differ in size: {e.shape}, {s.shape}, "
+                         f"{t.shape}")
+    if z <= 0:
+        raise ValueError(f"z must be positive, got {z}")
+    ok = np.isfinite(e) & np.isfinite(s) & np.isfinite(t)
+    if not ok.any():
+        return float("nan")
+    return float(np.mean(np.abs(t[ok] - e[ok]) <= z * np.abs(s[ok])))

@@ -1,0 +1,152 @@
+"""sensitivity 2.x: derivatives against finite differences, defect recovery from full-field
+modes, better than vvt on a defect cube of our own, the uncertainty and its calibration metric.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from solvers.sensitivity import (
+    SensitivityConfig,
+    SensitivitySolver,
+    ShapeDerivatives,
+    coarsening,
+    grid_differences,
+)
+from solvers.vvt import grid_laplacian
+from vvtbench.fem.assembly import ParametricModel
+from vvtbench.fem.mesh import box_mesh, drum_mesh
+from vvtbench.fem.modal import eigenmodes
+from vvtbench.fem.voxels import VoxelGrid, VoxelMap
+from vvtbench.metrics import interval_coverage, normalized_correlation
+from vvtbench.problem import InverseProblem
+
+
+def _hex8():
+    mesh = box_mesh((3, 3, 3), (1.0, 1.2, 0.9))
+    return ParametricModel(mesh, fixed_nodes=mesh.node_sets["bottom"])
+
+
+def _tri3():
+    mesh = drum_mesh("square", 1.0, 5)
+    return ParametricModel(mesh, fixed_nodes=mesh.node_sets["rim"])
+
+
+@pytest.mark.parametrize("make", [_hex8, _tri3], ids=["hex8", "tri3"])
+def test_derivatives_against_finite_differences(make):
+    model = make()
+    m = model.n_params
+    rng = np.random.default_rng(0)
+    w = 9000 * np.exp(0.3 * rng.standard_normal(m))
+    v = 1270 * np.exp(0.3 * rng.standard_normal(m))
+    P = sp.random(20, model.n_free, density=0.2, random_state=1, format="csr")
+    N = 8
+
+    def modes(w, v):
+        md = eigenmodes(model.K(w), model.M(v), N, method="dense")
+        return md.eigenvalues, md.vectors
+
+    lam, phi = modes(w, v)
+    theta = np.concatenate([np.log(w), np.log(v)])
+    h = 1e-6
+    for j in (1, 3):
+        errs = {}
+        for terms in (3, 8):
+            dlam, dQ = ShapeDerivatives(model, P, w, v, lam, phi, series_terms=terms).mode(j)
+            e_lam, e_q = [], []
+            for e in (0, m // 2, m + 1, 2 * m - 1):
+                th = theta.copy()
+                th[e] += h
+                l2, p2 = modes(np.exp(th[:m]), np.exp(th[m:]))
+                sign = np.sign(p2[:, j] @ (model.M(v) @ phi[:, j]))
+                fd_q = (P @ (sign * p2[:, j]) - P @ phi[:, j]) / h
+                fd_l = (l2[j] - lam[j]) / h
+                e_lam.append(abs(fd_l - dlam[e]) / abs(fd_l))
+                e_q.append(np.linalg.norm(fd_q - dQ[:, e]) / max(np.linalg.norm(fd_q), 1e-12))
+            errs[terms] = (max(e_lam), max(e_q))
+        assert errs[8][0] < 1e-4  # eigenvalues: exact
+        assert errs[8][1] < 2e-3  # shapes: the series converges ...
+        assert errs[8][1] < errs[3][1] or errs[3][1] < 1e-4  # ... with its terms
+
+
+def test_grid_operators():
+    mesh = box_mesh((4, 4, 4), (1.0, 1.0, 1.0))
+    vm = VoxelMap.from_grid(mesh, VoxelGrid((0, 0, 0), (1, 1, 1), (4, 4, 4)))
+    D = grid_differences(vm)
+    assert abs(D.T @ D - grid_laplacian(vm)).max() < 1e-12
+    T = coarsening(vm, 1)
+    assert T.shape == (64, 8) and np.all(np.asarray(T.sum(axis=0)).ravel() == 8)
+
+
+def _full_field_problem(cells=(4, 4, 4), k=12):
+    """A box with a stiff, dense block, modes of the very model solved for (no mismatch),
+    every free DOF observed (P = I)."""
+    mesh = box_mesh(cells, (0.05, 0.05, 0.05))
+    grid = VoxelGrid((0.0, 0.0, 0.0), (0.05, 0.05, 0.05), cells)
+    model = ParametricModel(mesh, VoxelMap.from_grid(mesh, grid), nu=0.3,
+                            fixed_nodes=mesh.node_sets["bottom"])
+    ijk = np.array(np.unravel_index(model.voxel_map.active, cells)).T
+    block = (ijk[:, 0] >= 2) & (ijk[:, 1] < 2) & (ijk[:, 2] >= 2)
+    w = np.where(block, 9000.0 * 20, 9000.0)
+    v = np.where(block, 1270.0 * 3, 1270.0)
+    md = eigenmodes(model.K(w), model.M(v), k)
+    U = md.vectors / np.linalg.norm(md.vectors, axis=0)
+    pb = InverseProblem(model=model, gamma=U.T, eigenvalues=md.eigenvalues,
+                        P=sp.identity(model.n_free, format="csr"),
+                        visible_nodes=np.arange(model.n_free), w_mean=float(np.mean(w)))
+    return pb, w, v
+
+
+def test_recovers_a_defect_from_full_field_modes():
+    pb, w, v = _full_field_problem()
+    # noise-free data: weak priors (the defaults are tuned for camera-seen modes)
+    cfg = SensitivityConfig(max_iter=15, alpha_lap=1e-5, alpha_tv=1e-5)
+    est = SensitivitySolver(cfg).solve(pb)
+    assert normalized_correlation(est.w, w) > 0.95
+    assert normalized_correlation(est.v, v) > 0.95
+    assert est.w.mean() == pytest.approx(pb.w_mean, rel=1e-9)  # the mean anchor
+    assert est.history[-1]["cost"] < est.history[0]["cost"]
+    assert np.mean(est.extra["mac"]) > 0.99
+    # uncertainty: per-voxel, positive, finite
+    for key in ("w_std", "v_std"):
+        s = est.extra[key]
+        assert s.shape == (pb.n_params,) and np.all(np.isfinite(s)) and np.all(s > 0)
+
+
+@pytest.mark.xfail(reason="issue 16 item 4 open: sensitivity 2.0 scores NC w -0.06 here, "
+                          "vvt 0.54 (2026-11-23); the test states the target", strict=False)
+def test_better_than_vvt_on_a_defect_of_our_own():
+    """A 6^3 Jello cube with a stiff defect in a corner (a cube in no suite), 12 true modes
+    seen by the camera, inferred on 6^3 voxels."""
+    from solvers.vvt import VVTSolver
+    from vvtbench.observe import observe
+    from vvtbench.scene import load_scene
+
+    base = load_scene("jello_cube_defect_top")
+    defect = base.material.defects[0].model_copy(update=dict(
+        center=(0.0333, 0.0333, 0.0417), size=(0.0167, 0.0167, 0.0167), E=1.0e6, rho=5000.0))
+    scene = base.model_copy(update={
+        "name": "own_corner_defect",
+        "geometry": base.geometry.model_copy(update={"cells": (6, 6, 6)}),
+        "simulation": base.simulation.model_copy(update={"n_modes": 30}),
+        "material": base.material.model_copy(update={"defects": [defect]})})
+    pb, truth = observe(scene, n_modes=12, inference_shape=(6, 6, 6), visibility="normals")
+    ours = SensitivitySolver().solve(pb)
+    theirs = VVTSolver().solve(pb)
+    nc_ours = normalized_correlation(ours.w, truth.w)
+    nc_vvt = normalized_correlation(theirs.w, truth.w)
+    assert nc_ours > 0.5 and nc_ours > nc_vvt + 0.1, (nc_ours, nc_vvt)
+
+
+def test_interval_coverage():
+    est = np.array([1.0, 2.0, 3.0, 4.0])
+    std = np.array([0.1, 0.1, 1.0, np.nan])
+    truth = np.array([1.05, 2.5, 3.0, 4.0])
+    # |t - e| <= z s on the 3 finite voxels: yes (0.05 <= 0.196), no (0.5), yes
+    assert interval_coverage(est, std, truth) == pytest.approx(2 / 3)
+    assert interval_coverage(est, std, truth, z=0.4) == pytest.approx(1 / 3)
+    assert np.isnan(interval_coverage(est[3:], std[3:], truth[3:]))
+    with pytest.raises(ValueError):
+        interval_coverage(est, std[:2], truth)
