@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..motion.phase import PhaseMotion, upsample_periodic
+from ..motion.phase import upsample_periodic
 from ..video import average_frames, open_video
 from .modeset import ModeSet
 from .peaks import (
@@ -429,39 +429,39 @@ def extract_modes(
         ref = next(it)
     except StopIteration:
         raise ValueError("the video has no frames") from None
-    pm = PhaseMotion(
-        ref,
-        n_scales,
-        n_orientations,
-        sigma=sigma,
-        outlier_fraction=outlier_fraction,
-        workers=workers,
-    )
+    from ..extractors import make_extractor
+
+    if extractor_config is None and extractor == "phase":
+        extractor_config = {
+            "n_scales": n_scales,
+            "n_orientations": n_orientations,
+            "sigma": sigma,
+            "outlier_fraction": outlier_fraction,
+            "workers": workers,
+        }
+    ext = make_extractor(extractor, extractor_config)
+    pm = ext.prepare(ref)
     with DisplacementStore(memory_budget, tmpdir) as store:
-        # the working grid (half resolution when decimated): 4x less to store and transform;
-        # the smoothed field is band-limited, mode shapes are upsampled at the end
-        for d in pm.iter_displacements(_chain(ref, it), batch=batch, full_resolution=False):
+        # the extractor's working grid (half resolution for the decimated phase pyramid: 4x
+        # less to store and transform); mode shapes are upsampled at the end
+        for d in pm.iter_displacements(_chain(ref, it), batch=batch):
             store.append(d)
             if bar is not None:
                 bar.update(d.shape[0])
         if bar is not None:
             bar.close()
         t1 = time.perf_counter()
-        weights = confidence_weights(pm.grid_confidence) if weighting == "confidence" else None
+        conf = pm.grid_confidence
+        weights = (
+            confidence_weights(conf) if weighting == "confidence" and conf is not None else None
+        )
         meta = {
             **video.meta,
             "fps_input": float(fps),
             "fps_source": fps_source,
             "average": average,
-            "motion": {
-                "n_scales": n_scales,
-                "n_orientations": n_orientations,
-                "sigma": sigma,
-                "outlier_fraction": outlier_fraction,
-                "reference": "first frame",
-                "decimate": pm.decimate,
-                "grid_shape": list(pm.grid_shape),
-            },
+            "extractor": {"name": ext.name, "version": str(ext.version)},
+            "motion": pm.describe(),
             "weighting": weighting,
             "spilled_to_disk": store.on_disk,
         }
@@ -482,7 +482,7 @@ def extract_modes(
             reject_distortion=reject_distortion,
             confidence=pm.confidence,
             metadata=meta,
-            output_shape=pm.shape,
+            output_shape=tuple(pm.shape),
             false_alarm=false_alarm,
             min_bin=min_bin,
         )
