@@ -143,20 +143,55 @@ class NoiseFloor:
         }
 
 
-def _fit_nu(iqr_log: float) -> float:
-    """Degrees of freedom ``nu`` whose ``log chi2_nu`` has interquartile range ``iqr_log``."""
+def _log_chi2_iqr(nu: float) -> tuple[float, float]:
+    """Interquartile range of ``log chi2_nu`` and its sampling s.d. per ``sqrt(n)`` bins."""
     from scipy.stats import chi2
 
-    def iqr(nu: float) -> float:
-        return float(np.log(chi2.ppf(0.75, nu) / chi2.ppf(0.25, nu)))
+    q = chi2.ppf([0.25, 0.75], nu)
+    g = chi2.pdf(q, nu) * q  # density of log chi2 at its quartiles
+    # asymptotic variances of sample quantiles and their covariance (p1 < p2)
+    v1, v2, c12 = 0.1875 / g[0] ** 2, 0.1875 / g[1] ** 2, 0.0625 / (g[0] * g[1])
+    return float(np.log(q[1] / q[0])), float(math.sqrt(max(v1 + v2 - 2 * c12, 0.0)))
 
+
+def _fit_nu(iqr_log: float) -> float:
+    """Degrees of freedom ``nu`` whose ``log chi2_nu`` has interquartile range ``iqr_log``."""
     lo, hi = 2.0, 1e7
-    if not iqr_log < iqr(lo):
+    if not iqr_log < _log_chi2_iqr(lo)[0]:
         return lo
-    if iqr_log <= iqr(hi):
+    if iqr_log <= _log_chi2_iqr(hi)[0]:
         return hi
-    return float(math.exp(brentq(lambda x: iqr(math.exp(x)) - iqr_log, math.log(lo),
-                                 math.log(hi), xtol=1e-4)))
+    return float(math.exp(brentq(lambda x: _log_chi2_iqr(math.exp(x))[0] - iqr_log,
+                                 math.log(lo), math.log(hi), xtol=1e-4)))
+
+
+def _median_log_sd(nu: float, n: int) -> float:
+    """S.d. of the log of the sample median of ``n`` draws of ``chi2_nu`` (asymptotic)."""
+    from scipy.stats import chi2
+
+    m = chi2.median(nu)
+    return float(1.0 / (2.0 * math.sqrt(max(n, 1)) * chi2.pdf(m, nu) * m))
+
+
+def _threshold_factor(nu: float, per_bin: float, sd_log_floor: float) -> float:
+    """``c`` with ``E[P(chi2_nu > c med(chi2_nu) exp(e))] = per_bin``, ``e ~ N(0, sd**2)``:
+    the tail probability over a floor that is itself estimated (Gauss-Hermite average)."""
+    from scipy.stats import chi2
+
+    m = chi2.median(nu)
+    x, w = np.polynomial.hermite_e.hermegauss(24)
+    w = w / w.sum()
+    e = np.exp(sd_log_floor * x)
+
+    def tail(log_c: float) -> float:
+        return float(np.log(np.sum(w * chi2.sf(math.exp(log_c) * m * e, nu)) + 1e-300)
+                     - math.log(per_bin))
+
+    c0 = chi2.isf(per_bin, nu) / m
+    hi = math.log(c0) + 8.0 * sd_log_floor + 1.0
+    if tail(math.log(c0)) <= 0:
+        return float(c0)
+    return float(math.exp(brentq(tail, math.log(c0), hi, xtol=1e-6)))
 
 
 def noise_floor(
@@ -205,7 +240,6 @@ def noise_floor(
     NoiseFloor
     """
     from scipy.ndimage import median_filter
-    from scipy.stats import chi2
 
     p = np.asarray(power, dtype=np.float64)
     if p.ndim != 1 or p.size < 3:
@@ -215,17 +249,31 @@ def noise_floor(
     K = max(1, int(half_width_bins))
     tiny = max(float(np.max(p)), 1e-300) * 1e-15
     pp = np.maximum(p, tiny)
-    floor = median_filter(pp, size=min(2 * K + 1, 2 * (p.size // 2) + 1), mode="nearest")
     band = slice(1, p.size) if band is None else band
+    # the bins below the band (DC, drift, the mean removal) are left out of the median, and
+    # the ends are mirrored: a replicated end value would dominate the window there
+    first = min(max(1, int(band.start or 0)), p.size - 2)
+    seg = pp[first:]
+    floor = np.empty_like(pp)
+    floor[first:] = median_filter(seg, size=min(2 * K + 1, 2 * ((seg.size - 1) // 2) + 1),
+                                  mode="mirror")
+    floor[:first] = floor[first]
     r = np.log(pp[band] / floor[band])
     n = int(r.size)
+    # neighbouring bins of a tapered spectrum are correlated (Hann: ~2 per independent one)
+    n_ind = max(1, n // 2)
     if n >= 8:
         q25, q75 = np.percentile(r, [25, 75])
-        nu = max(float(min_nu), _fit_nu(float(q75 - q25)))
+        iqr = float(q75 - q25)
+        # one-sided 95 % upper bound of the IQR (lower bound of nu): an overestimated nu
+        # would lower the threshold
+        _, sd = _log_chi2_iqr(_fit_nu(iqr))
+        nu = max(float(min_nu), _fit_nu(iqr + 1.645 * sd / math.sqrt(n_ind)))
     else:
         nu = float(min_nu)
     per_bin = -math.expm1(math.log1p(-false_alarm) / max(n, 1))
-    factor = float(chi2.isf(per_bin, nu) / chi2.median(nu))
+    win = min(2 * K + 1, p.size)
+    factor = _threshold_factor(nu, per_bin, _median_log_sd(nu, max(1, win // 2)))
     return NoiseFloor(floor=floor, nu=nu, factor=factor, false_alarm=float(false_alarm),
                       n_bins=n, half_width_bins=K)
 
