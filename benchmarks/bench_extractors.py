@@ -47,7 +47,8 @@ def make_video(n: int, amp: float, noise: float, seed: int = 0):
     s = amp * np.sin(2 * np.pi * t / T)
     dx, dy = s * 0.8, s * 0.6  # diagonal motion, |d| = amp
     frames = np.stack(
-        [np.fft.ifft2(F * np.exp(-1j * (wx * a + wy * b))).real for a, b in zip(dx, dy, strict=True)]
+        [np.fft.ifft2(F * np.exp(-1j * (wx * a + wy * b))).real
+         for a, b in zip(dx, dy, strict=True)]
     )
     rng = np.random.default_rng(seed + 1)
     frames += noise * np.ptp(frames[0]) * rng.standard_normal(frames.shape)
