@@ -211,7 +211,9 @@ def noise_floor(
 
     * ``m_l``: median of ``S`` over ``l - K .. l + K`` (``K = half_width_bins``, clipped at the
       ends): robust to lines as long as they cover less than half of the window.
-    * ``nu``: from the interquartile range of ``log(S_l / m_l)`` over the band, matched to
+    * ``nu``: from the interquartile range of ``log(S_l / m_l)`` over all bins from the
+      band's first one to Nyquist (a narrow band full of modes says little about the noise),
+      matched to
       that of ``log chi2_nu`` (robust to a quarter of the bins being lines), at least
       ``min_nu``.  Lines and a non-stationary floor widen it: ``nu`` is then underestimated
       and the threshold errs on the safe side.
@@ -258,11 +260,13 @@ def noise_floor(
     floor[first:] = median_filter(seg, size=min(2 * K + 1, 2 * ((seg.size - 1) // 2) + 1),
                                   mode="mirror")
     floor[:first] = floor[first]
-    r = np.log(pp[band] / floor[band])
-    n = int(r.size)
+    n = int(pp[band].size)
+    # the noise law is estimated over the whole spectrum above the lowest band bin (more
+    # bins, mostly noise, than a narrow band full of modes), the test made in the band
+    r = np.log(pp[first:] / floor[first:])
     # neighbouring bins of a tapered spectrum are correlated (Hann: ~2 per independent one)
-    n_ind = max(1, n // 2)
-    if n >= 8:
+    n_ind = max(1, r.size // 2)
+    if r.size >= 8:
         q25, q75 = np.percentile(r, [25, 75])
         iqr = float(q75 - q25)
         # one-sided 95 % upper bound of the IQR (lower bound of nu): an overestimated nu
