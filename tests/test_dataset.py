@@ -362,25 +362,32 @@ def test_motion_scale_scales_image_motion_linearly(tmp_path):
 
 
 def test_preview_clip_magnifies_motion(tiny, sample):
-    """preview.mp4: frames every ~1/10 of the lowest mode's period, motion magnified by
-    max(1, 3 px / peak image motion), H.264 of the 8-bit render (even size)."""
+    """preview.mp4: frames every ~1/10 of the lowest mode's period; the rest render warped
+    by the image-space motion magnified to gen.PREVIEW_PEAK_PX (8 px) peak; even size."""
+    from vvtbench.render import Camera
+    from vvtbench.render.raster import interpolate, rasterize
     from vvtbench.simulate import build_mesh
 
     info = sample.info
     f1 = info["modes"]["frequencies_hz"][0]
     stride = max(1, int(info["video"]["fps"] / (10.0 * f1)))
     ks = np.arange(0, sample.n_frames, stride)[: info["generator"]["preview_frames"]]
-    gain = max(3.0 / (info["peak_image_motion_px"] / info["video"]["motion_scale"]), 1.0)
-    assert len(ks) > 1 and gain > 2
-    clip = np.stack(list(read_frames(tiny / "preview.mp4", bpp=1)))
-    assert clip.shape == (len(ks), 64, 64)
+    clip = np.stack(list(read_frames(tiny / "preview.mp4", bpp=1))).astype(float)
+    assert clip.shape == (len(ks), 64, 64) and len(ks) > 1
     _, rest, tris = gen.surface_geometry(build_mesh(sample.scene))
+    cam = Camera.from_spec(sample.scene.camera)
+    J = cam.jacobian(rest)
+    raster = rasterize(cam, rest, tris)
     disp = sample.array("transient/displacements")
-    k = int(ks[0])  # the pluck's largest deflection
+    peak = max(np.abs(interpolate(raster, tris, np.einsum("sij,sj->si", J, disp[k]),
+                                  fill=0.0)).max() for k in ks)
+    assert peak < 2.0  # the video's own motion is small: the preview must magnify it
     with gen.scene_renderer(sample.scene, rest, tris) as r:
-        err = {g: np.abs(clip[0].astype(float) - _png8(r.render(g * disp[k]))).mean()
-               for g in (1.0, gain, 2.0 * gain)}
-    assert err[gain] < 3.0 and err[gain] < 0.5 * min(err[1.0], err[2.0 * gain]), err
+        rest_img = np.clip(np.rint(r.render() * 255), 0, 255)
+    # the magnified motion is visible: frames differ from the rest render and each other
+    assert np.abs(clip - rest_img).mean(axis=(1, 2)).max() > 5
+    # no bright artefacts: no frame is brighter anywhere than the rest render's maximum
+    assert clip.max() <= rest_img.max() + 20
 
 
 def test_top_level_open_sample(tiny, tmp_path):

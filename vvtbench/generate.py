@@ -725,22 +725,53 @@ def _write_info(ctx: _Context, truth: dict) -> None:
 
 
 def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: _Progress) -> None:
-    """A short H.264 clip with the motion magnified to ~3 px peak, for people to watch."""
+    """A short H.264 clip with the motion magnified to ``PREVIEW_PEAK_PX`` (8 px) peak.
+
+    The rest render is warped by the magnified *image-space* displacement ``J u`` (the
+    projection Jacobian at the rest pose times the vertex motion, interpolated over the
+    object's visible triangles and extended into the background by the nearest object
+    pixel's, so the silhouette moves too): no re-rendering of magnified 3-D motion, whose
+    large vertex excursions flip faces and light the cube's front edge.  ``peak_px`` (the
+    video's unmagnified peak) is not needed: the gain is set from the frames shown.
+    """
+    from scipy.ndimage import distance_transform_edt, map_coordinates
+
+    from .render.raster import interpolate, rasterize
+
     result, A = ctx.result, ctx.frame_average
     fps = ctx.scene.simulation.fps
     f1 = float(result.frequencies_hz[0]) if len(result.frequencies_hz) else 1.0
     stride = max(1, int(fps / (10.0 * max(f1, 1e-6))))  # ~10 frames per lowest-mode period
     ks = np.arange(0, ctx.n_frames, stride)[: max(1, ctx.opts.preview_frames)]
-    gain = max(3.0 / peak_px if peak_px > 0 else 1.0, 1.0)
-    H, W = renderer.shape
+    camera = ctx.camera
+    J = camera.jacobian(ctx.rest)  # (S, 2, 3)
+    raster = rasterize(camera, ctx.rest, ctx.tris)
+    inside = raster.mask
+    # nearest object pixel of every background pixel
+    _, (iy, ix) = distance_transform_edt(~inside, return_indices=True)
+    rest = np.asarray(renderer.render(), dtype=np.float64)
+    H, W = rest.shape
+    fields = []
+    for k in ks:
+        u = _as_3d(result.displacement_frames(k * A, k * A + 1))[0]
+        d = interpolate(raster, ctx.tris, np.einsum("sij,sj->si", J, u), fill=0.0)
+        fields.append(d[iy, ix].astype(np.float32))
+    peak = max((float(np.abs(d[inside]).max(initial=0.0)) for d in fields), default=0.0)
+    gain = PREVIEW_PEAK_PX / peak if peak > 0 else 1.0
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
     tmp = path.with_name(path.stem + ".tmp.mp4")
     bar.stage("preview", len(ks))
     with VideoWriter(tmp, H, W, pix_fmt="gray", codec="h264", crf=23) as writer:
-        for k in ks:
-            u = _as_3d(result.displacement_frames(k * A, k * A + 1))[0]
-            writer.write(_to_png8(renderer.render(gain * u)))
+        for d in fields:
+            # backward warp: the content at x came from x - g d(x) (smooth d, small error)
+            coords = (yy - gain * d[..., 1], xx - gain * d[..., 0])
+            frame = map_coordinates(rest, coords, order=1, mode="nearest")
+            writer.write(_to_png8(frame.astype(np.float32)))
             bar.advance()
     os.replace(tmp, path)
+
+
+PREVIEW_PEAK_PX = 8.0  # magnified peak image motion of preview.mp4 (px)
 
 
 def _write_manifest(work: Path, scene: Scene) -> None:

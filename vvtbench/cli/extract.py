@@ -209,12 +209,13 @@ def main_extract(argv: list[str] | None = None) -> int:
 
         plot_modes(ms, args.out)
     print(f"{len(ms)} modes, T = {ms.n_frames} frames at {ms.fps:g} fps -> {args.out}")
-    for row in ms.summary():
+    peak, resolved = ms.peak_displacement_px, ms.damping_resolved()
+    for i, row in enumerate(ms.summary()):
         z = row["damping"]
         print(
             f"  #{row['index']:2d} {row['frequencies_hz']:10.4f} Hz  zeta "
-            + (f"{z:.4f}" if z is not None else "  nan ")
-            + f"  amp {row['amplitudes_px']:.3g} px  prominence {row['prominences']:.2f}"
+            + (f"{z:.4f}" if z is not None and resolved[i] else "  -   ")
+            + f"  peak {peak[i]:.3g} px  prominence {row['prominences']:.2f}"
         )
     for r in ms.metadata.get("rejected", []):
         if r["reason"] == "camera_shake":

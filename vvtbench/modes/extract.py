@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..motion.phase import PhaseMotion, upsample_periodic
+from ..motion.phase import upsample_periodic
 from ..video import average_frames, open_video
 from .modeset import ModeSet
 from .peaks import (
@@ -83,6 +83,9 @@ def modes_from_displacements(
     confidence: ArrayLike | None = None,
     metadata: dict[str, Any] | None = None,
     output_shape: tuple[int, int] | None = None,
+    false_alarm: float | None = 0.01,
+    floor_half_width_bins: int = 32,
+    min_bin: int = 3,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -134,6 +137,16 @@ def modes_from_displacements(
         :attr:`PhaseMotion.grid_shape`, sample ``(i, j)`` at pixel ``(i H / h, j W / w)``):
         each real mode is upsampled bilinearly (periodic) to it before normalisation, so
         shapes and amplitudes refer to full-resolution pixels.  ``weights`` stay on the grid.
+    false_alarm : float or None, default 0.01
+        Peak significance: a peak must stand above the spectrum's noise floor
+        (:func:`peaks.noise_floor`, a running median and a fitted chi-square law) by the
+        factor for which pure noise yields a false peak anywhere in the band with at most
+        this probability; ``None`` turns the test off.  See docs/modes.md.
+    floor_half_width_bins : int, default 32
+        Half width of the noise floor's running-median window (bins).
+    min_bin : int, default 3
+        Lowest peak bin: frequencies below ``min_bin / duration`` (drift, the mean removal
+        and the Hann main lobe around DC) are not modes.
 
     Returns
     -------
@@ -153,6 +166,9 @@ def modes_from_displacements(
         min_separation_hz=min_separation_hz,
         max_peaks=max_modes,
         min_power_ratio=min_power_ratio,
+        false_alarm=false_alarm,
+        floor_half_width_bins=floor_half_width_bins,
+        min_bin=min_bin,
     )
     Z = bin_fields(disp, pk.bins, detrend=detrend, window=window, block_bytes=block_bytes)
     T = _n_frames(disp)
@@ -206,6 +222,9 @@ def modes_from_displacements(
         product_roughness=product_roughness,
         roughness=[float(r) for r in rough],
         weighted=weights is not None,
+        min_bin=int(min_bin),
+        noise_floor=None if pk.noise is None else pk.noise.summary(),
+        floor_ratio=None if pk.floor_ratio is None else [float(r) for r in pk.floor_ratio],
     )
     ms = ModeSet(
         shapes=np.array(shapes, dtype=np.float32).reshape(len(shapes), H, W, 2),
@@ -328,6 +347,10 @@ def extract_modes(
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
+    false_alarm: float | None = 0.01,
+    min_bin: int = 3,
+    extractor: Any = "phase",
+    extractor_config: Any = None,
 ) -> ModeSet:
     """Extract image-space modes from a video end to end.
 
@@ -360,6 +383,16 @@ def extract_modes(
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
     progress : bool
         Show a tqdm progress bar on stderr.
+    false_alarm, min_bin :
+        Peak significance and the lowest peak bin, see :func:`modes_from_displacements`.
+    extractor : str, class or instance, default "phase"
+        Motion extractor plug-in (:mod:`vvtbench.extractors`): a registered name
+        (``"phase"``, ``"farneback"``, ...), ``module:Class`` / ``path.py:Class``, a class or an
+        instance.  ``n_scales``, ``n_orientations``, ``sigma``, ``outlier_fraction`` and
+        ``workers`` configure the default phase-based extractor when ``extractor_config`` is
+        not given.
+    extractor_config : dataclass instance or mapping, optional
+        The extractor's ``Config`` (or overrides of its defaults).
 
     Returns
     -------
@@ -396,39 +429,39 @@ def extract_modes(
         ref = next(it)
     except StopIteration:
         raise ValueError("the video has no frames") from None
-    pm = PhaseMotion(
-        ref,
-        n_scales,
-        n_orientations,
-        sigma=sigma,
-        outlier_fraction=outlier_fraction,
-        workers=workers,
-    )
+    from ..extractors import make_extractor
+
+    if extractor_config is None and extractor == "phase":
+        extractor_config = {
+            "n_scales": n_scales,
+            "n_orientations": n_orientations,
+            "sigma": sigma,
+            "outlier_fraction": outlier_fraction,
+            "workers": workers,
+        }
+    ext = make_extractor(extractor, extractor_config)
+    pm = ext.prepare(ref)
     with DisplacementStore(memory_budget, tmpdir) as store:
-        # the working grid (half resolution when decimated): 4x less to store and transform;
-        # the smoothed field is band-limited, mode shapes are upsampled at the end
-        for d in pm.iter_displacements(_chain(ref, it), batch=batch, full_resolution=False):
+        # the extractor's working grid (half resolution for the decimated phase pyramid: 4x
+        # less to store and transform); mode shapes are upsampled at the end
+        for d in pm.iter_displacements(_chain(ref, it), batch=batch):
             store.append(d)
             if bar is not None:
                 bar.update(d.shape[0])
         if bar is not None:
             bar.close()
         t1 = time.perf_counter()
-        weights = confidence_weights(pm.grid_confidence) if weighting == "confidence" else None
+        conf = pm.grid_confidence
+        weights = (
+            confidence_weights(conf) if weighting == "confidence" and conf is not None else None
+        )
         meta = {
             **video.meta,
             "fps_input": float(fps),
             "fps_source": fps_source,
             "average": average,
-            "motion": {
-                "n_scales": n_scales,
-                "n_orientations": n_orientations,
-                "sigma": sigma,
-                "outlier_fraction": outlier_fraction,
-                "reference": "first frame",
-                "decimate": pm.decimate,
-                "grid_shape": list(pm.grid_shape),
-            },
+            "extractor": {"name": ext.name, "version": str(ext.version)},
+            "motion": pm.describe(),
             "weighting": weighting,
             "spilled_to_disk": store.on_disk,
         }
@@ -449,7 +482,9 @@ def extract_modes(
             reject_distortion=reject_distortion,
             confidence=pm.confidence,
             metadata=meta,
-            output_shape=pm.shape,
+            output_shape=tuple(pm.shape),
+            false_alarm=false_alarm,
+            min_bin=min_bin,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}

@@ -117,6 +117,31 @@ class ModeSet:
         return int(self.shapes.shape[1]), int(self.shapes.shape[2])
 
     @property
+    def peak_displacement_px(self) -> NDArray[np.float64]:
+        """``(k,)`` peak displacement of each mode (px): the largest ``|dx|`` or ``|dy|`` of
+        ``amplitudes_px[i] * shapes[i]`` over the image (``amplitudes_px`` is the L2 norm of
+        the whole field, which grows with the object's size in pixels)."""
+        if not len(self):
+            return np.zeros(0)
+        return self.amplitudes_px * np.abs(self.shapes).reshape(len(self), -1).max(axis=1)
+
+    def damping_resolved(self) -> NDArray[np.bool_]:
+        """``(k,)`` whether the damping ratio was measured, not just fitted to noise.
+
+        True when the fit gave a finite ``zeta`` in ``(0, 0.3)``, its half width
+        ``zeta f`` is at least 0.05 bin (``fps / n_frames``; narrower is not told from an
+        undamped peak, docs/modes.md) and the half-power estimate agrees within a factor 2.
+        An undamped scene's peaks fail it (half-power NaN or far off), so no ``zeta`` is
+        shown for them.
+        """
+        z, zh, f = self.damping, self.damping_half_power, self.frequencies_hz
+        df = self.fps / self.n_frames if self.n_frames else np.inf
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ok = np.isfinite(z) & (z > 0) & (z < 0.3) & (z * f >= 0.05 * df)
+            ok &= np.isfinite(zh) & (zh > 0.5 * z) & (zh < 2.0 * z)
+        return ok
+
+    @property
     def omegas(self) -> NDArray[np.float64]:
         """Angular frequencies ``2 pi f`` (rad/s); ``lambda = omega**2``."""
         return 2.0 * np.pi * self.frequencies_hz

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -20,39 +21,101 @@ def _plt():
     return plt
 
 
-def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
-    """Motion power spectrum (log scale) with picked peaks marked and labelled.
+def _floor(ms: ModeSet):
+    """The noise floor model the peaks were tested against (recomputed from the power)."""
+    from .peaks import noise_floor
 
-    Kept modes are red triangles labelled ``#i f Hz``; rejected peaks (camera shake,
-    distortion products, incoherent; ``metadata["rejected"]``) are grey crosses.
+    nf = ms.metadata.get("noise_floor")
+    band = ms.metadata.get("band_hz")
+    if not nf or not band or ms.power.size < 3:
+        return None
+    f = ms.freqs_hz
+    first = max(1, int(ms.metadata.get("min_bin", 1)))
+    inb = np.flatnonzero((f >= band[0]) & (f <= band[1]) & (np.arange(f.size) >= first))
+    if not inb.size:
+        return None
+    return noise_floor(ms.power, slice(int(inb[0]), int(inb[-1]) + 1),
+                       false_alarm=nf["false_alarm"], half_width_bins=nf["half_width_bins"])
+
+
+def _xmax(ms: ModeSet) -> float:
+    """Right end of the spectrum plot: the band's, or when the band is the whole Nyquist
+    range (no fmax given) 2.5 times the highest kept mode (the rest is noise)."""
+    nyq = ms.fps / 2.0
+    band = ms.metadata.get("band_hz") or [0.0, nyq]
+    hi = float(band[1])
+    if hi >= nyq * (1 - 1e-9) and len(ms):
+        hi = min(hi, max(2.5 * float(np.max(ms.frequencies_hz)), 20 * ms.fps / ms.n_frames))
+    return hi
+
+
+def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
+    """Motion power spectrum (log scale) over the analysed band, with the noise floor.
+
+    Kept modes are red triangles labelled ``#i f Hz`` (labels staggered over three heights
+    so neighbours do not overlap), rejected peaks (camera shake, distortion products,
+    incoherent; ``metadata["rejected"]``) are grey crosses without labels; the noise
+    floor (running median) and the significance threshold (docs/modes.md) are drawn.
     """
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 4), dpi=110)
+    fig, ax = plt.subplots(figsize=(10, 4.5), dpi=110)
+    band = ms.metadata.get("band_hz") or [0.0, ms.fps / 2.0]
+    x0, x1 = float(band[0]), _xmax(ms)
     if ms.power.size:
-        ax.semilogy(ms.freqs_hz[1:], np.maximum(ms.power[1:], 1e-300), lw=0.8, color="k")
-        for i, (k, f) in enumerate(zip(ms.peak_bins, ms.frequencies_hz, strict=True)):
-            if 0 <= k < ms.power.size:
-                ax.plot(ms.freqs_hz[k], ms.power[k], "v", color="tab:red", ms=7)
-                ax.annotate(
-                    f"#{i} {f:.2f} Hz",
-                    (ms.freqs_hz[k], ms.power[k]),
-                    textcoords="offset points",
-                    xytext=(0, 8),
-                    ha="center",
-                    fontsize=7,
-                    color="tab:red",
-                )
+        sel = (ms.freqs_hz >= x0) & (ms.freqs_hz <= x1)
+        sel[0] = False
+        f, p = ms.freqs_hz[sel], np.maximum(ms.power[sel], 1e-300)
+        ax.semilogy(f, p, lw=0.8, color="k", label="motion power")
+        nf = _floor(ms)
+        if nf is not None:
+            ax.semilogy(f, nf.floor[sel], color="tab:blue", lw=0.8, alpha=0.8,
+                        label="noise floor (running median)")
+            ax.semilogy(f, nf.threshold()[sel], "--", color="tab:blue", lw=0.8,
+                        label=f"threshold (false alarm {nf.false_alarm:g}/spectrum)")
+        first = int(ms.metadata.get("min_bin", 0))
+        if first > 1:
+            ax.axvspan(x0, first * ms.fps / ms.n_frames, color="0.85", alpha=0.5, lw=0,
+                       label="below resolution (drift)")
         for r in ms.metadata.get("rejected", []):
             k = r.get("bin", -1)
-            if 0 <= k < ms.power.size:
-                ax.plot(ms.freqs_hz[k], ms.power[k], "x", color="0.5", ms=8)
-        band = ms.metadata.get("band_hz")
-        if band:
-            ax.axvspan(band[0], band[1], color="tab:blue", alpha=0.05)
+            if 0 <= k < ms.power.size and x0 <= ms.freqs_hz[k] <= x1:
+                ax.plot(ms.freqs_hz[k], ms.power[k], "x", color="0.5", ms=7)
+        order = np.argsort(ms.frequencies_hz)
+        small = len(ms) > 12
+        for j, i in enumerate(order):
+            k = int(ms.peak_bins[i])
+            if not (0 <= k < ms.power.size and x0 <= ms.freqs_hz[k] <= x1):
+                continue
+            ax.plot(ms.freqs_hz[k], ms.power[k], "v", color="tab:red", ms=6)
+            # labels in three staggered rows along the top, a leader line to each peak
+            ax.annotate(
+                f"#{i} {ms.frequencies_hz[i]:.{1 if small else 2}f}",
+                xy=(ms.freqs_hz[k], ms.power[k]),
+                xytext=(ms.freqs_hz[k], 0.965 - 0.055 * (j % 3)),
+                textcoords=("data", "axes fraction"),
+                ha="center",
+                va="top",
+                fontsize=6.5 if small else 7.5,
+                color="tab:red",
+                arrowprops={"arrowstyle": "-", "color": "tab:red", "lw": 0.4, "alpha": 0.5,
+                            "shrinkA": 0, "shrinkB": 4},
+            )
+        if sel.any():
+            lo = max(float(np.min(p)), float(np.max(p)) * 1e-14)
+            # head room for the label rows (~20 % of the height)
+            span = math.log10(float(np.max(p)) / lo) + 0.5
+            ax.set_ylim(lo / 3, float(np.max(p)) * 10 ** (0.3 * span))
+    ax.plot([], [], "v", color="tab:red", label="mode (#index, Hz)")
+    if ms.metadata.get("rejected"):
+        ax.plot([], [], "x", color="0.5", label="rejected peak")
+    ax.set_xlim(x0, x1)
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("motion power (px$^2$, unnormalised DFT)")
-    ax.set_title(f"Motion power spectrum: {len(ms)} modes, fps {ms.fps:g}, T = {ms.n_frames}")
+    shown = "" if x1 >= float(band[1]) * (1 - 1e-9) else f", shown to {x1:.3g} Hz"
+    ax.set_title(f"Motion power spectrum: {len(ms)} modes, fps {ms.fps:g}, T = {ms.n_frames}, "
+                 f"band {band[0]:.3g}-{band[1]:.4g} Hz{shown}", fontsize=9)
     ax.grid(True, which="both", alpha=0.2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
@@ -79,10 +142,11 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     ax.quiver(xx, yy, s[yy, xx, 0], s[yy, xx, 1], color="tab:red", angles="xy", pivot="mid")
     ax.set_title("shape (arrows, image y down)")
     ax.axis("off")
-    z = ms.damping[i]
+    zeta = (f", zeta = {ms.damping[i]:.4f}" if ms.damping_resolved()[i]
+            else ", zeta not resolved")
     fig.suptitle(
-        f"mode #{i}: {ms.frequencies_hz[i]:.3f} Hz, zeta = {z:.4f}, "
-        f"amplitude {ms.amplitudes_px[i]:.3g} px"
+        f"mode #{i}: {ms.frequencies_hz[i]:.3f} Hz{zeta}, "
+        f"peak displacement {ms.peak_displacement_px[i]:.3g} px (unit-norm shape shown)"
         + ("  [camera shake]" if ms.camera_shake[i] else "")
     )
     out = Path(path)

@@ -1,0 +1,258 @@
+"""Scores of the first stage: extracted image-space modes against the true ones.
+
+:func:`score_extraction` matches detected modes (a :class:`~vvtbench.modes.ModeSet`, or
+several of the same view) with a sample's true modes and returns precision, recall,
+frequency, damping and shape (MAC) errors.  The formulas are in docs/modes.md, "Scoring
+extraction".  Only NumPy/SciPy and the true arrays are needed: a sample holds them as
+``s.frequencies_hz``, ``s.damping_ratios`` and ``s["image/modes"]``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linear_sum_assignment
+
+__all__ = ["clusters_by_resolution", "score_extraction", "subspace_mac"]
+
+
+def clusters_by_resolution(frequencies: ArrayLike, resolution_hz: float) -> list[list[int]]:
+    """Group sorted-by-frequency indices whose consecutive gaps are below ``resolution_hz``.
+
+    Modes closer than the frequency resolution ``1 / duration`` cannot be told apart by a
+    spectrum of that record: a detection near them is matched to their span.
+    """
+    f = np.asarray(frequencies, dtype=np.float64)
+    order = np.argsort(f, kind="stable")
+    out: list[list[int]] = []
+    for i in order:
+        if out and f[i] - f[out[-1][-1]] < resolution_hz:
+            out[-1].append(int(i))
+        else:
+            out.append([int(i)])
+    return out
+
+
+def subspace_mac(a: ArrayLike, basis: ArrayLike) -> float:
+    """Fraction of the energy of vector ``a`` in the span of the rows of ``basis``.
+
+    For one basis vector ``b`` it is the MAC ``(a . b)**2 / (|a|**2 |b|**2)``.
+    """
+    x = np.asarray(a, dtype=np.float64).ravel()
+    B = np.atleast_2d(np.asarray(basis, dtype=np.float64)).reshape(-1, x.size)
+    na = float(x @ x)
+    if na <= 0:
+        return 0.0
+    q, r = np.linalg.qr(B.T)
+    keep = np.abs(np.diag(r)) > 1e-12 * max(float(np.abs(r).max(initial=0.0)), 1e-300)
+    q = q[:, keep]
+    if q.shape[1] == 0:
+        return 0.0
+    p = q.T @ x
+    return float(min(1.0, (p @ p) / na))
+
+
+def _true_vectors(
+    true_modes: NDArray[np.float64],
+    shapes: NDArray[np.float64],
+    uv: ArrayLike | None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Flattened true and detected vectors on common support, and that support.
+
+    Dense truth ``(n, H, W, 2)`` (NaN off the object): pixels where every true mode is
+    finite.  Truth at vertices ``(n, 2 m)`` or ``(n, m, 2)``: the detections are sampled
+    bilinearly at ``uv`` ``(m, 2)``.
+    """
+    t = np.asarray(true_modes, dtype=np.float64)
+    k = shapes.shape[0]
+    if t.ndim == 4:
+        if t.shape[1:] != shapes.shape[1:]:
+            raise ValueError(
+                f"true image modes are {t.shape[1:3]} px, detected modes {shapes.shape[1:3]}"
+            )
+        m = np.all(np.isfinite(t), axis=(0, 3))
+        return t[:, m, :].reshape(t.shape[0], -1), shapes[:, m, :].reshape(k, -1), m
+    if uv is None:
+        raise ValueError("true modes given at vertices need uv (m, 2), the vertices' pixels")
+    from .modes.sampling import sample_modes
+
+    t = t.reshape(t.shape[0], -1)
+    d = sample_modes(shapes, uv) if k else np.zeros((0, t.shape[1]))
+    ok = np.all(np.isfinite(t), axis=0) & np.all(np.isfinite(d), axis=0)
+    return t[:, ok], d[:, ok], ok
+
+
+def _nanmean(values: list[float]) -> float:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def score_extraction(
+    modesets_or_modeset: Any,
+    true_frequencies_hz: ArrayLike,
+    true_damping: ArrayLike | None,
+    true_image_modes: ArrayLike | Sequence[ArrayLike],
+    duration_s: float,
+    fmax: float,
+    *,
+    fmin: float = 0.0,
+    min_mac: float = 0.5,
+    uv: ArrayLike | Sequence[ArrayLike] | None = None,
+) -> dict[str, Any]:
+    """Detected modes against the true ones: precision, recall, frequency/damping/MAC errors.
+
+    Parameters
+    ----------
+    modesets_or_modeset : ModeSet or sequence of ModeSet
+        Detections (``frequencies_hz``, ``damping``, ``shapes``).  Several sets (videos) are
+        pooled: each is matched on its own, counts are summed, and a true mode counts as
+        recalled if any set matched it.
+    true_frequencies_hz : array_like
+        ``(n,)`` eigenfrequencies (Hz).
+    true_damping : array_like or None
+        ``(n,)`` damping ratios (``None``, or 0 for an undamped scene: no damping error).
+    true_image_modes : array_like or sequence
+        ``(n, H, W, 2)`` dense true image-space modes (NaN off the object), or at vertices
+        ``(n, 2 m)`` / ``(n, m, 2)`` with ``uv``; one per set when several sets are given
+        (one array is shared).
+    duration_s : float
+        Record length; the frequency resolution is ``df = 1 / duration_s``.
+    fmax : float
+        Upper end of the analysed band (Hz): true modes above it are not expected, detections
+        above it are not counted.
+    fmin : float, default 0
+        Lower end of the band.
+    min_mac : float, default 0.5
+        Minimal (subspace) MAC of a match.
+    uv : array_like, optional
+        ``(m, 2)`` pixel positions of the vertices (per set, or shared) for vertex truth.
+
+    Returns
+    -------
+    dict
+        ``precision`` (matched / detected in band; NaN if nothing detected), ``recall``
+        (matched clusters / clusters in band; NaN if none in band), ``recall_modes`` (true
+        modes in matched clusters / true modes in band), ``f1``, ``mean_abs_freq_error_hz``,
+        ``mean_rel_freq_error``, ``mean_abs_damping_error``, ``mean_rel_damping_error``,
+        ``mean_mac``, ``n_detected``, ``n_matched``, ``n_true_in_band``,
+        ``n_clusters_in_band``, ``frequency_resolution_hz``, ``band_hz``, ``min_mac``, and
+        ``matching``: one dict per match (``set``, ``detected``, ``true`` (indices of the
+        cluster), ``nearest_true``, ``frequency_hz``, ``true_frequency_hz``,
+        ``abs_freq_error_hz``, ``damping``, ``true_damping``, ``mac``) and ``unmatched``:
+        ``(set, detected index, frequency)`` of the false detections.
+    """
+    from .modes.modeset import ModeSet
+
+    sets = [modesets_or_modeset] if isinstance(modesets_or_modeset, ModeSet) else list(
+        modesets_or_modeset)
+    if not sets:
+        raise ValueError("no mode set given")
+    if not duration_s > 0 or not fmax > fmin:
+        raise ValueError(f"need duration_s > 0 and fmax > fmin, got {duration_s}, {fmin}, {fmax}")
+    ft = np.atleast_1d(np.asarray(true_frequencies_hz, dtype=np.float64))
+    zt = (np.zeros_like(ft) if true_damping is None
+          else np.atleast_1d(np.asarray(true_damping, dtype=np.float64)))
+    if zt.shape != ft.shape:
+        raise ValueError(f"true_damping {zt.shape} and true_frequencies_hz {ft.shape} differ")
+    shared = not (isinstance(true_image_modes, (list, tuple)) and len(true_image_modes) == len(
+        sets) and np.ndim(true_image_modes[0]) >= 2)
+    tms = [true_image_modes] * len(sets) if shared else list(true_image_modes)
+    shared_uv = uv is None or not (isinstance(uv, (list, tuple)) and len(uv) == len(sets)
+                                   and np.ndim(uv[0]) == 2)
+    uvs = [uv] * len(sets) if shared_uv else list(uv)
+    df = 1.0 / float(duration_s)
+    band = np.flatnonzero((ft > fmin) & (ft <= fmax))
+    clusters = [[int(band[i]) for i in c] for c in clusters_by_resolution(ft[band], df)]
+    matched_clusters: set[int] = set()
+    matching: list[dict[str, Any]] = []
+    unmatched: list[tuple[int, int, float]] = []
+    n_detected = 0
+    for s_i, (ms, tm, uv_s) in enumerate(zip(sets, tms, uvs, strict=True)):
+        fd = np.asarray(ms.frequencies_hz, dtype=np.float64)
+        det = np.flatnonzero((fd >= fmin) & (fd <= fmax))
+        n_detected += det.size
+        if det.size == 0:
+            continue
+        tm = np.asarray(tm, dtype=np.float64)
+        if tm.shape[0] != ft.size:
+            raise ValueError(f"{tm.shape[0]} true image modes for {ft.size} frequencies")
+        tv, dv, _ = _true_vectors(tm, np.asarray(ms.shapes, np.float64)[det], uv_s)
+        n_c = len(clusters)
+        macs = np.zeros((det.size, n_c))
+        feasible = np.zeros((det.size, n_c), bool)
+        for j, c in enumerate(clusters):
+            lo, hi = ft[c].min() - df, ft[c].max() + df
+            for i in range(det.size):
+                if lo <= fd[det[i]] <= hi:
+                    macs[i, j] = subspace_mac(dv[i], tv[c])
+                    feasible[i, j] = macs[i, j] >= min_mac
+        if n_c:
+            # most matches first, then the largest total MAC
+            cost = np.where(feasible, 2.0 - macs, 1e6)
+            rows, cols = linear_sum_assignment(cost)
+        else:
+            rows, cols = np.zeros(0, int), np.zeros(0, int)
+        hit = set()
+        for i, j in zip(rows, cols, strict=True):
+            if not feasible[i, j]:
+                continue
+            hit.add(int(i))
+            c = clusters[j]
+            d_i = int(det[i])
+            near = int(c[int(np.argmin(np.abs(ft[c] - fd[d_i])))])
+            zd = float(np.asarray(ms.damping, dtype=np.float64)[d_i])
+            matched_clusters.add(j)
+            matching.append({
+                "set": s_i,
+                "detected": d_i,
+                "true": [int(x) for x in c],
+                "nearest_true": near,
+                "frequency_hz": float(fd[d_i]),
+                "true_frequency_hz": float(ft[near]),
+                "abs_freq_error_hz": float(abs(fd[d_i] - ft[near])),
+                "rel_freq_error": float(abs(fd[d_i] - ft[near]) / ft[near]),
+                "damping": zd,
+                "true_damping": float(zt[near]),
+                "mac": float(macs[i, j]),
+            })
+        unmatched += [(s_i, int(det[i]), float(fd[det[i]])) for i in range(det.size)
+                      if i not in hit]
+    n_matched = len(matching)
+    n_cl = len(clusters)
+    precision = n_matched / n_detected if n_detected else float("nan")
+    recall = len(matched_clusters) / n_cl if n_cl else float("nan")
+    recall_modes = (sum(len(clusters[j]) for j in matched_clusters) / band.size
+                    if band.size else float("nan"))
+    f1 = (2 * precision * recall / (precision + recall)
+          if np.isfinite(precision) and np.isfinite(recall) and precision + recall > 0
+          else (0.0 if np.isfinite(precision) and np.isfinite(recall) else float("nan")))
+    damp_abs, damp_rel = [], []
+    for m in matching:
+        if m["true_damping"] > 0 and math.isfinite(m["damping"]):
+            damp_abs.append(abs(m["damping"] - m["true_damping"]))
+            damp_rel.append(abs(m["damping"] - m["true_damping"]) / m["true_damping"])
+    return {
+        "precision": precision,
+        "recall": recall,
+        "recall_modes": recall_modes,
+        "f1": f1,
+        "mean_abs_freq_error_hz": _nanmean([m["abs_freq_error_hz"] for m in matching]),
+        "mean_rel_freq_error": _nanmean([m["rel_freq_error"] for m in matching]),
+        "mean_abs_damping_error": _nanmean(damp_abs),
+        "mean_rel_damping_error": _nanmean(damp_rel),
+        "mean_mac": _nanmean([m["mac"] for m in matching]),
+        "n_detected": int(n_detected),
+        "n_matched": int(n_matched),
+        "n_true_in_band": int(band.size),
+        "n_clusters_in_band": int(n_cl),
+        "frequency_resolution_hz": df,
+        "band_hz": [float(fmin), float(fmax)],
+        "min_mac": float(min_mac),
+        "matching": matching,
+        "unmatched": unmatched,
+    }
