@@ -144,6 +144,11 @@ def test_micro_suite_end_to_end(micro):
     vvt_true = df[(df.solver == "vvt") & (df.observation == "true")].iloc[0]
     assert np.isfinite(vvt_true.nc_w) and -1 <= vvt_true.nc_w <= 1
     assert (df[df.solver == "homogeneous"].nc_w == 0).all()
+    # the first stage is scored too: extraction against the true modes, on extracted rows only
+    ext = df[df.observation == "extracted"]
+    assert ext.extraction_precision.between(0, 1).all() and ext.extraction_recall.gt(0).all()
+    assert df[df.observation == "true"].extraction_precision.isna().all()
+    assert df.mode_mac_true.between(0, 1).all()
     assert _computed(df) == {"generate": 1, "extract": 1, "observe": 2, "solve": 4,
                              "evaluate": 4}
     for p in df["estimate_path"]:

@@ -402,6 +402,13 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
             md.append(f"### {track} — {obs} modes\n\n" + _md_table(t) + "\n")
             body.append(f"<h3>{html.escape(track)} — {html.escape(obs)} modes</h3>"
                         + _html_table(t))
+        ext = extraction_table(df, track)
+        if ext is not None:
+            md.append(f"### {track} — extraction (detected modes against the true ones)\n\n"
+                      + _md_frame(ext) + "\n")
+            body.append(f"<h3>{html.escape(track)} — extraction</h3>"
+                        + ext.to_html(index=False, float_format=lambda x: f"{x:.3f}",
+                                      na_rep="–", border=0))
         for caption, rel in figs[track]:
             md.append(f"**{track}: {caption}**\n\n![{track}: {caption}]({rel})\n")
             body.append(f"<figure><figcaption>{html.escape(track)}: {html.escape(caption)}"
@@ -445,4 +452,33 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     return out
 
 
-__all__ = ["LeaderboardError", "build", "prepare_output", "ranking", "summary"]
+def _md_frame(t) -> str:
+    def cell(x):
+        return f"{x:.3f}" if isinstance(x, float) and np.isfinite(x) else (
+            "–" if isinstance(x, float) else str(x))
+
+    lines = ["| " + " | ".join(map(str, t.columns)) + " |", "|" + "---|" * len(t.columns)]
+    lines += ["| " + " | ".join(cell(x) for x in row) + " |" for row in t.itertuples(index=False)]
+    return "\n".join(lines)
+
+
+def extraction_table(df, track: str):
+    """Per scene of ``track``: the extraction's precision, recall, relative frequency error
+    and mean MAC of matched modes (one extraction per scene and variation; None when the
+    track has no extracted modes)."""
+    cols = ["extraction_precision", "extraction_recall", "extraction_mean_rel_freq_error",
+            "extraction_mean_mac"]
+    if not set(cols) <= set(df.columns):
+        return None
+    d = df[(df.track == track) & (df.observation == "extracted")]
+    d = d.dropna(subset=["extraction_recall"])
+    if d.empty:
+        return None
+    t = d.groupby(["scene", "variation"], sort=False)[cols].first().reset_index()
+    return t.rename(columns={c: c.replace("extraction_", "").replace("mean_rel_freq_error",
+                                                                     "freq error (rel.)")
+                             for c in cols} | {"extraction_mean_mac": "mean MAC"})
+
+
+__all__ = ["LeaderboardError", "build", "extraction_table", "prepare_output", "ranking",
+           "summary"]

@@ -160,14 +160,28 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -
         metrics[f"sigma_star_{name}"] = ir["sigma_star"]
         metrics[f"nc_at_sigma_star_{name}"] = ir["nc_at_sigma_star"]
         curves[name] = {"sigmas": ir["sigmas"], "nc": ir["nc"]}
-    metrics.update(mode_mac=None, freq_err_raw=None, freq_err_scaled=None)
+    metrics.update(mode_mac=None, freq_err_raw=None, freq_err_scaled=None,
+                   mode_mac_true=None, freq_err_true_scaled=None)
     if modes:
-        try:
-            mm = mode_match(problem, w, v)
-            metrics.update(mode_mac=mm["mean_mac"], freq_err_raw=mm["freq_rel_error"],
-                           freq_err_scaled=mm["freq_rel_error_scaled"])
-        except Exception as error:  # a forward model without modes: say so, score the rest
-            notes.append(f"mode match not computed: {type(error).__name__}: {error}")
+        from dataclasses import replace
+
+        k = min(len(truth.true_eigenvalues), max(problem.n_modes, 1))
+        true_view = replace(problem, gamma=truth.image_modes[:k],
+                            eigenvalues=truth.true_eigenvalues[:k])
+        for target, keys in ((problem, ("mode_mac", "freq_err_raw", "freq_err_scaled")),
+                             (true_view, ("mode_mac_true", None, "freq_err_true_scaled"))):
+            try:
+                mm = mode_match(target, w, v)
+            except Exception as error:  # a forward model without modes: say so
+                notes.append(f"mode match not computed: {type(error).__name__}: {error}")
+                break
+            for key, val in zip(keys, (mm["mean_mac"], mm["freq_rel_error"],
+                                       mm["freq_rel_error_scaled"]), strict=True):
+                if key:
+                    metrics[key] = val
+    for key, val in (truth.meta.get("extraction") or {}).items():
+        if key in ("precision", "recall", "mean_rel_freq_error", "mean_mac"):
+            metrics[f"extraction_{key}"] = val
     return {"metrics": metrics, "curves": curves, "notes": notes}
 
 

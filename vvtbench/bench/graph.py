@@ -16,7 +16,7 @@ from .suite import Suite, SuiteError, Track, apply_overrides, scene_ref
 
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 # Bump when a stage's output format or meaning changes (part of every task key).
-CACHE_FORMAT = 2  # 2: samples are the contract (observe reads them), no pickle
+CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the contract, no pickle
 
 
 def _canon(x):

@@ -16,7 +16,9 @@ from .suite import OBSERVATIONS
 
 METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_star_w",
                   "sigma_star_v", "nc_at_sigma_star_w", "nc_at_sigma_star_v", "mode_mac",
-                  "freq_err_raw", "freq_err_scaled")
+                  "freq_err_raw", "freq_err_scaled", "mode_mac_true", "freq_err_true_scaled",
+                  "extraction_precision", "extraction_recall",
+                  "extraction_mean_rel_freq_error", "extraction_mean_mac")
 
 COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "config", "scene",
            "variation",
@@ -195,6 +197,9 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
                                        "nc_at_sigma_star_w", "nc_at_sigma_star_v")},
            "sigma_star_w": (0.0, None), "sigma_star_v": (0.0, None), "mode_mac": (0.0, 1.0),
            "freq_err_raw": (0.0, None), "freq_err_scaled": (0.0, None),
+           "mode_mac_true": (0.0, 1.0), "freq_err_true_scaled": (0.0, None),
+           "extraction_precision": (0.0, 1.0), "extraction_recall": (0.0, 1.0),
+           "extraction_mean_rel_freq_error": (0.0, None), "extraction_mean_mac": (0.0, 1.0),
            "runtime_s": (0.0, None)}
 REQUIRED = tuple(c for c in COLUMNS if c not in OPTIONAL)
 # finite on every row with status ok

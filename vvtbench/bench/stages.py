@@ -68,10 +68,33 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     if p["observation"] == "extracted":
         opts = opts.replace(modes=tuple(str(cache / k) for k in extracted))
     problem, truth = observe(sample_path(cache, sample), opts)
+    if p["observation"] == "extracted":
+        truth.meta["extraction"] = extraction_scores(sample_path(cache, sample), opts.modes,
+                                                     (p.get("extract") or {}).get("fmax"))
     problem.save(out)
     truth.save(out)
     return {"n_modes": problem.n_modes, "n_params": problem.n_params,
             "meta": {k: v for k, v in problem.meta.items() if k != "camera"}}
+
+
+EXTRACTION_KEYS = ("precision", "recall", "mean_rel_freq_error", "mean_abs_damping_error",
+                   "mean_mac", "n_detected", "n_true_in_band")
+
+
+def extraction_scores(sample: Path, modes: tuple, fmax: float | None) -> dict:
+    """The extraction's detected modes scored against the sample's true ones
+    (:func:`vvtbench.extraction_scores.score_extraction`), pooled over the views."""
+    from ..dataset import open_sample
+    from ..extraction_scores import score_extraction
+    from ..modes import ModeSet
+
+    s = open_sample(sample)
+    sets = [ModeSet.load(m) for m in modes]
+    freqs = s.frequencies_hz
+    band = float(fmax) if fmax else float(freqs.max())
+    sc = score_extraction(sets, freqs, s.damping_ratios, s["image/modes"],
+                          sets[0].n_frames / sets[0].fps, min(band, float(freqs.max())))
+    return {k: sc[k] for k in EXTRACTION_KEYS}
 
 
 def load_observation(cache: Path, observe_key: str, truth: bool = False):
