@@ -463,6 +463,7 @@ def _draw_once(fam: Family, rng: np.random.Generator, attempts: int) -> dict:
     base = _base_scene(fam, ref)
     data = base.to_toml_dict()
     drum = base.geometry.kind == "drum"
+    base_view = np.subtract(data["camera"]["position"], data["camera"]["look_at"], dtype=float)
     # geometry: box aspect
     stretch = np.ones(3)
     if fam.geometry is not None and fam.geometry.aspect is not None:
@@ -528,11 +529,9 @@ def _draw_once(fam: Family, rng: np.random.Generator, attempts: int) -> dict:
     if fam.camera is not None:
         cam = data["camera"]
         look = np.asarray(cam["look_at"], dtype=float)
-        pos = np.asarray(cam["position"], dtype=float)
-        view = pos - look
-        dist = float(np.linalg.norm(view)) * float(fam.camera.distance_scale.sample(rng))
+        dist = float(np.linalg.norm(base_view)) * float(fam.camera.distance_scale.sample(rng))
         dist *= float(stretch.max())
-        direction = _cone(rng, view, float(fam.camera.cone_deg.sample(rng)))
+        direction = _cone(rng, base_view, float(fam.camera.cone_deg.sample(rng)))
         cam["position"] = [float(x) for x in look + dist * direction]
     return data
 
@@ -559,14 +558,18 @@ def draw(family: str | Path | Family, split: str, index: int) -> Scene:
     last_error = "its content hashed to another split every time"
     for _ in range(attempts):
         data = _draw_once(fam, rng, attempts)
-        if split_of_content(data) != split:
-            continue
         data.update(name=name, seed=seed,
                     description=f"instance {index} of split {split} of scene family "
                                 f"{fam.name}" + (f": {fam.description}" if fam.description
                                                  else ""))
         try:
             scene = parse_scene(data, name)
+        except SceneError as error:
+            last_error = str(error)
+            continue
+        if split_of_content(scene.to_toml_dict()) != split:
+            continue
+        try:
             mesh = _mesh_of(json.dumps(data["geometry"], sort_keys=True), fam.source)[0]
             material_fields(scene, mesh)
             if scene.excitation.kind != "none":
