@@ -235,7 +235,7 @@ def sensor_dn(
     x = x * dn_max
     if read_noise_dn > 0:
         x = x + rng.normal(0.0, read_noise_dn, size=x.shape)
-    frame = x.mean(axis=0)
+    frame = x[0] if x.shape[0] == 1 else x.mean(axis=0)  # the mean of one is itself, bit-exact
     return np.clip(np.rint(frame), 0, dn_max).astype(np.uint16)
 
 # --------------------------------------------------------------------------- truth helpers
@@ -392,6 +392,11 @@ def generate(
         ``family.json`` of a family instance); listed in the manifest like every file.
     """
     scene = _as_scene(scene)
+    for file_name in extra_json or {}:
+        if Path(file_name).name != file_name or file_name in _DESCRIPTIONS and (
+                file_name != "family.json") or not file_name.endswith(".json"):
+            raise DatasetError(f"extra_json: {file_name!r} is not allowed (allowed: a plain "
+                               "*.json file name that is not one of the sample's own files)")
     if consumer_crf is None:
         consumer_crf = scene.render.consumer_crf
     if full_well is None:
@@ -438,9 +443,9 @@ def generate(
     shutil.rmtree(partial / "segments", ignore_errors=True)
     checkpoint.unlink()
     for file_name, data in sorted((extra_json or {}).items()):
-        if Path(file_name).name != file_name or (partial / file_name).exists():
-            raise DatasetError(f"extra_json: {file_name!r} is not allowed (allowed: a plain "
-                               "file name that is not one of the sample's own files)")
+        if (partial / file_name).exists():
+            raise DatasetError(f"extra_json: {file_name!r} is not allowed (allowed: a file "
+                               "name that is not one of the sample's own files)")
         _write_json_sorted(partial / file_name, data)
     _write_manifest(partial, scene)
     if final.exists():
