@@ -50,9 +50,14 @@ def _throughput(n: int, workers: int, video: bool, out: Path, seconds: float | N
     if bad:
         raise SystemExit(f"failed: {bad[0]}")
     per = sorted(r["seconds"] for r in results)
+    cpu = sorted(r["cpu_seconds"] for r in results)
+    med = cpu[len(cpu) // 2]
     print(f"  {n} instances, {workers} worker(s): {wall:.1f} s wall, per instance median "
           f"{per[len(per) // 2]:.2f} s (min {per[0]:.2f}, max {per[-1]:.2f}) -> "
           f"{3600 * n / wall:.0f} per hour")
+    print(f"  CPU time per instance (process + threads + ffmpeg): median {med:.2f} s (min "
+          f"{cpu[0]:.2f}, max {cpu[-1]:.2f}) -> {workers} busy cores would make "
+          f"{workers * 3600 / (sum(cpu) / len(cpu)):.0f} per hour")
     return 3600 * n / wall
 
 

@@ -261,3 +261,20 @@ def test_generate_suite_applies_its_defaults():
         assert s.camera.resolution == (128, 128)
         assert s.simulation.n_modes == 16 and s.simulation.fps == 500.0
         assert s.render.supersample == 2 and s.excitation.displacement == 0.0005
+
+
+def test_generate_family_on_a_dask_cluster(tiny, tmp_path):
+    """``--scheduler``: the same jobs on Dask (an in-process cluster here)."""
+    distributed = pytest.importorskip("distributed")
+    from vvtbench.families import load_family
+
+    f = load_family(tiny)
+    jobs = [{"out": str(tmp_path), "family": f.source, "split": "val", "index": i,
+             "name": f"tiny_defects-val-{i:05d}", "options": {"video": False,
+                                                              "progress": False},
+             "threads": 1} for i in range(2)]
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        results = list(cli_generate._execute(jobs, 1, cluster))
+    assert sorted(r["status"] for r in results) == ["done", "done"]
+    assert all((tmp_path / j["name"] / "family.json").is_file() for j in jobs)

@@ -468,11 +468,17 @@ def generate_instance(job: dict) -> dict:
     ``resolution`` of :func:`with_overrides`), ``threads`` (BLAS threads, e.g. 1 per worker)
     and ``overwrite``. A complete sample already in ``out`` (its ``manifest.json`` exists) is
     skipped. Returns ``{"name", "path", "status": "done" | "skipped" | "error", "seconds",
-    "error"}``.
+    "cpu_seconds", "error"}``; ``cpu_seconds`` counts this process (every thread, e.g. the
+    software rasterizer's) and the child processes it waited for (ffmpeg).
     """
+    import resource
     import time
 
-    t0 = time.perf_counter()
+    def cpu() -> float:
+        c = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + c.ru_utime + c.ru_stime
+
+    t0, c0 = time.perf_counter(), cpu()
     out = Path(job["out"])
     name = job.get("name") or (job["scene"]["name"] if "scene" in job else None)
     try:
@@ -510,7 +516,7 @@ def generate_instance(job: dict) -> dict:
                 "seconds": time.perf_counter() - t0,
                 "error": f"{type(error).__name__}: {error}"}
     return {"name": name, "path": str(path), "status": "done",
-            "seconds": time.perf_counter() - t0, "error": None}
+            "seconds": time.perf_counter() - t0, "cpu_seconds": cpu() - c0, "error": None}
 
 
 def _load_checkpoint(checkpoint: Path, fingerprint: str) -> dict | None:
