@@ -278,3 +278,19 @@ def test_generate_family_on_a_dask_cluster(tiny, tmp_path):
         results = list(cli_generate._execute(jobs, 1, cluster))
     assert sorted(r["status"] for r in results) == ["done", "done"]
     assert all((tmp_path / j["name"] / "family.json").is_file() for j in jobs)
+
+
+def test_files_of_the_base_scene_stay_found(tmp_path):
+    """A base scene's relative file paths become absolute in the drawn scene."""
+    (tmp_path / "base").mkdir()
+    (tmp_path / "base" / "force.csv").write_text("0.0,0.0\n0.01,0.001\n")
+    (tmp_path / "base" / "tapped.toml").write_text(
+        'name = "tapped"\n[geometry]\nkind = "box"\ncells = [3, 3, 3]\n'
+        '[excitation]\nkind = "force"\nat = [0.05, 0.0, 0.05]\n'
+        '[excitation.signal]\nkind = "file"\npath = "force.csv"\n')
+    (tmp_path / "fam").mkdir()
+    (tmp_path / "fam" / "tapped.toml").write_text(
+        'name = "tapped"\nbase = "../base/tapped.toml"\n[camera]\ncone_deg = 5.0\n')
+    scene = fam.draw(tmp_path / "fam" / "tapped.toml", "val", 0)
+    path = Path(scene.excitation.signal.path)
+    assert path.is_absolute() and path.is_file()

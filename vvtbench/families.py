@@ -383,11 +383,12 @@ def split_of_content(scene_dict: dict) -> str:
 
 # --------------------------------------------------------------------------- drawing
 @functools.lru_cache(maxsize=8)
-def _mesh_of(geometry_json: str, source: str | None):
+def _mesh_of(geometry_json: str):
+    """The mesh of a geometry (paths absolute), its centroids and bounding box; cached."""
     from .simulate import build_mesh
 
     g = json.loads(geometry_json)
-    scene = parse_scene({"name": "mesh", "geometry": g}, source or "<family>")
+    scene = parse_scene({"name": "mesh", "geometry": g}, "<family draw>")
     mesh = build_mesh(scene)
     return mesh, mesh.centroids, mesh.points.min(axis=0), mesh.points.max(axis=0)
 
@@ -457,12 +458,28 @@ def _catches_centroid(defect: dict, centroids: np.ndarray) -> bool:
         return False
 
 
+def _absolute_paths(base: Scene, data: dict) -> None:
+    """Files the base scene names relative to its own file, made absolute: the drawn scene
+    lives elsewhere."""
+    from .scene import BUILTIN_MESHES
+
+    g = data["geometry"]
+    if g.get("kind") == "mesh" and g.get("path") not in BUILTIN_MESHES:
+        g["path"] = str(base.resolve_path(g["path"]))
+    if data.get("material", {}).get("field_file"):
+        data["material"]["field_file"] = str(base.resolve_path(data["material"]["field_file"]))
+    signal = data.get("excitation", {}).get("signal") or {}
+    if signal.get("kind") == "file":
+        signal["path"] = str(base.resolve_path(signal["path"]))
+
+
 def _draw_once(fam: Family, rng: np.random.Generator, attempts: int) -> dict:
     refs = _base_refs(fam)
     ref = refs[int(rng.integers(len(refs)))] if len(refs) > 1 else refs[0]
     base = _base_scene(fam, ref)
     data = base.to_toml_dict()
     drum = base.geometry.kind == "drum"
+    _absolute_paths(base, data)
     base_view = np.subtract(data["camera"]["position"], data["camera"]["look_at"], dtype=float)
     # geometry: box aspect
     stretch = np.ones(3)
@@ -475,8 +492,7 @@ def _draw_once(fam: Family, rng: np.random.Generator, attempts: int) -> dict:
                                         zip(data["excitation"]["at"], stretch, strict=True)]
         data["camera"]["look_at"] = [float(a * k) for a, k in
                                      zip(data["camera"]["look_at"], stretch, strict=True)]
-    mesh, centroids, lo, hi = _mesh_of(json.dumps(data["geometry"], sort_keys=True),
-                                       base.source)
+    mesh, centroids, lo, hi = _mesh_of(json.dumps(data["geometry"], sort_keys=True))
     # generic keys first (noise, damping, ...), so the sections below win on overlaps
     for key, dist in fam.vary.items():
         _set(data, key, dist.sample(rng))
@@ -570,7 +586,7 @@ def draw(family: str | Path | Family, split: str, index: int) -> Scene:
         if split_of_content(scene.to_toml_dict()) != split:
             continue
         try:
-            mesh = _mesh_of(json.dumps(data["geometry"], sort_keys=True), fam.source)[0]
+            mesh = _mesh_of(json.dumps(data["geometry"], sort_keys=True))[0]
             material_fields(scene, mesh)
             if scene.excitation.kind != "none":
                 load_nodes(scene, mesh)
