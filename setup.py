@@ -9,7 +9,8 @@ from setuptools import find_packages, setup
 
 setup(
     packages=find_packages(include=["vvtbench*", "solvers*"])
-    + ["vvtbench.scenes", "vvtbench.scenes.suites"],
+    + ["vvtbench.scenes", "vvtbench.scenes.suites", "vvtbench.scenes.families"],
     package_dir={"vvtbench.scenes": "scenes"},
-    package_data={"vvtbench.scenes": ["*.toml"], "vvtbench.scenes.suites": ["*.toml"]},
+    package_data={"vvtbench.scenes": ["*.toml"], "vvtbench.scenes.suites": ["*.toml"],
+                  "vvtbench.scenes.families": ["*.toml"]},
 )

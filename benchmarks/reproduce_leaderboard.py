@@ -69,31 +69,59 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("old", help="the committed results table (CSV or Parquet)")
     p.add_argument("run", help="the new run folder")
     p.add_argument("--tol", type=float, default=1e-6)
+    p.add_argument("--suite", default=None,
+                   help="score every finished solve of a run still in progress: the suite's "
+                   "task graph maps solve tasks to rows (run with the run's vvtbench)")
     args = p.parse_args(argv)
     old = read_results(args.old)
-    new = read_results(Path(args.run) / "results.parquet")
-    new = new[new.status == "ok"]
-    merged = new.merge(old, on=KEY, suffixes=("", "_old"))
-    cache = Path(args.run)
+    cache = Path(args.run) / "cache"
     rows = []
     samples: dict[str, object] = {}
-    for r in merged.itertuples():
-        ev_dir = cache / Path(r.estimate_path).parent
-        solve_key, observe_key = json.loads((ev_dir / "task.json").read_text())["deps"]
-        obs_dir = cache / "cache" / observe_key
+
+    def score(obs_key: str, w: np.ndarray, v: np.ndarray, r: dict) -> None:
+        obs_dir = cache / obs_key
         gen_key = json.loads((obs_dir / "task.json").read_text())["deps"][0]
         if gen_key not in samples:
-            samples[gen_key] = open_sample(cache / "cache" / gen_key / "sample")
+            samples[gen_key] = open_sample(cache / gen_key / "sample")
         problem = InverseProblem.load(obs_dir)
         scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
         tw, tv = centroid_truth(samples[gen_key], problem.voxel_map, scale)
-        f = np.load(ev_dir / "fields.npz")
-        active = problem.voxel_map.active
-        w, v = f["w"].ravel()[active], f["v"].ravel()[active]
-        rows.append({**{k: getattr(r, k) for k in KEY},
-                     "d_old_w": abs(nc(w, tw) - r.nc_w_old),
-                     "d_old_v": abs(nc(v, tv) - r.nc_v_old),
-                     "defn_w": r.nc_w - nc(w, tw), "defn_v": r.nc_v - nc(v, tv)})
+        with np.load(obs_dir / "truth.npz") as t:
+            nw, nv = nc(w, t["w"]), nc(v, t["v"])
+        rows.append({**{k: r[k] for k in KEY},
+                     "d_old_w": abs(nc(w, tw) - r["nc_w_old"]),
+                     "d_old_v": abs(nc(v, tv) - r["nc_v_old"]),
+                     "defn_w": nw - nc(w, tw), "defn_v": nv - nc(v, tv)})
+
+    if args.suite:
+        from vvtbench.bench import build_graph, load_suite
+
+        suite = load_suite(args.suite)
+        _, runs = build_graph(suite, suite.solvers)
+        oldk = old.set_index(KEY)
+        for run in runs:
+            key = (run.track, run.solver_name, run.scene, run.variation, run.seed,
+                   run.observation, run.n_modes)
+            if run.solve_key is None or not (cache / run.solve_key / "task.json").is_file() \
+                    or key not in oldk.index:
+                continue
+            o = oldk.loc[key]
+            with np.load(cache / run.solve_key / "estimate.npz") as e:
+                w, v = e["w_params"], e["v_params"]
+            if not (np.all(np.isfinite(w)) and np.all(w > 0) and np.all(v > 0)):
+                continue
+            score(run.observe_key, w, v, dict(zip(KEY, key, strict=True)) | {
+                "nc_w_old": float(o["nc_w"]), "nc_v_old": float(o["nc_v"])})
+        new = old.iloc[:0]
+    else:
+        new = read_results(Path(args.run) / "results.parquet")
+        new = new[new.status == "ok"]
+        for r in new.merge(old, on=KEY, suffixes=("", "_old")).to_dict("records"):
+            ev_dir = Path(args.run) / Path(r["estimate_path"]).parent
+            observe_key = json.loads((ev_dir / "task.json").read_text())["deps"][1]
+            f = np.load(ev_dir / "fields.npz")
+            active = InverseProblem.load(cache / observe_key).voxel_map.active
+            score(observe_key, f["w"].ravel()[active], f["v"].ravel()[active], r)
     df = pd.DataFrame(rows)
     if df.empty:
         print("no rows in common")

@@ -21,6 +21,7 @@ Properties
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -44,6 +45,7 @@ from .video import PLAYBACK_FPS, VideoWriter, concat_videos
 __all__ = [
     "FULL_WELL_ELECTRONS",
     "generate",
+    "generate_instance",
     "mode_vectors_3d",
     "n_video_frames",
     "resolve_scenes",
@@ -94,8 +96,13 @@ def with_overrides(
 
 
 def resolve_scenes(spec: str | Path) -> list[Scene]:
-    """Scenes named by a scene path or name, a folder of scene TOMLs, or a suite TOML
-    (``scenes = ["name", ...]``, names or paths relative to the suite file)."""
+    """Scenes named by a scene path or name, a folder of scene TOMLs, or a suite (a TOML with
+    ``scenes = ["name", ...]`` or ``[[tracks]]``, or a shipped suite name).
+
+    A suite's scenes come with its ``[defaults]`` and variation scene overrides applied and
+    its seeds set, as ``vvtbench run`` generates them (``vvtbench.bench.apply_overrides``).
+    When one scene resolves to several different scenes (variations, seeds), each gets a
+    ``-`` and an 8-digit content hash after its name."""
     p = Path(spec)
     if p.is_dir():
         files = sorted(p.glob("*.toml"))
@@ -109,17 +116,51 @@ def resolve_scenes(spec: str | Path) -> list[Scene]:
             data = tomllib.loads(p.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
             raise SceneError(f"{p}: not valid TOML: {error}") from None
-        if "scenes" in data and "geometry" not in data:
-            names = data["scenes"]
-            if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        if ("scenes" in data or "tracks" in data) and "geometry" not in data:
+            names = data.get("scenes", [])
+            if not isinstance(names, list) or not all(isinstance(n, str) for n in _flat(names)):
                 raise SceneError(f"{p}: key 'scenes' must be a list of scene names or paths")
-            out = []
-            for name in names:
-                q = p.parent / name
-                out.append(load_scene(q if q.is_file() else name))
-            return out
+            return _suite_scenes(p)
         return [load_scene(p)]
     return [load_scene(find_scene(spec))]
+
+
+def _flat(items: list) -> list:
+    """Scene references of a suite's ``scenes`` (a nested list is one object's videos)."""
+    return [x for item in items for x in (item if isinstance(item, list) else [item])]
+
+
+def _suite_scenes(path: Path) -> list[Scene]:
+    """The distinct scenes a suite generates: its defaults, variation overrides and seeds
+    applied (the runner's ``_resolve_scene``, read-only use of the bench package)."""
+    from .bench.suite import SuiteError, apply_overrides, load_suite, scene_ref
+
+    try:
+        suite = load_suite(path)
+    except SuiteError as error:
+        raise SceneError(str(error)) from None
+    resolved: dict[str, list[dict]] = {}
+    for track in suite.tracks:
+        for group in track.scenes:
+            for ref in group:
+                base = load_scene(scene_ref(ref, suite.source))
+                for var in track.variations:
+                    for seed in track.seeds:
+                        data = apply_overrides(base.to_toml_dict(),
+                                               {**var.scene_overrides, "seed": seed})
+                        parsed = parse_scene(data, f"{base.source} (suite {suite.name} "
+                                             "overrides)").to_toml_dict()
+                        bucket = resolved.setdefault(parsed["name"], [])
+                        if parsed not in bucket:
+                            bucket.append(parsed)
+    out = []
+    for name, variants in resolved.items():
+        for data in variants:
+            if len(variants) > 1:
+                tag = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:8]
+                data = {**data, "name": f"{name}-{tag}"}
+            out.append(parse_scene(data, f"{name} (suite {suite.name})"))
+    return out
 
 
 class _Progress:
@@ -194,7 +235,7 @@ def sensor_dn(
     x = x * dn_max
     if read_noise_dn > 0:
         x = x + rng.normal(0.0, read_noise_dn, size=x.shape)
-    frame = x.mean(axis=0)
+    frame = x[0] if x.shape[0] == 1 else x.mean(axis=0)  # the mean of one is itself, bit-exact
     return np.clip(np.rint(frame), 0, dn_max).astype(np.uint16)
 
 # --------------------------------------------------------------------------- truth helpers
@@ -273,6 +314,8 @@ _DESCRIPTIONS = {
     "rest.png": "rest-pose frame, noise-free, 8-bit (for viewing)",
     "depth.png": "rest-pose depth, 16-bit, near = bright, 0 = background (for viewing)",
     "preview.mp4": "small H.264 preview with magnified motion (for viewing)",
+    "family.json": "scene family instance: family, split, index, seed, family file sha256, "
+                   "vvtbench version (docs/families.md)",
 }
 
 
@@ -323,6 +366,7 @@ def generate(
     segment_frames: int = 500,
     preview_frames: int = 240,
     callback: ProgressCallback | None = None,
+    extra_json: dict[str, Any] | None = None,
 ) -> Path:
     """Generate the sample of ``scene`` as the folder ``out_dir / scene.name``; return its path.
 
@@ -344,8 +388,15 @@ def generate(
     segment_frames : video frames per checkpointed segment (resume granularity).
     preview_frames : number of frames in ``preview.mp4``.
     callback : called as ``callback(stage, done, total)`` on every progress step.
+    extra_json : more JSON files for the sample folder, ``{file name: data}`` (e.g.
+        ``family.json`` of a family instance); listed in the manifest like every file.
     """
     scene = _as_scene(scene)
+    for file_name in extra_json or {}:
+        if Path(file_name).name != file_name or file_name in _DESCRIPTIONS and (
+                file_name != "family.json") or not file_name.endswith(".json"):
+            raise DatasetError(f"extra_json: {file_name!r} is not allowed (allowed: a plain "
+                               "*.json file name that is not one of the sample's own files)")
     if consumer_crf is None:
         consumer_crf = scene.render.consumer_crf
     if full_well is None:
@@ -374,7 +425,8 @@ def generate(
     scene_text = _scene_toml(scene)
     fingerprint = hashlib.sha256(
         json.dumps({"scene": scene_text, "options": opts.to_dict(), "vvtbench": __version__,
-                    "format": FORMAT_VERSION}, sort_keys=True).encode()
+                    "format": FORMAT_VERSION, "extra": extra_json or {}},
+                   sort_keys=True).encode()
     ).hexdigest()
     checkpoint = partial / "checkpoint.json"
     state = _load_checkpoint(checkpoint, fingerprint)
@@ -390,6 +442,11 @@ def generate(
         bar.close()
     shutil.rmtree(partial / "segments", ignore_errors=True)
     checkpoint.unlink()
+    for file_name, data in sorted((extra_json or {}).items()):
+        if (partial / file_name).exists():
+            raise DatasetError(f"extra_json: {file_name!r} is not allowed (allowed: a file "
+                               "name that is not one of the sample's own files)")
+        _write_json_sorted(partial / file_name, data)
     _write_manifest(partial, scene)
     if final.exists():
         trash = out_dir / f".{scene.name}.old"
@@ -400,6 +457,66 @@ def generate(
     else:
         partial.rename(final)
     return final
+
+
+def generate_instance(job: dict) -> dict:
+    """Generate one sample for a worker process (a local pool or Dask); never raises.
+
+    ``job``: ``out`` (folder), ``options`` (keyword arguments of :func:`generate`), and
+    either ``scene`` (a resolved scene dict) or ``family`` (a family file path or name),
+    ``split`` and ``index``; optional ``overrides`` (``frames``, ``duration``,
+    ``resolution`` of :func:`with_overrides`), ``threads`` (BLAS threads, e.g. 1 per worker)
+    and ``overwrite``. A complete sample already in ``out`` (its ``manifest.json`` exists) is
+    skipped. Returns ``{"name", "path", "status": "done" | "skipped" | "error", "seconds",
+    "cpu_seconds", "error"}``; ``cpu_seconds`` counts this process (every thread, e.g. the
+    software rasterizer's) and the child processes it waited for (ffmpeg).
+    """
+    import resource
+    import time
+
+    def cpu() -> float:
+        c = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + c.ru_utime + c.ru_stime
+
+    t0, c0 = time.perf_counter(), cpu()
+    out = Path(job["out"])
+    name = job.get("name") or (job["scene"]["name"] if "scene" in job else None)
+    try:
+        limiter = None
+        if job.get("threads"):
+            from threadpoolctl import threadpool_limits
+
+            limiter = threadpool_limits(int(job["threads"]))
+        try:
+            if name is not None and (out / name / "manifest.json").is_file() and not job.get(
+                    "overwrite"):
+                return {"name": name, "path": str(out / name), "status": "skipped",
+                        "seconds": time.perf_counter() - t0, "error": None}
+            extra = None
+            if "scene" in job:
+                scene = parse_scene(job["scene"], job.get("source", job["scene"]["name"]))
+            else:
+                from .families import draw, family_info
+
+                scene = draw(job["family"], job["split"], int(job["index"]))
+                extra = {"family.json": family_info(job["family"], job["split"],
+                                                    int(job["index"]))}
+            scene = with_overrides(scene, **(job.get("overrides") or {}))
+            name = scene.name
+            path = generate(scene, out, overwrite=bool(job.get("overwrite")), extra_json=extra,
+                            **(job.get("options") or {}))
+        finally:
+            if limiter is not None:
+                limiter.restore_original_limits()
+    except (SceneError, DatasetError) as error:
+        return {"name": name, "path": None, "status": "error", "input_error": True,
+                "seconds": time.perf_counter() - t0, "error": str(error)}
+    except Exception as error:  # a worker reports, the run goes on
+        return {"name": name, "path": None, "status": "error",
+                "seconds": time.perf_counter() - t0,
+                "error": f"{type(error).__name__}: {error}"}
+    return {"name": name, "path": str(path), "status": "done",
+            "seconds": time.perf_counter() - t0, "cpu_seconds": cpu() - c0, "error": None}
 
 
 def _load_checkpoint(checkpoint: Path, fingerprint: str) -> dict | None:
@@ -420,15 +537,25 @@ def _scene_toml(scene: Scene) -> str:
     return header + tomli_w.dumps(scene.to_toml_dict())
 
 
+@functools.lru_cache(maxsize=4)
+def _texture(density: float, contrast: float, seed: int) -> np.ndarray:
+    """The speckle texture of a scene, computed once per process (0.2-0.4 s each: 1024^2
+    FFT filtering) and shared read-only by every sample that uses it."""
+    from .render.texture import speckle_texture
+
+    tex = np.asarray(speckle_texture(1024, grain=4.0, density=density, contrast=contrast,
+                                     seed=seed), dtype=np.float32)
+    tex.setflags(write=False)
+    return tex
+
+
 def scene_renderer(scene: Scene, vertices: np.ndarray, triangles: np.ndarray):
     """The :class:`Renderer` a sample of ``scene`` is filmed with (camera, texture, settings)."""
     from .render import Camera
     from .render.pyrender_backend import Renderer
-    from .render.texture import speckle_texture
 
     rs = scene.render
-    texture = speckle_texture(1024, grain=4.0, density=rs.texture_density,
-                              contrast=rs.texture_contrast, seed=rs.texture_seed)
+    texture = _texture(rs.texture_density, rs.texture_contrast, rs.texture_seed)
     try:
         return Renderer(vertices, triangles, Camera.from_spec(scene.camera), texture=texture,
                         supersample=rs.supersample, lighting=rs.lighting)
