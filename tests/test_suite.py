@@ -80,3 +80,25 @@ def test_shipped_suites_validate():
     for name in ("smoke", "paper"):
         suite = load_suite(name)
         assert suite.tracks and all(t.variations for t in suite.tracks)
+
+
+def test_family_tracks_draw_their_instances(tmp_path):
+    from vvtbench.bench import build_graph
+    from vvtbench.families import draw
+
+    suite = load_suite("standard")
+    track = next(t for t in suite.tracks if t.name == "cube_true")
+    assert len(track.scenes) == 50
+    tasks, runs = build_graph(suite, ["homogeneous"], until="generate")
+    names = {t.payload["scene"]["name"] for t in tasks.values() if t.stage == "generate"}
+    assert "cube_defects-test-00049" in names and not any("-train-" in n for n in names)
+    gen = next(t for t in tasks.values() if t.payload["scene"]["name"] ==
+               "cube_defects-test-00003")
+    assert gen.payload["scene"]["seed"] == draw("cube_defects", "test", 3).seed
+    bad = {"name": "x", "solvers": ["homogeneous"],
+           "tracks": [{"name": "t", "family": "cube_defects", "scenes": ["jello_cube"]}]}
+    with pytest.raises(SuiteError, match="family"):
+        parse_suite(bad, "x.toml")
+    bad["tracks"][0] = {"name": "t", "family": "no_such_family", "count": 2}
+    with pytest.raises(SuiteError, match="family"):
+        parse_suite(bad, "x.toml")

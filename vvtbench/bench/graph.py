@@ -75,7 +75,14 @@ class Run:
 def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
     from ..scene import load_scene, parse_scene
 
-    scene = load_scene(scene_ref(ref, source))
+    if ref.startswith("family:"):  # instance INDEX of a family's SPLIT: family:NAME:SPLIT:INDEX
+        from ..families import draw
+
+        _, family, split, index = ref.split(":")
+        scene = draw(family, split, int(index))
+        seed = scene.seed  # an instance keeps the seed it was drawn with
+    else:
+        scene = load_scene(scene_ref(ref, source))
     data = apply_overrides(scene.to_toml_dict(), {**overrides, "seed": seed})
     try:
         parsed = parse_scene(data, "(suite overrides)")

@@ -115,6 +115,14 @@ class TrackFile(_Strict):
     solver: dict[Name, Options] = Field(default_factory=dict, description=_SOLVER)
     solver_sweep: dict[Name, dict[str, Annotated[list[Any], Field(min_length=1)]]] = Field(
         default_factory=dict, description="tables [solver_sweep.NAME] of key = [values]")
+    family: Name | None = Field(None, description="a scene family (scenes/families/NAME.toml) "
+                                "whose instances are the track's scenes")
+    split: Literal["train", "val", "test"] = Field(
+        "test", description="'train', 'val' or 'test' (the family's split)")
+    count: Annotated[int, Field(ge=1, le=100000)] | None = Field(
+        None, description="an integer in 1..100000 (instances of the family)")
+    start: Annotated[int, Field(ge=0, le=2**32 - 1)] = Field(
+        0, description="an integer >= 0 (the first instance index)")
 
 
 class SuiteFile(_Strict):
@@ -432,6 +440,20 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
         path = f"tracks[{i}]" if "tracks" in data else ""
         tname = t.get("name", f"track{i}")
         scenes = []
+        if t.get("family") is not None:
+            if t.get("scenes") or t.get("count") is None:
+                raise SuiteError(f"{source}: key '{_join(path, 'family')}': a family track "
+                                 "gives 'count' (and optionally 'split', 'start') instead of "
+                                 "'scenes'")
+            from ..families import FamilyError, load_family
+
+            try:
+                load_family(t["family"])
+            except (FamilyError, SceneError) as error:
+                raise SuiteError(f"{source}: key '{_join(path, 'family')}': {error}") from None
+            first = int(t.get("start", 0))
+            scenes = [[f"family:{t['family']}:{t.get('split', 'test')}:{i}"]
+                      for i in range(first, first + int(t["count"]))]
         for j, s in enumerate(t.get("scenes", [])):
             group = [s] if isinstance(s, str) else s
             for g in group:
