@@ -132,6 +132,7 @@ class LearnedSolver:
 
     name = "learned"
     version = "1.0.0"
+    trainable = True  # module-level fit() and save_weights(): `vvtbench train learned FAMILY`
     description = ("Learned baseline: ridge regression from eigenvalue-sensitivity features of "
                    "the observed modes, trained on a family's train split")
     Config = LearnedConfig

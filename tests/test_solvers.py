@@ -263,7 +263,7 @@ def test_sensitivity_improves_on_the_homogeneous_start(defect6):
 
 
 @pytest.mark.parametrize("name", sorted(list_solvers()))
-def test_solver_contract(name, problem6, truth6):
+def test_solver_contract(name, problem6, truth6, tmp_path):
     cls = load_solver(name)
     assert isinstance(cls.name, str) and cls.name == name
     assert cls.version and cls.description
@@ -272,6 +272,13 @@ def test_solver_contract(name, problem6, truth6):
         assert f.metadata.get("help"), f"{name}.Config.{f.name} has no help"
     cfg = cls.Config(max_iter=3) if "max_iter" in {f.name for f in
                                                    dataclasses.fields(cls.Config)} else None
+    if getattr(cls, "trainable", False):  # fit on the fixture itself: the contract, not skill
+        import importlib
+
+        module = importlib.import_module(cls.__module__)
+        path = module.save_weights(tmp_path / "w.npz", module.fit([(problem6, truth6)]),
+                                   {"family": "test", "split": "train"})
+        cfg = cls.Config(weights=str(path))
     est = (cls(cfg).solve(problem6, truth6) if getattr(cls, "uses_truth", False)
            else cls(cfg).solve(problem6))
     assert isinstance(est, Estimate)

@@ -39,6 +39,7 @@ BUILTIN = {
     "oracle": "solvers.oracle:OracleSolver",
     "homogeneous": "solvers.homogeneous:HomogeneousSolver",
     "sensitivity": "solvers.sensitivity:SensitivitySolver",
+    "learned": "solvers.learned:LearnedSolver",
 }
 REQUIRED = ("name", "version", "description", "Config", "solve")
 

@@ -200,6 +200,12 @@ def _verify(argv: list[str]) -> int:
     return main_verify(argv)
 
 
+def _train(argv: list[str]) -> int:
+    from .train import main_train
+
+    return main_train(argv)
+
+
 DELEGATED = {
     "extract": (_extract,
                 "motion, spectrum and image-space modes of a video (see `extract --help`)"),
@@ -210,6 +216,7 @@ DELEGATED = {
     "export": (_export, "pack generated samples into one zarr/hdf5 dataset with a dataset card"),
     "solvers": (_solvers, "list the installed inverse solvers"),
     "solve": (_solve, "run an inverse solver on a scene (see `solve --help`)"),
+    "train": (_train, "fit a learned solver on a scene family's train split"),
     "verify": (_verify, "check a sample, a run folder or an exported dataset against its "
                         "recorded sha256 and shapes"),
 }
