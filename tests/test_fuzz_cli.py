@@ -154,7 +154,7 @@ CASES: list[tuple[str, list[str], int]] = [
     ("verify edited scene.toml", ["verify", "{scene}"], 1),
     ("verify deleted chunk", ["verify", "{chunk}"], 1),
     ("verify truth.json not JSON", ["verify", "{badjson}"], 1),
-    # --- the other commands (owned elsewhere; see the xfail notes)
+    # --- the other commands
     ("generate --frames 0", ["generate", "{ok}/scene.toml", "-o", "{out}", "--frames", "0"],
      2),
     ("generate --resolution 0x0", ["generate", "{ok}/scene.toml", "-o", "{out}",
@@ -168,14 +168,6 @@ CASES: list[tuple[str, list[str], int]] = [
     ("leaderboard missing", ["leaderboard", "{tmp}/none.parquet", "-o", "{out}"], 2),
 ]
 # Cases whose command is outside the CLI-safety helper's files; each is a note to its owner.
-OWNED_ELSEWHERE = {
-    "generate --consumer-crf -5": "cli/generate.py: --consumer-crf not validated",
-    "generate scene misspelt": "cli/generate.py prints its own error: no did-you-mean "
-                               "(vvtbench.cli.explain gives one)",
-    "run suite misspelt": "cli/run.py prints its own error: no did-you-mean",
-    "check-results missing": "cli/run.py: check-results exits 1 for a missing file",
-    "leaderboard missing": "cli/leaderboard.py",
-}
 
 
 def _build(root: Path) -> dict[str, str]:
@@ -287,8 +279,6 @@ def env(tmp_path_factory) -> dict[str, str]:
 
 @pytest.mark.parametrize("name,argv,expected", CASES, ids=[c[0] for c in CASES])
 def test_cli_fuzz(name, argv, expected, env, request):
-    if name in OWNED_ELSEWHERE:
-        request.applymarker(pytest.mark.xfail(reason=OWNED_ELSEWHERE[name], strict=False))
     shutil.rmtree(env["out"], ignore_errors=True)
     code, stdout, stderr, escaped = run_case(argv, env)
     assert escaped is None, escaped

@@ -18,6 +18,10 @@ def main_check_results(argv: list[str] | None = None) -> int:
                                 description="validate a results table (docs/results.md)")
     p.add_argument("file", help="results .parquet or .csv (or a run folder)")
     args = p.parse_args(argv)
+    path = Path(args.file)
+    if not path.exists():
+        print(f"error: {path}: no such results file or run folder", file=sys.stderr)
+        return 2
     problems = check_results(args.file)
     if problems:
         print(f"{args.file}: {len(problems)} problem(s)", file=sys.stderr)
