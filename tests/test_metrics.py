@@ -60,3 +60,19 @@ def test_mac():
     m = mac_matrix(a, np.array([[2.0, 0, 0], [0, -1, -1], [1, 1, 0]]))
     assert m[0, 0] == pytest.approx(1) and m[1, 1] == pytest.approx(1)
     assert m[0, 1] == 0 and m[1, 2] == pytest.approx(0.25)
+
+
+def test_constant_truth_is_scored_by_false_contrast_not_nc():
+    from types import SimpleNamespace
+
+    from vvtbench.metrics import evaluate, false_contrast, is_constant
+
+    flat = np.full(27, 9000.0) + np.random.default_rng(0).normal(0, 5e-12, 27)
+    assert is_constant(flat) and not is_constant(flat * np.linspace(1, 1.01, 27))
+    grid = lambda x, fill=np.nan: np.asarray(x, dtype=float).reshape(3, 3, 3)  # noqa: E731
+    problem = SimpleNamespace(to_grid=grid, n_params=27)
+    truth = SimpleNamespace(w=flat, v=np.linspace(1000.0, 2000.0, 27), meta={})
+    est_w = 9000.0 * (1 + 0.1 * np.sin(np.arange(27)))
+    ev = evaluate(problem, truth, est_w, truth.v.copy(), modes=False)["metrics"]
+    assert ev["nc_w"] is None and ev["false_contrast_w"] == pytest.approx(false_contrast(est_w))
+    assert ev["nc_v"] == pytest.approx(1.0) and ev["false_contrast_v"] is None

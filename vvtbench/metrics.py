@@ -25,6 +25,8 @@ __all__ = [
     "mode_match",
     "invalid_reason",
     "evaluate",
+    "is_constant",
+    "false_contrast",
 ]
 
 
@@ -141,6 +143,25 @@ def invalid_reason(w: np.ndarray, v: np.ndarray, n_params: int) -> str | None:
     return None
 
 
+CONSTANT_RTOL = 1e-9
+
+
+def is_constant(field: np.ndarray, rtol: float = CONSTANT_RTOL) -> bool:
+    """A field whose spread (max - min) is at most ``rtol`` times its largest magnitude: a
+    defect-free truth, on which a correlation is undefined (its rounding noise, e.g.
+    9000 +- 5e-12 Pa, would decide it)."""
+    x = np.asarray(field, dtype=float)
+    x = x[np.isfinite(x)]
+    return x.size == 0 or float(np.ptp(x)) <= rtol * float(np.abs(x).max(initial=0.0))
+
+
+def false_contrast(estimate: np.ndarray) -> float:
+    """The coefficient of variation std / mean of an estimate over its voxels: the contrast
+    it invents where the truth has none (0 is perfect)."""
+    x = np.asarray(estimate, dtype=float)
+    return float(np.std(x) / abs(np.mean(x)))
+
+
 def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -> dict:
     """Every metric of a valid estimate: NC (centred and uncentred) of w and v against the
     truth, the intrinsic resolution of each (``sigma_star_*``, ``nc_at_sigma_star_*`` and the
@@ -154,8 +175,15 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -
     curves: dict = {}
     notes: list[str] = []
     for name, est, tru in (("w", w, truth.w), ("v", v, truth.v)):
-        metrics[f"nc_{name}"] = normalized_correlation(est, tru)
+        metrics[f"false_contrast_{name}"] = None
         metrics[f"nc_{name}_uncentered"] = normalized_correlation(est, tru, centered=False)
+        if is_constant(tru):  # NC is undefined: score the contrast the estimate invents
+            metrics[f"nc_{name}"] = None
+            metrics[f"false_contrast_{name}"] = false_contrast(est)
+            metrics[f"sigma_star_{name}"] = metrics[f"nc_at_sigma_star_{name}"] = None
+            notes.append(f"the true {name} is constant: NC undefined, false contrast scored")
+            continue
+        metrics[f"nc_{name}"] = normalized_correlation(est, tru)
         ir = intrinsic_resolution(problem.to_grid(est), problem.to_grid(tru))
         metrics[f"sigma_star_{name}"] = ir["sigma_star"]
         metrics[f"nc_at_sigma_star_{name}"] = ir["nc_at_sigma_star"]

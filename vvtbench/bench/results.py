@@ -18,7 +18,8 @@ METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_s
                   "sigma_star_v", "nc_at_sigma_star_w", "nc_at_sigma_star_v", "mode_mac",
                   "freq_err_raw", "freq_err_scaled", "mode_mac_true", "freq_err_true_scaled",
                   "extraction_precision", "extraction_recall",
-                  "extraction_mean_rel_freq_error", "extraction_mean_mac")
+                  "extraction_mean_rel_freq_error", "extraction_mean_mac",
+                  "false_contrast_w", "false_contrast_v")
 
 COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "config", "scene",
            "variation",
@@ -200,10 +201,13 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
            "mode_mac_true": (0.0, 1.0), "freq_err_true_scaled": (0.0, None),
            "extraction_precision": (0.0, 1.0), "extraction_recall": (0.0, 1.0),
            "extraction_mean_rel_freq_error": (0.0, None), "extraction_mean_mac": (0.0, 1.0),
+           "false_contrast_w": (0.0, None), "false_contrast_v": (0.0, None),
            "runtime_s": (0.0, None)}
 REQUIRED = tuple(c for c in COLUMNS if c not in OPTIONAL)
 # finite on every row with status ok
-SCORED = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "runtime_s")
+SCORED = ("nc_w_uncentered", "nc_v_uncentered", "runtime_s")
+# and for each field NC or, where the truth is constant (NC undefined), the false contrast
+SCORED_EITHER = (("nc_w", "false_contrast_w"), ("nc_v", "false_contrast_v"))
 _STRINGS = ("track", "solver", "solver_version", "config_hash", "scene", "variation",
             "vvtbench_version", "dataset_revision")
 
@@ -316,6 +320,13 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
                             pd.to_numeric(pd.Series([row[c]]), errors="coerce").iloc[0]):
                         err(f"column {c!r}, row {i}: rows with status 'ok' need a finite "
                             f"number, got {row[c]!r}")
+                for a, b in SCORED_EITHER:
+                    vals = [pd.to_numeric(pd.Series([row.get(c)]), errors="coerce").iloc[0]
+                            for c in (a, b)]
+                    if sum(bool(np.isfinite(x)) for x in vals) != 1:
+                        err(f"columns {a!r}/{b!r}, row {i}: rows with status 'ok' need exactly "
+                            f"one of them (NC, or the false contrast where the truth is "
+                            f"constant), got {row.get(a)!r}/{row.get(b)!r}")
             elif row["status"] in ("error", "invalid") and "error" in df.columns:
                 if not isinstance(row["error"], str) or not row["error"].strip():
                     err(f"column 'error', row {i}: rows with status {row['status']!r} need "
