@@ -71,7 +71,7 @@ GROUPS = {  # cProfile cumulative time of these functions (substring of file:fun
     "  of which numpy rasterizer": "raster.py:rasterize",
     "  of which voxel overlap": "voxels.py:overlap_matrix",
     "render frames (GL)": "pyrender_backend.py:render",
-    "sensor model (noise, quantize)": "generate.py:sensor_dn",
+    "sensor model (noise, quantize)": "sensor.py:sensor_dn",
     "encode (ffmpeg pipe writes)": "video.py:write",
     "join segments (ffmpeg)": "video.py:concat_videos",
     "transient (modal superposition)": "simulate.py:_transient",
@@ -86,7 +86,8 @@ def _profile(video: bool, out: Path, seconds: float | None, index: int) -> None:
     from threadpoolctl import threadpool_limits
 
     from vvtbench.families import draw
-    from vvtbench.generate import generate, with_overrides
+    from vvtbench.generate import generate
+    from vvtbench.scenes_resolve import with_overrides
 
     threadpool_limits(1)
     scene = with_overrides(draw("cube_defects", "val", index), duration=seconds)

@@ -17,6 +17,7 @@ from vvtbench import generate as gen
 from vvtbench.cli import generate as cli_generate
 from vvtbench.render.camera import Camera
 from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
+from vvtbench.scenes_resolve import resolve_scenes, with_overrides
 from vvtbench.video import VideoWriter, concat_videos, probe_video, read_frames
 
 TINY = {
@@ -309,7 +310,7 @@ def _stream_pix_fmt(path: Path) -> str:
 @pytest.mark.parametrize("bits", [8, 12, 16])
 def test_lossless_video_holds_lsb_aligned_dn(bits, tmp_path):
     """Every lossless bit depth is gray16le with DN in [0, 2^bits - 1], decoded bit-exactly."""
-    scene = gen.with_overrides(tiny_scene(bit_depth=bits), frames=6)
+    scene = with_overrides(tiny_scene(bit_depth=bits), frames=6)
     s = ds.open_sample(gen.generate(scene, tmp_path, progress=False))
     dn_max = 2**bits - 1
     assert s.info["video"]["pixel_format"] == "gray16le" == _stream_pix_fmt(s.video_path)
@@ -325,7 +326,7 @@ def test_lossless_video_holds_lsb_aligned_dn(bits, tmp_path):
 
 
 def test_video_pixel_format_mismatch_is_an_error(tmp_path):
-    scene = gen.with_overrides(tiny_scene(), frames=2)
+    scene = with_overrides(tiny_scene(), frames=2)
     path = gen.generate(scene, tmp_path, progress=False)
     with VideoWriter(path / "video.mkv", 64, 64, capture_fps=2000.0, pix_fmt="gray") as w:
         w.write(np.full((64, 64), 200, np.uint8))
@@ -340,7 +341,7 @@ def test_motion_scale_scales_image_motion_linearly(tmp_path):
     from the rest frame inside the object doubles; the physical displacements do not change."""
     out = []
     for scale in (0.02, 0.04):
-        scene = gen.with_overrides(tiny_scene(motion_scale=scale), frames=4)
+        scene = with_overrides(tiny_scene(motion_scale=scale), frames=4)
         out.append(ds.open_sample(gen.generate(scene, tmp_path / str(scale), progress=False)))
     a, b = out
     np.testing.assert_array_equal(a["transient/displacements"], b["transient/displacements"])
@@ -432,7 +433,7 @@ def test_cli_suite_with_overrides(tmp_path, capsys):
 
 def test_bad_input_gives_clear_errors(tmp_path, capsys):
     with pytest.raises(SceneError, match="no such scene file"):
-        gen.resolve_scenes("no_such_scene_xyz")
+        resolve_scenes("no_such_scene_xyz")
     assert cli_generate.main(["no_such_scene_xyz", "-o", str(tmp_path), "--no-progress"]) == 2
     assert "no such scene file" in capsys.readouterr().err
     blocker = tmp_path / "a_file"
@@ -442,7 +443,7 @@ def test_bad_input_gives_clear_errors(tmp_path, capsys):
     bad_suite = tmp_path / "suite.toml"
     bad_suite.write_text("scenes = [1, 2]\n")
     with pytest.raises(SceneError, match="list of scene names"):
-        gen.resolve_scenes(bad_suite)
+        resolve_scenes(bad_suite)
 
 
 # --------------------------------------------------------------------------- shipped scenes

@@ -12,8 +12,8 @@ import pytest
 
 from vvtbench import families as fam
 from vvtbench.cli import generate as cli_generate
-from vvtbench.generate import resolve_scenes
 from vvtbench.scene import parse_scene
+from vvtbench.scenes_resolve import resolve_scenes
 from vvtbench.simulate import build_mesh, load_nodes, material_fields
 
 SHIPPED = ("cube_defects", "bunny_defects", "drum_defects")

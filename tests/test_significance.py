@@ -23,7 +23,8 @@ from vvtbench.extraction_scores import (  # noqa: E402
     subspace_mac,
 )
 from vvtbench.modes import ModeSet, extract_modes, modes_from_displacements  # noqa: E402
-from vvtbench.modes.peaks import noise_floor, pick_peaks  # noqa: E402
+from vvtbench.modes.peaks import pick_peaks  # noqa: E402
+from vvtbench.modes.significance import noise_floor  # noqa: E402
 
 
 # --------------------------------------------------------------------------- noise floor

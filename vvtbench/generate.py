@@ -17,6 +17,9 @@ Properties
   rerun with the same scene and options continues after the last finished segment.
 * Reproducible: the same scene (and seed) gives byte-identical files (ffmpeg bit-exact flags,
   no timestamps, per-frame seeded noise).
+
+Scene specs and overrides: :mod:`vvtbench.scenes_resolve`; worker jobs and progress:
+:mod:`vvtbench.generate_jobs`; the sensor noise model: :mod:`vvtbench.sensor`.
 """
 
 from __future__ import annotations
@@ -27,8 +30,6 @@ import json
 import math
 import os
 import shutil
-import tomllib
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,29 +38,22 @@ import numpy as np
 
 from ._version import __version__
 from .dataset import FORMAT_VERSION, DatasetError, sha256_file
+from .generate_jobs import ProgressCallback, StageProgress
 from .io import write_json
 from .observe import default_voxel_shape
-from .scene import SCENES_DIR, Scene, SceneError, find_scene, load_scene, parse_scene
+from .scene import Scene, load_scene
+from .sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
 from .video import PLAYBACK_FPS, VideoWriter, concat_videos
 
 __all__ = [
     "FULL_WELL_ELECTRONS",
     "generate",
-    "generate_instance",
     "mode_vectors_3d",
     "n_video_frames",
-    "resolve_scenes",
     "scene_renderer",
     "sensor_dn",
     "surface_geometry",
-    "with_overrides",
 ]
-
-#: Default full-well capacity (electrons) of the simulated sensor, used by shot noise.
-FULL_WELL_ELECTRONS = 10000.0
-_NOISE_STREAM = 0x5EED_0001
-
-ProgressCallback = Callable[[str, int, int], None]
 
 
 # --------------------------------------------------------------------------- small helpers
@@ -72,171 +66,6 @@ def _as_scene(scene: Scene | str | Path) -> Scene:
         return scene
     return load_scene(scene)
 
-
-def with_overrides(
-    scene: Scene,
-    *,
-    frames: int | None = None,
-    duration: float | None = None,
-    resolution: tuple[int, int] | None = None,
-) -> Scene:
-    """The scene with a different length (frames or seconds) or resolution (height, width)."""
-    if frames is not None and duration is not None:
-        raise SceneError("give either frames or duration, not both")
-    data = scene.to_toml_dict()
-    if frames is not None:
-        if frames < 1:
-            raise SceneError(f"frames must be >= 1, got {frames}")
-        data["simulation"]["duration"] = frames / scene.simulation.fps
-    if duration is not None:
-        data["simulation"]["duration"] = float(duration)
-    if resolution is not None:
-        data["camera"]["resolution"] = [int(resolution[0]), int(resolution[1])]
-    return parse_scene(data, scene.source or scene.name)
-
-
-def resolve_scenes(spec: str | Path) -> list[Scene]:
-    """Scenes named by a scene path or name, a folder of scene TOMLs, or a suite (a TOML with
-    ``scenes = ["name", ...]`` or ``[[tracks]]``, or a shipped suite name).
-
-    A suite's scenes come with its ``[defaults]`` and variation scene overrides applied and
-    its seeds set, as ``vvtbench run`` generates them (``vvtbench.bench.apply_overrides``).
-    When one scene resolves to several different scenes (variations, seeds), each gets a
-    ``-`` and an 8-digit content hash after its name."""
-    p = Path(spec)
-    if p.is_dir():
-        files = sorted(p.glob("*.toml"))
-        if not files:
-            raise SceneError(f"{p}: folder holds no scene files (*.toml)")
-        return [s for f in files for s in resolve_scenes(f)]
-    if p.is_file() or (SCENES_DIR / "suites" / f"{spec}.toml").is_file():
-        if not p.is_file():
-            p = SCENES_DIR / "suites" / f"{spec}.toml"
-        try:
-            data = tomllib.loads(p.read_text())
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
-            raise SceneError(f"{p}: not valid TOML: {error}") from None
-        if ("scenes" in data or "tracks" in data) and "geometry" not in data:
-            names = data.get("scenes", [])
-            if not isinstance(names, list) or not all(isinstance(n, str) for n in _flat(names)):
-                raise SceneError(f"{p}: key 'scenes' must be a list of scene names or paths")
-            return _suite_scenes(p)
-        return [load_scene(p)]
-    return [load_scene(find_scene(spec))]
-
-
-def _flat(items: list) -> list:
-    """Scene references of a suite's ``scenes`` (a nested list is one object's videos)."""
-    return [x for item in items for x in (item if isinstance(item, list) else [item])]
-
-
-def _suite_scenes(path: Path) -> list[Scene]:
-    """The distinct scenes a suite generates: its defaults, variation overrides and seeds
-    applied (the runner's ``_resolve_scene``, read-only use of the bench package)."""
-    from .bench.suite import SuiteError, apply_overrides, load_suite, scene_ref
-
-    try:
-        suite = load_suite(path)
-    except SuiteError as error:
-        raise SceneError(str(error)) from None
-    resolved: dict[str, list[dict]] = {}
-    for track in suite.tracks:
-        for group in track.scenes:
-            for ref in group:
-                base = load_scene(scene_ref(ref, suite.source))
-                for var in track.variations:
-                    for seed in track.seeds:
-                        data = apply_overrides(base.to_toml_dict(),
-                                               {**var.scene_overrides, "seed": seed})
-                        parsed = parse_scene(data, f"{base.source} (suite {suite.name} "
-                                             "overrides)").to_toml_dict()
-                        bucket = resolved.setdefault(parsed["name"], [])
-                        if parsed not in bucket:
-                            bucket.append(parsed)
-    out = []
-    for name, variants in resolved.items():
-        for data in variants:
-            if len(variants) > 1:
-                tag = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:8]
-                data = {**data, "name": f"{name}-{tag}"}
-            out.append(parse_scene(data, f"{name} (suite {suite.name})"))
-    return out
-
-
-class _Progress:
-    """Per-stage progress bars (rich) plus an optional callback(stage, done, total)."""
-
-    def __init__(self, enabled: bool, callback: ProgressCallback | None, label: str) -> None:
-        self.callback = callback
-        self.bar = None
-        self.label = label
-        if enabled:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self.bar = Progress(
-                TextColumn("{task.description:<28}"), BarColumn(), MofNCompleteColumn(),
-                TimeElapsedColumn(), TimeRemainingColumn(), transient=False,
-            )
-            self.bar.start()
-        self._task = None
-        self._stage = ""
-        self._total = 0
-        self._done = 0
-
-    def stage(self, name: str, total: int, done: int = 0) -> None:
-        self._stage, self._total, self._done = name, max(int(total), 1), int(done)
-        if self.bar is not None:
-            self._task = self.bar.add_task(f"{self.label} {name}", total=self._total,
-                                           completed=self._done)
-        self._report()
-
-    def advance(self, n: int = 1) -> None:
-        self._done += n
-        if self.bar is not None and self._task is not None:
-            self.bar.update(self._task, completed=self._done)
-        self._report()
-
-    def _report(self) -> None:
-        if self.callback is not None:
-            self.callback(self._stage, self._done, self._total)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()
-            self.bar = None
-
-
-# --------------------------------------------------------------------------- camera model
-def _noise_rng(seed: int, frame: int) -> np.random.Generator:
-    return np.random.default_rng([int(seed) & 0xFFFFFFFF, _NOISE_STREAM, int(frame)])
-
-
-def sensor_dn(
-    subframes: np.ndarray, bit_depth: int, read_noise_dn: float, shot_noise: bool,
-    full_well: float, rng: np.random.Generator | None,
-) -> np.ndarray:
-    """Average sub-frame intensities in [0, 1] (each with its own noise) into one frame of DN.
-
-    Per sub-frame: electrons = I * full_well, Poisson when ``shot_noise``; DN = electrons *
-    (2^bits - 1) / full_well + N(0, read_noise_dn^2). The sub-frames are averaged, then rounded
-    and clipped to [0, 2^bits - 1].
-    """
-    dn_max = float(2**bit_depth - 1)
-    x = np.asarray(subframes, dtype=np.float64)
-    if shot_noise:
-        x = rng.poisson(np.clip(x, 0.0, None) * full_well) / full_well
-    x = x * dn_max
-    if read_noise_dn > 0:
-        x = x + rng.normal(0.0, read_noise_dn, size=x.shape)
-    frame = x[0] if x.shape[0] == 1 else x.mean(axis=0)  # the mean of one is itself, bit-exact
-    return np.clip(np.rint(frame), 0, dn_max).astype(np.uint16)
 
 # --------------------------------------------------------------------------- truth helpers
 def surface_geometry(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -435,7 +264,7 @@ def generate(
         (partial / "segments").mkdir(parents=True)
         state = {"fingerprint": fingerprint, "segments_done": 0}
         _write_json_sorted(checkpoint, state)
-    bar = _Progress(progress, callback, scene.name)
+    bar = StageProgress(progress, callback, scene.name)
     try:
         _generate_into(scene, scene_text, partial, opts, state, checkpoint, bar)
     finally:
@@ -459,64 +288,6 @@ def generate(
     return final
 
 
-def generate_instance(job: dict) -> dict:
-    """Generate one sample for a worker process (a local pool or Dask); never raises.
-
-    ``job``: ``out`` (folder), ``options`` (keyword arguments of :func:`generate`), and
-    either ``scene`` (a resolved scene dict) or ``family`` (a family file path or name),
-    ``split`` and ``index``; optional ``overrides`` (``frames``, ``duration``,
-    ``resolution`` of :func:`with_overrides`), ``threads`` (BLAS threads, e.g. 1 per worker)
-    and ``overwrite``. A complete sample already in ``out`` (its ``manifest.json`` exists) is
-    skipped. Returns ``{"name", "path", "status": "done" | "skipped" | "error", "seconds",
-    "cpu_seconds", "error"}``; ``cpu_seconds`` counts this process (every thread, e.g. the
-    software rasterizer's) and the child processes it waited for (ffmpeg).
-    """
-    import resource
-    import time
-
-    def cpu() -> float:
-        c = resource.getrusage(resource.RUSAGE_CHILDREN)
-        return time.process_time() + c.ru_utime + c.ru_stime
-
-    t0, c0 = time.perf_counter(), cpu()
-    out = Path(job["out"])
-    name = job.get("name") or (job["scene"]["name"] if "scene" in job else None)
-    try:
-        limiter = None
-        if job.get("threads"):
-            from threadpoolctl import threadpool_limits
-
-            limiter = threadpool_limits(int(job["threads"]))
-        try:
-            if name is not None and (out / name / "manifest.json").is_file() and not job.get(
-                    "overwrite"):
-                return {"name": name, "path": str(out / name), "status": "skipped",
-                        "seconds": time.perf_counter() - t0, "error": None}
-            extra = None
-            if "scene" in job:
-                scene = parse_scene(job["scene"], job.get("source", job["scene"]["name"]))
-            else:
-                from .families import draw, family_info
-
-                scene = draw(job["family"], job["split"], int(job["index"]))
-                extra = {"family.json": family_info(job["family"], job["split"],
-                                                    int(job["index"]))}
-            scene = with_overrides(scene, **(job.get("overrides") or {}))
-            name = scene.name
-            path = generate(scene, out, overwrite=bool(job.get("overwrite")), extra_json=extra,
-                            **(job.get("options") or {}))
-        finally:
-            if limiter is not None:
-                limiter.restore_original_limits()
-    except (SceneError, DatasetError) as error:
-        return {"name": name, "path": None, "status": "error", "input_error": True,
-                "seconds": time.perf_counter() - t0, "error": str(error)}
-    except Exception as error:  # a worker reports, the run goes on
-        return {"name": name, "path": None, "status": "error",
-                "seconds": time.perf_counter() - t0,
-                "error": f"{type(error).__name__}: {error}"}
-    return {"name": name, "path": str(path), "status": "done",
-            "seconds": time.perf_counter() - t0, "cpu_seconds": cpu() - c0, "error": None}
 
 
 def _load_checkpoint(checkpoint: Path, fingerprint: str) -> dict | None:
@@ -589,7 +360,7 @@ class _Context:
 
 
 def _generate_into(scene: Scene, scene_text: str, work: Path, opts: _Options, state: dict,
-                   checkpoint: Path, bar: _Progress) -> None:
+                   checkpoint: Path, bar: StageProgress) -> None:
     (work / "scene.toml").write_text(scene_text)
     ctx = _simulate(scene, work, opts, bar)
     renderer = scene_renderer(scene, ctx.rest, ctx.tris)
@@ -606,7 +377,7 @@ def _generate_into(scene: Scene, scene_text: str, work: Path, opts: _Options, st
             _preview(ctx, renderer, work / "preview.mp4", truth["peak_px"], bar)
 
 
-def _simulate(scene: Scene, work: Path, opts: _Options, bar: _Progress) -> _Context:
+def _simulate(scene: Scene, work: Path, opts: _Options, bar: StageProgress) -> _Context:
     """Simulate (modes; the transient at fps * frame_average only when filming)."""
     from .render import Camera
     from .simulate import simulate
@@ -630,7 +401,7 @@ def _simulate(scene: Scene, work: Path, opts: _Options, bar: _Progress) -> _Cont
 
 
 def _render_video(ctx: _Context, renderer, state: dict, checkpoint: Path,
-                  bar: _Progress) -> None:
+                  bar: StageProgress) -> None:
     """Render, quantize and encode the video in checkpointed segments, then join them."""
     scene, opts, result, A = ctx.scene, ctx.opts, ctx.result, ctx.frame_average
     rs = scene.render
@@ -653,7 +424,7 @@ def _render_video(ctx: _Context, renderer, state: dict, checkpoint: Path,
                 for k in range(k0, k1):
                     subs = np.stack([renderer.render(rs.motion_scale * u[(k - k0) * A + j])
                                      for j in range(A)])
-                    rng = _noise_rng(scene.seed, k) if noisy else None
+                    rng = noise_rng(scene.seed, k) if noisy else None
                     writer.write(sensor_dn(subs, ctx.bit_depth, rs.read_noise_dn,
                                            rs.shot_noise, opts.full_well, rng))
                     bar.advance()
@@ -681,7 +452,7 @@ def _rest_views(ctx: _Context, renderer) -> dict:
     return {"rest": rest_img, "depth": depth, "visible": visible}
 
 
-def _write_truth(ctx: _Context, view: dict, bar: _Progress) -> dict:
+def _write_truth(ctx: _Context, view: dict, bar: StageProgress) -> dict:
     """Write ``truth.zarr``; returns the numbers ``truth.json`` reports."""
     import zarr
 
@@ -851,7 +622,7 @@ def _write_info(ctx: _Context, truth: dict) -> None:
     _write_json_sorted(ctx.work / "camera.json", cam)
 
 
-def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: _Progress) -> None:
+def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: StageProgress) -> None:
     """A short H.264 clip with the motion magnified to ``PREVIEW_PEAK_PX`` (8 px) peak.
 
     The rest render is warped by the magnified *image-space* displacement ``J u`` (the

@@ -75,8 +75,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 def _jobs(args: argparse.Namespace) -> list[dict]:
     from ..families import is_family, load_family
-    from ..generate import resolve_scenes, with_overrides
     from ..scene import SceneError
+    from ..scenes_resolve import resolve_scenes, with_overrides
 
     overrides = {"frames": args.frames, "duration": args.duration,
                  "resolution": args.resolution}
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _execute(jobs: list[dict], workers: int, scheduler: str | None):
     """Yield each job's result as it finishes (in process, a local pool, or Dask)."""
-    from ..generate import generate_instance
+    from ..generate_jobs import generate_instance
 
     if scheduler is None and workers == 1:
         for job in jobs:

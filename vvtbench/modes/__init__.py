@@ -3,19 +3,13 @@
 See ``docs/modes.md`` for the pipeline and the file format.
 """
 
+from ..mac import mac
 from ..video import open_video
+from .damping import damping_half_power, damping_lorentzian
 from .extract import confidence_weights, extract_modes, modes_from_displacements
+from .merging import merge_modes
 from .modeset import ModeSet, merge_modesets
-from .peaks import (
-    align_phase,
-    check_band,
-    damping_half_power,
-    damping_lorentzian,
-    mac,
-    merge_modes,
-    pick_peaks,
-    translation_mac,
-)
+from .peaks import align_phase, check_band, pick_peaks, translation_mac
 from .sampling import (
     camera_from_clicks,
     estimate_camera,

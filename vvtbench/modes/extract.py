@@ -22,12 +22,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..motion.phase import upsample_periodic
 from ..video import average_frames, open_video
+from .damping import damping_half_power, damping_lorentzian
 from .modeset import ModeSet
 from .peaks import (
     align_phase,
     check_band,
-    damping_half_power,
-    damping_lorentzian,
     distortion_products,
     pick_peaks,
     refine_frequency,
@@ -108,8 +107,8 @@ def modes_from_displacements(
         Temporal taper before the FFT (:mod:`.spectrum`): Hann keeps the leakage of strong
         undamped modes (sidelobes ~ 1/k with "none") from masking weak modes and from
         contaminating their shapes; peaks are about 2 bins wide instead of 1.  Damping is
-        fitted with the exact response of the window used (:func:`peaks.damping_lorentzian`,
-        :func:`peaks.damping_half_power`).
+        fitted with the exact response of the window used (:func:`damping.damping_lorentzian`,
+        :func:`damping.damping_half_power`).
     shake_threshold : float, default 0.9
         A peak with translation MAC above it is flagged ``camera_shake``.
     keep_camera_shake : bool, default False
@@ -139,7 +138,7 @@ def modes_from_displacements(
         shapes and amplitudes refer to full-resolution pixels.  ``weights`` stay on the grid.
     false_alarm : float or None, default 0.01
         Peak significance: a peak must stand above the spectrum's noise floor
-        (:func:`peaks.noise_floor`, a running median and a fitted chi-square law) by the
+        (:func:`significance.noise_floor`, a running median and a fitted chi-square law) by the
         factor for which pure noise yields a false peak anywhere in the band with at most
         this probability; ``None`` turns the test off.  See docs/modes.md.
     floor_half_width_bins : int, default 32

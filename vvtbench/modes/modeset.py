@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .peaks import merge_modes
+from .merging import merge_modes
 
 __all__ = ["FORMAT_VERSION", "ModeSet", "merge_modesets"]
 
@@ -231,7 +231,7 @@ def _json_default(o: Any) -> Any:
 
 
 def merge_modesets(sets: list[ModeSet], *, freq_tol: float = 0.02, min_mac: float = 0.8) -> ModeSet:
-    """Merge the modes of several videos of the same view (see :func:`peaks.merge_modes`).
+    """Merge the modes of several videos of the same view (see :func:`merging.merge_modes`).
 
     Duplicates (frequency within ``freq_tol`` relative, MAC >= ``min_mac``) are averaged
     with amplitude weights after sign alignment; ``metadata["n_sources"]`` gives, per merged

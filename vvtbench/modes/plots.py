@@ -23,7 +23,7 @@ def _plt():
 
 def _floor(ms: ModeSet):
     """The noise floor model the peaks were tested against (recomputed from the power)."""
-    from .peaks import noise_floor
+    from .significance import noise_floor
 
     nf = ms.metadata.get("noise_floor")
     band = ms.metadata.get("band_hz")
