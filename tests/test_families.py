@@ -275,7 +275,7 @@ def test_generate_family_on_a_dask_cluster(tiny, tmp_path):
              "threads": 1} for i in range(2)]
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
-        results = list(cli_generate._execute(jobs, 1, cluster))
+        results = list(cli_generate.execute_jobs(jobs, 1, cluster))
     assert sorted(r["status"] for r in results) == ["done", "done"]
     assert all((tmp_path / j["name"] / "family.json").is_file() for j in jobs)
 

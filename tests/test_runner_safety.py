@@ -371,8 +371,10 @@ def test_check_results_accepts_true_only_and_rejects_tampered(tiny, tmp_path):
         lambda d: d.assign(seed="zero"))
     assert "column 'nc_w': type str (allowed: float" in problems(
         lambda d: d.assign(nc_w="high"), ".parquet")
-    assert "column 'nc_w', row 0: rows with status 'ok' need a finite number" in problems(
-        lambda d: d.assign(nc_w=np.nan))
+    assert "columns 'nc_w'/'false_contrast_w', row 0: rows with status 'ok' need exactly " \
+        "one of them" in problems(lambda d: d.assign(nc_w=np.nan))
+    assert "columns 'nc_v'/'false_contrast_v', row 0" in problems(
+        lambda d: d.assign(false_contrast_v=0.1))
     assert "column 'runtime_s', row 0: rows with status 'ok' need a finite number" in \
         problems(lambda d: d.assign(runtime_s=np.inf), ".parquet")
     assert "row 1: duplicate of an earlier row" in problems(lambda d: pd.concat([d, d]))

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from ._version import __version__
+from .dataset import sha256_file
 from .packed import FORMAT, FORMAT_VERSION
 
 __all__ = ["LICENCE", "LICENSE_URL", "croissant", "dataset_card", "sample_revision"]
@@ -93,14 +94,6 @@ machine (see docs/dataset.md, "Reproducible").
 {LICENCE.format(version=__version__)}"""
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
               source: str) -> dict:
     """A Croissant 1.0 JSON-LD description of the dataset written at ``partial`` (to be
@@ -128,7 +121,7 @@ def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
              "description": "root metadata of the Zarr v3 store (consolidated: it lists every "
                             "array, its dimension names and attributes)",
              "contentUrl": "zarr.json", "encodingFormat": "application/json",
-             "sha256": _sha256_file(meta)},
+             "sha256": sha256_file(meta)},
             {"@type": "cr:FileSet", "@id": "zarr-store", "name": "zarr-store",
              "description": "every group, array and chunk of the Zarr v3 store",
              "encodingFormat": "application/x-zarr", "includes": "samples/**"},
@@ -138,7 +131,7 @@ def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
         dist = [{"@type": "cr:FileObject", "@id": out.name, "name": out.name,
                  "description": "HDF5 file (netCDF-4 style dimension scales)",
                  "contentUrl": out.name, "encodingFormat": "application/x-hdf5",
-                 "sha256": _sha256_file(partial)}]
+                 "sha256": sha256_file(partial)}]
         src = {"fileObject": {"@id": out.name}}
 
     def field(fid: str, path: str, dtype: str, desc: str) -> dict:

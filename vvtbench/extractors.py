@@ -11,11 +11,7 @@ can be named directly as ``path/to/file.py:ClassName``.  Shipped: ``phase`` (def
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import importlib.util
-import sys
 from importlib.metadata import entry_points
-from pathlib import Path
 from typing import Any
 
 from .plugins import PluginError, config_from_mapping, describe_config
@@ -53,30 +49,9 @@ def validate_extractor_class(cls: Any, where: str = "") -> Any:
 
 
 def _import(target: str) -> Any:
-    module, _, attr = target.partition(":")
-    if not attr:
-        raise PluginError(f"{target!r}: expected 'module:Class' or 'path/to/file.py:Class'")
-    if module.endswith(".py") or "/" in module or "\\" in module:
-        path = Path(module)
-        if not path.is_file():
-            raise PluginError(f"{path}: extractor file not found")
-        name = f"vvtbench_extractor_{path.stem}_{abs(hash(str(path.resolve()))) % 10**8}"
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        try:
-            spec.loader.exec_module(mod)
-        except Exception as error:
-            raise PluginError(f"{path}: error while importing: {error}") from error
-    else:
-        try:
-            mod = importlib.import_module(module)
-        except ImportError as error:
-            raise PluginError(f"{module}: cannot import: {error}") from error
-    if not hasattr(mod, attr):
-        raise PluginError(f"{module} has no attribute {attr!r}")
-    return validate_extractor_class(getattr(mod, attr), target)
+    from .plugins import import_target
 
+    return validate_extractor_class(import_target(target, "extractor"), target)
 
 def _registry() -> dict[str, str]:
     found = dict(BUILTIN)

@@ -48,15 +48,17 @@ class PluginError(ValueError):
     """A solver cannot be found, loaded or configured; the message says what is allowed."""
 
 
-def _import(target: str):
+def import_target(target: str, kind: str = "solver"):
+    """The object ``target`` names: ``module:Attr`` or ``path/to/file.py:Attr`` (a file is
+    imported as a module of its own); ``kind`` names it in errors."""
     module, _, attr = target.partition(":")
     if not attr:
         raise PluginError(f"{target!r}: expected 'module:Class' or 'path/to/file.py:Class'")
     if module.endswith(".py") or "/" in module or "\\" in module:
         path = Path(module)
         if not path.is_file():
-            raise PluginError(f"{path}: solver file not found")
-        mod_name = f"vvtbench_plugin_{path.stem}_{abs(hash(str(path.resolve()))) % 10**8}"
+            raise PluginError(f"{path}: {kind} file not found")
+        mod_name = f"vvtbench_{kind}_{path.stem}_{abs(hash(str(path.resolve()))) % 10**8}"
         spec = importlib.util.spec_from_file_location(mod_name, path)
         mod = importlib.util.module_from_spec(spec)
         sys.modules[mod_name] = mod
@@ -70,10 +72,14 @@ def _import(target: str):
         except ImportError as error:
             raise PluginError(f"{module}: cannot import: {error}") from error
     if not hasattr(mod, attr):
-        classes = [k for k, v in vars(mod).items() if isinstance(v, type) and hasattr(v, "solve")]
-        raise PluginError(f"{module} has no attribute {attr!r}; solver classes there: "
+        classes = [k for k, v in vars(mod).items() if isinstance(v, type)]
+        raise PluginError(f"{module} has no attribute {attr!r}; classes there: "
                           f"{', '.join(classes) or 'none'}")
-    return validate_solver_class(getattr(mod, attr), target)
+    return getattr(mod, attr)
+
+
+def _import(target: str):
+    return validate_solver_class(import_target(target, "solver"), target)
 
 
 def validate_solver_class(cls, where: str = ""):

@@ -3,7 +3,6 @@ which runs one task into the cache atomically."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
+from ..dataset import sha256_file
 from ..io import jsonable, write_json, write_npz, write_text
 from .graph import Task
 
@@ -157,16 +157,8 @@ def file_hashes(folder: Path) -> dict[str, str]:
     out = {}
     for f in sorted(folder.rglob("*")):
         if f.is_file() and f.name != "task.json":
-            out[f.relative_to(folder).as_posix()] = _sha256(f)
+            out[f.relative_to(folder).as_posix()] = sha256_file(f)
     return out
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def verify_cached(folder: Path, info: dict) -> str | None:
@@ -179,7 +171,7 @@ def verify_cached(folder: Path, info: dict) -> str | None:
         f = folder / rel
         if not f.is_file():
             return f"{rel}: deleted"
-        if _sha256(f) != digest:
+        if sha256_file(f) != digest:
             return f"{rel}: sha256 mismatch (edited or truncated)"
     return None
 

@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         for job in jobs:
             job["threads"] = 1
     failed = bad_input = 0
-    for res in _execute(jobs, args.workers, args.scheduler):
+    for res in execute_jobs(jobs, args.workers, args.scheduler):
         if res["status"] == "error":
             failed += 1
             bad_input += bool(res.get("input_error"))
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _execute(jobs: list[dict], workers: int, scheduler: str | None):
+def execute_jobs(jobs: list[dict], workers: int, scheduler: str | None):
     """Yield each job's result as it finishes (in process, a local pool, or Dask)."""
     from ..generate_jobs import generate_instance
 
