@@ -174,7 +174,9 @@ class ModeSet:
         arrays = {name: getattr(self, name) for name in (*_PER_MODE, "shapes", "freqs_hz", "power")}
         if self.confidence is not None:
             arrays["confidence"] = self.confidence
-        np.savez(d / "modes.npz", **arrays)
+        from ..io import write_npz, write_text
+
+        write_npz(d / "modes.npz", arrays, compressed=False)
         doc = {
             "format": "vvtbench.modes",
             "version": FORMAT_VERSION,
@@ -185,7 +187,7 @@ class ModeSet:
             "modes": self.summary(),
             "metadata": self.metadata,
         }
-        (d / "modes.json").write_text(json.dumps(doc, indent=2, default=_json_default) + "\n")
+        write_text(d / "modes.json", json.dumps(doc, indent=2, default=_json_default) + "\n")
         return d
 
     @classmethod
