@@ -160,7 +160,9 @@ class VideoInfo:
 
     @property
     def n_frames(self) -> int | None:
-        """Frame count estimated from duration x container rate (exact for our videos)."""
+        """Frame count estimated from duration x container rate: ffmpeg prints the duration
+        to 10 ms, so at high frame rates this may be off by a few frames (count_frames is
+        exact)."""
         if self.duration and self.container_rate:
             return int(round(self.duration * float(self.container_rate)))
         return None
