@@ -73,6 +73,14 @@ def _fail(message: str | BaseException) -> int:
     return 2
 
 
+def _field_score(metrics: dict, field: str) -> str:
+    """``NC w 0.412``, or the false contrast where the truth is constant (NC undefined)."""
+    nc = metrics.get(f"nc_{field}")
+    if nc is not None:
+        return f"NC {field} {nc:.3f}"
+    return f"{field}: constant truth, false contrast {metrics[f'false_contrast_{field}']:.3f}"
+
+
 def _check_output(out: Path, target: Path) -> str | None:
     """The output folder may not be a file, nor the target sample or inside it."""
     if out.exists() and not out.is_dir():
@@ -179,7 +187,7 @@ def main_solve(argv: list[str] | None = None) -> int:
     plot_fields(out / "slices.png", problem, {cls.name: (estimate.w, estimate.v)}, truth)
     m = ev["metrics"]
     score = (f"invalid estimate ({ev['invalid']}), not scored" if ev.get("invalid") else
-             f"NC w {m['nc_w']:.3f}, v {m['nc_v']:.3f}")
+             ", ".join(_field_score(m, f) for f in "wv"))
     print(f"{cls.name} on {target} ({observation} modes, {problem.n_modes}): "
           f"{len(estimate.history)} iterations, {estimate.runtime_s:.2f} s; {score} -> {out}")
     return 0
