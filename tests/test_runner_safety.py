@@ -408,7 +408,8 @@ def test_ctrl_c_stops_cleanly(tiny, tmp_path, workers):
     proc = subprocess.Popen([sys.executable, "-m", "vvtbench.cli", "run", str(suite), "-o",
                              str(out), "--solvers", f"homogeneous,{plugin}:Sleep", "--workers",
                              workers], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
     try:
         _wait_for(tmp_path / "sleep.pid")
         child = int((tmp_path / "sleep.pid").read_text())
@@ -425,6 +426,13 @@ def test_ctrl_c_stops_cleanly(tiny, tmp_path, workers):
     assert "tasks finished" in lines[0] and f"vvtbench run {suite} -o {out}" in lines[0]
     assert not list((out / "cache").rglob("*.tmp-*"))
     assert _gone(child)
+
+
+def _default_sigint() -> None:
+    """A terminal's run starts with Ctrl-C at its default; a process started from this test
+    session would inherit an ignored SIGINT if anything in the session ignored it (Python then
+    installs no KeyboardInterrupt handler at all)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _gone(pid: int, timeout: float = 5.0) -> bool:
