@@ -52,8 +52,39 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
+class SampleView:
+    """What a sample reader derives from ``self.info`` (truth.json) and ``self[name]``: the
+    one definition shared by :class:`Sample` and :class:`vvtbench.packed.PackedSample`."""
+
+    info: dict
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.info["video"]["frames"])
+
+    @property
+    def fps(self) -> float:
+        return float(self.info["video"]["fps"])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.info["video"]["height"]), int(self.info["video"]["width"]))
+
+    @property
+    def bit_depth(self) -> int:
+        return int(self.info["video"]["bit_depth"])
+
+    @property
+    def frequencies_hz(self) -> np.ndarray:
+        return self["modes/frequencies_hz"]
+
+    @property
+    def damping_ratios(self) -> np.ndarray:
+        return self["modes/damping_ratios"]
+
+
 @dataclass
-class Sample:
+class Sample(SampleView):
     """A generated sample, opened lazily (see docs/dataset.md).
 
     ``sample["observation/jacobian"]`` reads a ground-truth array from ``truth.zarr``;
@@ -79,22 +110,6 @@ class Sample:
         return self.info["video"].get("file") is not None
 
     @property
-    def n_frames(self) -> int:
-        return int(self.info["video"]["frames"])
-
-    @property
-    def fps(self) -> float:
-        return float(self.info["video"]["fps"])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (int(self.info["video"]["height"]), int(self.info["video"]["width"]))
-
-    @property
-    def bit_depth(self) -> int:
-        return int(self.info["video"]["bit_depth"])
-
-    @property
     def video_path(self) -> Path:
         if not self.has_video:
             raise DatasetError(f"{self.path}: a modes-only sample has no video; generate it "
@@ -105,14 +120,6 @@ class Sample:
     def element(self) -> str:
         """Element type name of the simulation mesh (``truth.json`` ``mesh.element``)."""
         return str(self.info["mesh"]["element"])
-
-    @property
-    def frequencies_hz(self) -> np.ndarray:
-        return self["modes/frequencies_hz"]
-
-    @property
-    def damping_ratios(self) -> np.ndarray:
-        return self["modes/damping_ratios"]
 
     @property
     def times(self) -> np.ndarray:

@@ -11,10 +11,9 @@ can be named directly as ``path/to/file.py:ClassName``.  Shipped: ``phase`` (def
 from __future__ import annotations
 
 import dataclasses
-from importlib.metadata import entry_points
 from typing import Any
 
-from .plugins import PluginError, config_from_mapping, describe_config
+from .plugins import Kind, PluginError, config_from_mapping, describe_config
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -34,55 +33,22 @@ BUILTIN = {
 REQUIRED = ("name", "version", "description", "Config", "prepare")
 
 
+EXTRACTORS = Kind("extractor", ENTRY_POINT_GROUP, BUILTIN, REQUIRED)
+
+
 def validate_extractor_class(cls: Any, where: str = "") -> Any:
     """Check the extractor contract (attributes, Config dataclass with defaults); return cls."""
-    missing = [a for a in REQUIRED if not hasattr(cls, a)]
-    if missing:
-        raise PluginError(f"{where or cls}: not an extractor: missing {', '.join(missing)} "
-                          f"(an extractor needs {', '.join(REQUIRED)})")
-    if not dataclasses.is_dataclass(cls.Config):
-        raise PluginError(f"{where or cls}: Config must be a dataclass")
-    for f in dataclasses.fields(cls.Config):
-        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise PluginError(f"{where or cls}: Config field {f.name!r} has no default")
-    return cls
-
-
-def _import(target: str) -> Any:
-    from .plugins import import_target
-
-    return validate_extractor_class(import_target(target, "extractor"), target)
-
-def _registry() -> dict[str, str]:
-    found = dict(BUILTIN)
-    try:
-        for ep in entry_points(group=ENTRY_POINT_GROUP):
-            found[ep.name] = ep.value
-    except Exception:  # broken metadata must not hide the built-ins
-        pass
-    return found
+    return EXTRACTORS.validate(cls, where)
 
 
 def list_extractors() -> dict[str, type]:
     """name -> extractor class, for every registered extractor that imports cleanly."""
-    out = {}
-    for name, target in sorted(_registry().items()):
-        try:
-            out[name] = _import(target)
-        except PluginError:
-            continue
-    return out
+    return EXTRACTORS.list()
 
 
 def load_extractor(name_or_path: str) -> type:
     """An extractor class by registered name, ``module:Class`` or ``path/to/file.py:Class``."""
-    reg = _registry()
-    if name_or_path in reg:
-        return _import(reg[name_or_path])
-    if ":" in name_or_path:
-        return _import(name_or_path)
-    raise PluginError(f"unknown extractor {name_or_path!r}; registered: "
-                      f"{', '.join(sorted(reg))}; or give path/to/file.py:ClassName")
+    return EXTRACTORS.load(name_or_path)
 
 
 def make_extractor(spec: Any = "phase", config: Any = None) -> Any:

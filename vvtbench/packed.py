@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from .dataset import SampleView
+
 __all__ = ["ExportError", "FORMAT", "FORMAT_VERSION", "MODESET_ARRAYS", "PackedDataset",
            "PackedSample", "VIDEO_CHUNK", "open_dataset"]
 
@@ -50,7 +52,7 @@ def _text(v: Any) -> str:
     return v.decode() if isinstance(v, bytes) else str(v)
 
 
-class PackedSample:
+class PackedSample(SampleView):
     """One sample of a packed dataset, with the read interface of
     :class:`vvtbench.dataset.Sample`: ``scene`` (Scene), ``camera`` (Camera), ``info``
     (truth.json), ``manifest``, ``s["modes/frequencies_hz"]`` (a truth array by its
@@ -80,22 +82,6 @@ class PackedSample:
         return self.dataset_path
 
     @property
-    def n_frames(self) -> int:
-        return int(self.info["video"]["frames"])
-
-    @property
-    def fps(self) -> float:
-        return float(self.info["video"]["fps"])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return (int(self.info["video"]["height"]), int(self.info["video"]["width"]))
-
-    @property
-    def bit_depth(self) -> int:
-        return int(self.info["video"]["bit_depth"])
-
-    @property
     def has_video(self) -> bool:
         return "video" in self.group
 
@@ -103,14 +89,6 @@ class PackedSample:
     def video(self):
         """The lazy (time, row, col) video array (slice it)."""
         return self.group["video"]
-
-    @property
-    def frequencies_hz(self) -> np.ndarray:
-        return self["modes/frequencies_hz"]
-
-    @property
-    def damping_ratios(self) -> np.ndarray:
-        return self["modes/damping_ratios"]
 
     @property
     def times(self) -> np.ndarray:

@@ -78,54 +78,79 @@ def import_target(target: str, kind: str = "solver"):
     return getattr(mod, attr)
 
 
-def _import(target: str):
-    return validate_solver_class(import_target(target, "solver"), target)
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """A kind of plug-in: its entry-point group, shipped built-ins and required attributes."""
+
+    noun: str
+    group: str
+    builtin: dict
+    required: tuple[str, ...]
+
+    def validate(self, cls, where: str = ""):
+        """Check the contract (attributes, a Config dataclass whose fields have defaults);
+        return the class."""
+        missing = [a for a in self.required if not hasattr(cls, a)]
+        if missing:
+            raise PluginError(f"{where or cls}: not a {self.noun}: missing "
+                              f"{', '.join(missing)} (a {self.noun} needs "
+                              f"{', '.join(self.required)})")
+        if not dataclasses.is_dataclass(cls.Config):
+            raise PluginError(f"{where or cls}: Config must be a dataclass")
+        for f in dataclasses.fields(cls.Config):
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise PluginError(f"{where or cls}: Config field {f.name!r} has no default")
+        return cls
+
+    def registry(self) -> dict[str, str]:
+        found = dict(self.builtin)
+        try:
+            for ep in entry_points(group=self.group):
+                found[ep.name] = ep.value
+        except Exception:  # broken metadata must not hide the built-ins
+            pass
+        return found
+
+    def import_class(self, target: str):
+        return self.validate(import_target(target, self.noun), target)
+
+    def list(self) -> dict[str, type]:
+        """name -> class, for every registered plug-in that imports cleanly."""
+        out = {}
+        for name, target in sorted(self.registry().items()):
+            try:
+                out[name] = self.import_class(target)
+            except PluginError:
+                continue
+        return out
+
+    def load(self, name_or_path: str):
+        """A class by registered name, ``module:Class`` or ``path/to/file.py:Class``."""
+        reg = self.registry()
+        if name_or_path in reg:
+            return self.import_class(reg[name_or_path])
+        if ":" in name_or_path:
+            return self.import_class(name_or_path)
+        raise PluginError(f"unknown {self.noun} {name_or_path!r}; registered: "
+                          f"{', '.join(sorted(reg))}; or give path/to/file.py:ClassName")
+
+
+SOLVERS = Kind("solver", ENTRY_POINT_GROUP, BUILTIN, REQUIRED)
 
 
 def validate_solver_class(cls, where: str = ""):
-    """Check the plug-in contract; return the class."""
-    missing = [a for a in REQUIRED if not hasattr(cls, a)]
-    if missing:
-        raise PluginError(f"{where or cls}: not a solver: missing {', '.join(missing)} "
-                          f"(a solver needs {', '.join(REQUIRED)})")
-    if not dataclasses.is_dataclass(cls.Config):
-        raise PluginError(f"{where or cls}: Config must be a dataclass")
-    for f in dataclasses.fields(cls.Config):
-        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise PluginError(f"{where or cls}: Config field {f.name!r} has no default")
-    return cls
-
-
-def _registry() -> dict[str, str]:
-    found = dict(BUILTIN)
-    try:
-        for ep in entry_points(group=ENTRY_POINT_GROUP):
-            found[ep.name] = ep.value
-    except Exception:  # broken metadata must not hide the built-ins
-        pass
-    return found
+    """Check the solver contract; return the class."""
+    return SOLVERS.validate(cls, where)
 
 
 def list_solvers() -> dict[str, type]:
     """name -> solver class, for every registered solver that imports cleanly."""
-    out = {}
-    for name, target in sorted(_registry().items()):
-        try:
-            out[name] = _import(target)
-        except PluginError:
-            continue
-    return out
+    return SOLVERS.list()
 
 
 def load_solver(name_or_path: str):
     """A solver class by registered name, ``module:Class`` or ``path/to/file.py:Class``."""
-    reg = _registry()
-    if name_or_path in reg:
-        return _import(reg[name_or_path])
-    if ":" in name_or_path:
-        return _import(name_or_path)
-    raise PluginError(f"unknown solver {name_or_path!r}; registered: {', '.join(sorted(reg))}"
-                      "; or give path/to/file.py:ClassName")
+    return SOLVERS.load(name_or_path)
 
 
 def _base_types(tp) -> list[type]:
