@@ -228,8 +228,8 @@ class _Record:
     stiffness: np.ndarray
     density: np.ndarray
     depth: np.ndarray | None
-    video: Any = None            # (frames source, fps) for extraction, or None
-    packed_modes: list = field(default_factory=list)
+    video: Any = None            # () -> (frames source, fps), for extraction; or None
+    packed_modes: Any = None     # () -> mode sets packed with a dataset entry; or None
 
     @property
     def fixed_nodes(self) -> np.ndarray:
@@ -268,10 +268,11 @@ def _record_from_sample(sample: Any) -> _Record:
     has_video = getattr(sample, "has_video", None)
     if has_video is None:
         has_video = bool(info.get("video", {}).get("frames"))
-    if has_video:
+    if has_video:  # read only if modes are extracted here
         path = getattr(sample, "video_path", None)
-        video = (path, sample.fps) if path is not None else (sample.read_frames(), sample.fps)
-    packed = list(sample.extracted_modes()) if hasattr(sample, "extracted_modes") else []
+        video = ((lambda: (path, sample.fps)) if path is not None
+                 else (lambda: (sample.read_frames(), sample.fps)))
+    packed = getattr(sample, "extracted_modes", None)
     return _Record(
         origin=origin, scene=sample.scene, camera=sample.camera, mesh=mesh,
         free_dofs=_read(sample, "modes/free_dofs"),
@@ -518,12 +519,13 @@ def _modesets(rec: _Record, opts: ObserveOptions) -> list:
 
     if opts.modes:
         return [m if isinstance(m, ModeSet) else ModeSet.load(m) for m in opts.modes]
-    if rec.packed_modes:
-        return list(rec.packed_modes)
+    packed = list(rec.packed_modes()) if rec.packed_modes is not None else []
+    if packed:
+        return packed
     if rec.video is None:
         raise ObserveError(f"{rec.origin}: observation 'extracted' needs a video or extracted "
                            "modes (ObserveOptions.modes); this source has neither")
-    frames, fps = rec.video
+    frames, fps = rec.video()
     return [extract_modes(frames, fps, **opts.extract)]
 
 

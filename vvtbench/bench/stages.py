@@ -67,9 +67,12 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     sample, *extracted = task.deps
     if p["observation"] == "extracted":
         opts = opts.replace(modes=tuple(str(cache / k) for k in extracted))
-    problem, truth = observe(sample_path(cache, sample), opts)
+    from ..dataset import open_sample
+
+    opened = open_sample(sample_path(cache, sample))  # verified once, read twice
+    problem, truth = observe(opened, opts)
     if p["observation"] == "extracted":
-        truth.meta["extraction"] = extraction_scores(sample_path(cache, sample), opts.modes,
+        truth.meta["extraction"] = extraction_scores(opened, opts.modes,
                                                      (p.get("extract") or {}).get("fmax"))
     problem.save(out)
     truth.save(out)
@@ -81,14 +84,12 @@ EXTRACTION_KEYS = ("precision", "recall", "mean_rel_freq_error", "mean_abs_dampi
                    "mean_mac", "n_detected", "n_true_in_band")
 
 
-def extraction_scores(sample: Path, modes: tuple, fmax: float | None) -> dict:
-    """The extraction's detected modes scored against the sample's true ones
-    (:func:`vvtbench.extraction_scores.score_extraction`), pooled over the views."""
-    from ..dataset import open_sample
+def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:
+    """The extraction's detected modes scored against the true ones of the opened sample
+    ``s`` (:func:`vvtbench.extraction_scores.score_extraction`), pooled over the views."""
     from ..extraction_scores import score_extraction
     from ..modes import ModeSet
 
-    s = open_sample(sample)
     sets = [ModeSet.load(m) for m in modes]
     freqs = s.frequencies_hz
     band = float(fmax) if fmax else float(freqs.max())
