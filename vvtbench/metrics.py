@@ -88,11 +88,13 @@ def intrinsic_resolution(
             "sigmas": sigmas.tolist(), "nc": ncs.tolist()}
 
 
-def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10) -> dict:
+def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10, modes=None) -> dict:
     """Forward-solve K(w) phi = lam M(v) phi on the inference model (k + n_extra lowest modes),
     project with P and match to the observed gamma by MAC (Hungarian assignment, maximizing
-    the total MAC). Frequencies f = sqrt(lam)/2pi; the scale c = sqrt(s) minimizing
-    sum_i (c f_pred_i / f_obs_i - 1)^2 is c = sum r_i / sum r_i^2 with r_i = f_pred_i/f_obs_i."""
+    the total MAC); ``modes``, the forward model's modes if already computed (at least
+    k + n_extra of them), are reused. Frequencies f = sqrt(lam)/2pi; the scale c = sqrt(s)
+    minimizing sum_i (c f_pred_i / f_obs_i - 1)^2 is c = sum r_i / sum r_i^2 with
+    r_i = f_pred_i / f_obs_i."""
     from scipy.optimize import linear_sum_assignment
 
     from .fem.modal import eigenmodes
@@ -100,15 +102,17 @@ def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10) -> dict
     model = problem.model
     k = problem.n_modes
     n_pred = min(k + n_extra, model.n_free - 1)
-    modes = eigenmodes(model.K(w), model.M(v), n_pred)
-    pred = (problem.P @ modes.vectors).T  # (n_pred, 2 nv)
+    if modes is None or modes.vectors.shape[1] < n_pred:
+        modes = eigenmodes(model.K(w), model.M(v), n_pred)
+    vectors, f_model = modes.vectors[:, :n_pred], modes.frequencies_hz[:n_pred]
+    pred = (problem.P @ vectors).T  # (n_pred, 2 nv)
     mac = mac_matrix(problem.gamma, pred)  # (k, n_pred)
     rows, cols = linear_sum_assignment(-mac)
     order = np.argsort(rows)
     rows, cols = rows[order], cols[order]
     matched_mac = mac[rows, cols]
     f_obs = problem.frequencies_hz[rows]
-    f_pred = modes.frequencies_hz[cols]
+    f_pred = f_model[cols]
     ok = f_obs > 0
     r = f_pred[ok] / f_obs[ok]
     raw = np.abs(r - 1.0)
@@ -193,13 +197,20 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -
     if modes:
         from dataclasses import replace
 
+        from .fem.modal import eigenmodes
+
         k = min(len(truth.true_eigenvalues), max(problem.n_modes, 1))
         true_view = replace(problem, gamma=truth.image_modes[:k],
                             eigenvalues=truth.true_eigenvalues[:k])
+        forward = None  # the estimate's modes: one eigen-solve serves both matches
         for target, keys in ((problem, ("mode_mac", "freq_err_raw", "freq_err_scaled")),
                              (true_view, ("mode_mac_true", None, "freq_err_true_scaled"))):
             try:
-                mm = mode_match(target, w, v)
+                if forward is None:
+                    model = problem.model
+                    forward = eigenmodes(model.K(w), model.M(v),
+                                         min(max(problem.n_modes, k) + 10, model.n_free - 1))
+                mm = mode_match(target, w, v, modes=forward)
             except Exception as error:  # a forward model without modes: say so
                 notes.append(f"mode match not computed: {type(error).__name__}: {error}")
                 break
