@@ -55,11 +55,15 @@ def _table():
 
 
 def test_track_statistics_one_row_per_sweep_value_and_counts():
-    st = track_statistics(_table())
+    st = track_statistics(_table(), metrics=["nc_w"])
     assert len(st) == 3 * 2  # solvers x n_modes values: never averaged over n_modes
     a8 = st[(st.solver == "a") & (st.variation == "n_modes=8")].iloc[0]
-    assert a8.n == 5 and a8.invalid == 1 and a8.failed == 0
-    assert a8.nc_w_ci_low <= a8.nc_w_mean <= a8.nc_w_ci_high
+    assert a8.n == 5 and a8.nc_w_n == 5 and a8.invalid == 1 and a8.failed == 0
+    assert a8.runs == 6
+    assert a8.nc_w_mean_ci_low <= a8.nc_w_mean <= a8.nc_w_mean_ci_high
+    assert a8.nc_w_median_ci_low <= a8.nc_w_median <= a8.nc_w_median_ci_high
+    assert (a8.runtime_q25_s, a8.runtime_median_s, a8.runtime_q75_s) == (3.0, 4.0, 5.0)
+    assert (a8.runtime_min_s, a8.runtime_max_s) == (2.0, 6.0)
     assert bool(st[st.solver == "oracle"].reference.all())
 
 
