@@ -38,7 +38,7 @@ MEAN_COLUMNS = [("nc_at_sigma_star_w", "NC w @ σ*"), ("sigma_star_w", "σ* w (v
 UNDEFINED_NC_COLUMNS = [("false_contrast_w", "false contrast w (constant truth)"),
                         ("false_contrast_v", "false contrast v (constant truth)")]
 _OBS_ORDER = {"true": 0, "extracted": 1}
-_PCT = f"{LEVEL * 100:g} %"  # "95 %"
+_PCT = f"{LEVEL * 100:g}\u00a0%"  # "95 %" (no line break inside)
 
 LEGEND = (
     "Every statistic is over the instances (scene × seed) of one track, observation source "
