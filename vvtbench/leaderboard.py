@@ -2,12 +2,17 @@
 
 Writes into the output folder (default ``leaderboard/``): ``README.md`` and ``index.html`` (a
 summary, then per track in the order of the suite (first appearance in the table) one ranking
-table per observation source and the track's figures), ``results.csv`` (a copy of the table),
-``figures/`` and ``leaderboard.json``, which marks the folder as written by vvtbench and lists
-its files. Figures (:mod:`vvtbench.plots`): NC against each swept value (number of modes, α_v,
-geometry scale, ...), intrinsic-resolution curves, and per scene the voxel fields of the truth
-and of every solver and observation source (values and contrast views), read from each run's
-``fields.npz`` (the ``estimate_path`` column, relative to the results file's folder).
+table per observation source with a row per variation and solver, the paired comparisons and
+the track's figures), ``results.csv`` (a copy of the table), ``figures/`` and
+``leaderboard.json``, which marks the folder as written by vvtbench, lists its files and holds
+the statistics as numbers. Statistics (:mod:`vvtbench.stats`, docs/results.md "Statistics"):
+mean and median of NC w and v with their percentile bootstrap intervals over instances, the
+number of instances each is over, runtime median and IQR, failed and invalid counts, and paired
+comparisons between ranked solvers on shared instances. Figures (:mod:`vvtbench.plots`): NC
+against each swept value (number of modes, α_v, geometry scale, ...), intrinsic-resolution
+curves, and per scene the voxel fields of the truth and of every solver and observation source
+(values and contrast views), read from each run's ``fields.npz`` (the ``estimate_path``
+column, relative to the results file's folder).
 
 Data safety: the output folder may hold only files listed in its ``leaderboard.json``; a folder
 holding other files is refused unless ``overwrite=True``, and even then only the leaderboard's
