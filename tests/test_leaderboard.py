@@ -378,3 +378,14 @@ def test_output_never_writes_through_symlinks_or_over_its_input(table, tmp_path)
     (src / "results.csv").write_text((table / "results.csv").read_text())
     with pytest.raises(LeaderboardError, match="overwritten"):
         build(src / "results.csv", src, overwrite=True)
+
+
+def test_track_order_comes_from_the_run_not_the_table(tmp_path):
+    from vvtbench.leaderboard import suite_track_order
+
+    (tmp_path / "run.json").write_text('{"tracks": ["b", "a", "gone"]}')
+    assert suite_track_order(tmp_path / "results.parquet", ["a", "c", "b"]) == ["b", "a", "c"]
+    assert suite_track_order(tmp_path, ["a", "b"]) == ["b", "a"]
+    (tmp_path / "run.json").write_text("[1, 2]")
+    assert suite_track_order(tmp_path, ["a", "b"]) == ["a", "b"]
+    assert suite_track_order(tmp_path / "x" / "r.csv", ["z", "y"]) == ["z", "y"]

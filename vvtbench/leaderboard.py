@@ -503,7 +503,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     base = results if results.is_dir() else results.parent
     problems = check_results(df)
     styles = Styles(df.solver.unique(), df.observation.unique())
-    tracks = list(dict.fromkeys(df.track))
+    tracks = suite_track_order(results, list(dict.fromkeys(df.track)))
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "figures").mkdir(exist_ok=True)
@@ -625,11 +625,26 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
         "statistics": {"interval": "percentile bootstrap over instances", "level": LEVEL,
                        "n_boot": N_BOOT, "seed": SEED, "instance": ["scene", "seed"],
                        "cell": ["track", "observation", "variation", "solver"],
-                       "track_order": "first appearance in the results table (the suite's "
-                                      "order in a table written by vvtbench run)",
+                       "track_order": "the suite file's (run.json beside the table), else "
+                                      "first appearance in the results table",
                        "legend": LEGEND},
         "tracks": tracks_json})
     return out
+
+
+def suite_track_order(results: str | Path, tracks: list[str]) -> list[str]:
+    """``tracks`` in the suite file's order, read from the run's ``run.json`` (beside the
+    results table, or in the run folder given); tracks it does not list keep their order of
+    first appearance, after the listed ones."""
+    p = Path(results)
+    run_json = p / "run.json" if p.is_dir() else p.parent / "run.json"
+    try:
+        listed = json.loads(run_json.read_text()).get("tracks", [])
+    except (OSError, ValueError, AttributeError):
+        listed = []  # no run.json (a table from elsewhere): first appearance
+    order = [t for t in listed if isinstance(t, str) and t in tracks] if isinstance(
+        listed, list) else []
+    return order + [t for t in tracks if t not in order]
 
 
 def _md_frame(t) -> str:

@@ -109,14 +109,11 @@ class Styles:
 
 def bootstrap_band(values: Sequence[float], level: float = 0.95, n_boot: int = 2000,
                    seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap interval of the mean of ``values`` (NaN, NaN with < 2 values)."""
-    x = np.asarray([v for v in values if np.isfinite(v)], dtype=float)
-    if x.size < 2:
-        return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(n_boot, x.size))].mean(axis=1)
-    a = (1 - level) / 2
-    return float(np.quantile(means, a)), float(np.quantile(means, 1 - a))
+    """Percentile bootstrap interval of the mean of ``values`` (NaN, NaN with < 2 values):
+    :func:`vvtbench.stats.bootstrap_ci`, the one bootstrap of the leaderboard."""
+    from .stats import bootstrap_ci
+
+    return bootstrap_ci(values, np.mean, n_boot=n_boot, level=level, seed=seed)
 
 
 # --------------------------------------------------------------------------- material fields
