@@ -39,9 +39,11 @@ RANK_METRICS = [("nc_w", "NC w"), ("nc_v", "NC v")]
 MEAN_COLUMNS = [("nc_at_sigma_star_w", "NC w @ σ*"), ("sigma_star_w", "σ* w (vox)"),
                 ("mode_mac", "mode MAC"), ("freq_err_scaled", "freq err (scaled)")]
 #: shown only where a table has a value: the false contrast of instances whose truth is
-#: constant (there NC is undefined, docs/metrics.md)
+#: constant (there NC is undefined, docs/metrics.md) and the coverage of stated intervals
 UNDEFINED_NC_COLUMNS = [("false_contrast_w", "false contrast w (constant truth)"),
-                        ("false_contrast_v", "false contrast v (constant truth)")]
+                        ("false_contrast_v", "false contrast v (constant truth)"),
+                        ("interval_coverage_w", "95 % interval coverage w"),
+                        ("interval_coverage_v", "95 % interval coverage v")]
 _OBS_ORDER = {"true": 0, "extracted": 1}
 _PCT = f"{LEVEL * 100:g}\u00a0%"  # "95 %" (no line break inside)
 
@@ -56,7 +58,9 @@ LEGEND = (
     "constant: the false contrast is given instead) is left out, and its cell then says over "
     "how many instances it is (n=k). –: no value; a mean without an interval is over one "
     "instance. Runtime: median (interquartile range) of the valid runs, in seconds. "
-    "failed / invalid: runs that raised / estimates that were not scored. Paired comparisons, "
+    "failed / invalid: runs that raised / estimates that were not scored. Interval coverage "
+    "(solvers that state per-voxel standard deviations only): the fraction of voxels whose "
+    "truth lies within estimate ± 1.96 std, nominal 0.95, not ranked. Paired comparisons, "
     "per track, source and variation, between ranked solvers on the instances both solved "
     "validly: A − B, the mean of the per-instance differences with its bootstrap interval, "
     "the win rate of A (ties count half) and the number of pairs; A is the one with the higher "
