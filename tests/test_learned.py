@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -70,3 +71,21 @@ def test_learned_baseline_trains_on_train_and_beats_the_floor(data, tmp_path):
         ncs.append(normalized_correlation(est.w, truth.w))
     assert np.mean(ncs) > 0.2  # the homogeneous floor scores 0
     assert est.extra["trained_on"] == "tinyfam/train"
+
+
+@pytest.mark.parametrize("family", ["cube_defects", "bunny_defects", "drum_defects"])
+def test_shipped_weights_saw_only_their_familys_train_split(family):
+    """The `standard` suite scores `learned` with these files: each must name its family's
+    current file (sha256), the train split and train instances only."""
+    import hashlib
+
+    from solvers.learned import load_weights, weights_path
+    from vvtbench.families import load_family
+
+    _, meta = load_weights(weights_path(family))
+    fam = load_family(family)
+    assert meta["family"] == family and meta["split"] == "train"
+    assert meta["family_sha256"] == hashlib.sha256(Path(fam.source).read_bytes()).hexdigest()
+    assert meta["instances"] and all(n.startswith(f"{family}-train-") for n in meta["instances"])
+    lo, hi = meta["indices"]
+    assert len(meta["instances"]) == hi - lo + 1
