@@ -275,9 +275,24 @@ def shown_variation(d) -> str:
     return variations[len(variations) // 2]
 
 
+#: field figures drawn per track: its first scenes (instances) whose truth has contrast
+MAX_FIELD_SCENES = 3
+
+
+def _nc_note(r) -> str:
+    cells = []
+    for f in "wv":
+        nc = r.get(f"nc_{f}")
+        cells.append(f"{f} {nc:.2f}" if isinstance(nc, float) and np.isfinite(nc)
+                     else f"{f} undefined")
+    return "NC " + ", ".join(cells)
+
+
 def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles) -> list:
-    """Per scene of ``track``: the truth and every solver × observation source of the shown
-    variation and first seed, values and contrast views. Returns [(caption, rel path)]."""
+    """For the first :data:`MAX_FIELD_SCENES` scenes of ``track`` whose true w is not
+    constant (so NC is defined): the truth and every solver × observation source of the
+    shown variation and first seed, values and contrast views. Returns [(caption, rel
+    path)]."""
     from .plots import plot_field_grids
 
     d = df[(df.track == track) & (df.status == "ok")]
@@ -285,9 +300,11 @@ def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles
         return []
     variation = shown_variation(d)
     out = []
-    for n, scene in enumerate(dict.fromkeys(d.scene)):
+    drawn = 0
+    for scene in dict.fromkeys(d.scene):
         ds = d[(d.scene == scene) & (d.variation == variation)]
-        if ds.empty:
+        if ds.empty or drawn >= MAX_FIELD_SCENES or not np.isfinite(
+                ds.nc_w.astype(float)).any():
             continue
         ds = ds[ds.seed == ds.seed.iloc[0]]
         truth, estimates, notes = None, {}, {}
@@ -305,10 +322,11 @@ def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles
                 ref = " (ref.)" if bool(r.get("reference", False)) else ""
                 label = f"{solver}{ref}, {obs} modes"
                 estimates[label] = (z["w"], z["v"])
-                notes[label] = f"NC w {r.nc_w:.2f}, v {r.nc_v:.2f}"
+                notes[label] = _nc_note(r)
         if not estimates or truth is None:
             continue
-        stem = f"{_slug(track)}_slices" + ("" if n == 0 else f"_{_slug(scene)}")
+        stem = f"{_slug(track)}_slices" + ("" if drawn == 0 else f"_{_slug(scene)}")
+        drawn += 1
         seed = ds.seed.iloc[0]
         for normalized, suffix, what in ((False, "", "values"),
                                          (True, "_normalized", "contrast to the matrix")):
