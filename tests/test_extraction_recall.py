@@ -182,3 +182,44 @@ def test_score_sample_extraction_keys_and_detectable_set() -> None:
         bare = _FakeSample()
         del bare.data["transient/displacements"]
         true_mode_amplitudes(bare)
+
+
+# --------------------------------------------------------------------------- shoulders
+def _two_modes(f1: float, f2: float, a2: float, zeta: float = 0.0, seed: int = 0):
+    fps, T, n = 200.0, 400, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    rng = np.random.default_rng(seed)
+    d = 0.3 * np.exp(-2 * np.pi * f1 * zeta * t) * np.cos(2 * np.pi * f1 * t) * pattern(n, "a")
+    d = d + a2 * np.cos(2 * np.pi * f2 * t + 0.7) * pattern(n, "b")
+    return d + 1e-3 * rng.standard_normal((T, n, n, 2)), fps
+
+
+@pytest.mark.parametrize("f1, f2, a2", [(20.1, 21.5, 0.03), (20.25, 21.5, 0.1),
+                                        (20.25, 22.0, 0.01)])
+def test_resolved_shoulder_is_a_mode(f1: float, f2: float, a2: float) -> None:
+    """A weak mode 1.3-1.9 Hz (2.5-3.5 bins) from a strong one stands on its flank with a
+    prominence of 0.25-0.42 decades (< 0.5): kept as a resolved shoulder (its own shape)."""
+    from vvtbench.modes import modes_from_displacements
+
+    d, fps = _two_modes(f1, f2, a2)
+    old = modes_from_displacements(d, fps, shoulder_prominence=None)
+    assert len(old) == 1
+    new = modes_from_displacements(d, fps)
+    assert len(new) == 2
+    i = int(np.argmin(np.abs(new.frequencies_hz - f2)))
+    assert abs(new.frequencies_hz[i] - f2) < fps / 400
+    s, pb = new.shapes[i].ravel(), pattern(24, "b").ravel()
+    assert (s @ pb) ** 2 / ((s @ s) * (pb @ pb)) > 0.95
+    (log,) = new.metadata["shoulders"]
+    assert log["kept"] and log["mac"] < 0.1
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.01, 0.03])
+def test_flanks_and_sidelobes_are_no_modes(zeta: float) -> None:
+    """A single strong mode, on and between bins, undamped or decaying: no second mode."""
+    from vvtbench.modes import modes_from_displacements
+
+    for k, f1 in enumerate(np.arange(20.0, 20.5, 0.1)):
+        d, fps = _two_modes(f1, 30.0, 0.0, zeta=zeta, seed=k)
+        ms = modes_from_displacements(d, fps)
+        assert len(ms) == 1, (f1, ms.frequencies_hz, ms.metadata["shoulders"])
