@@ -9,12 +9,15 @@ detected modes are scored against the truth by
 at each ``--floors`` value, and ``recall_all`` over every cluster in the band.
 
 The detections are those of the run's cached extract tasks, or, with ``--reextract``, a
-fresh extraction with the current code and the same task options (written to ``--out``).
+fresh extraction with the current code and the same task options (written to ``--out``), or,
+with ``--modes DIR``, the mode sets saved in ``DIR/<generate task hash>`` (e.g. extracted
+with other options).
 
 Usage::
 
     python benchmarks/bench_extraction_recall.py runs/paper/cache [--reextract] \
-        [--out /tmp/extract] [--floors 0.001 0.003 0.01] [--scenes jello_cube_defect ...]
+        [--out /tmp/extract] [--modes DIR] [--floors 0.001 0.003 0.01] \
+        [--scenes jello_cube_defect ...]
 
 Prints a Markdown table per sample and the pooled (micro-averaged) scores per group.
 """
@@ -53,6 +56,8 @@ def main() -> None:
     ap.add_argument("--reextract", action="store_true",
                     help="extract again with the current code (the tasks' options)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/bench_extraction_recall"))
+    ap.add_argument("--modes", type=Path, default=None,
+                    help="score the mode sets saved in MODES/<generate task hash> instead")
     ap.add_argument("--workers", type=int, default=1)
     args = ap.parse_args()
 
@@ -66,7 +71,11 @@ def main() -> None:
             continue
         for folder, options in tasks.get(key, []):
             t0 = time.perf_counter()
-            if args.reextract:
+            if args.modes is not None:
+                if not (args.modes / gen.parent.parent.name).exists():
+                    continue
+                ms = ModeSet.load(args.modes / gen.parent.parent.name)
+            elif args.reextract:
                 ms = extract_modes(s.video_path, s.fps, workers=args.workers, **options)
                 ms.save(args.out / folder.name)
             else:
