@@ -12,5 +12,5 @@ setup(
     + ["vvtbench.scenes", "vvtbench.scenes.suites", "vvtbench.scenes.families"],
     package_dir={"vvtbench.scenes": "scenes"},
     package_data={"vvtbench.scenes": ["*.toml"], "vvtbench.scenes.suites": ["*.toml"],
-                  "vvtbench.scenes.families": ["*.toml"]},
+                  "vvtbench.scenes.families": ["*.toml"], "solvers": ["weights/*.npz"]},
 )

@@ -34,7 +34,7 @@ def _load() -> str:
 
 
 def _throughput(n: int, workers: int, video: bool, out: Path, seconds: float | None) -> float:
-    from vvtbench.cli.generate import _execute
+    from vvtbench.cli.generate import execute_jobs
     from vvtbench.families import load_family
 
     fam = load_family("cube_defects")
@@ -44,7 +44,7 @@ def _throughput(n: int, workers: int, video: bool, out: Path, seconds: float | N
              "options": {"video": video, "progress": False},
              "threads": 1 if workers > 1 else None} for i in range(n)]
     t0 = time.perf_counter()
-    results = list(_execute(jobs, workers, None))
+    results = list(execute_jobs(jobs, workers, None))
     wall = time.perf_counter() - t0
     bad = [r for r in results if r["status"] != "done"]
     if bad:

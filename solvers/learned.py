@@ -27,10 +27,26 @@ from pathlib import Path
 
 import numpy as np
 
+from vvtbench.dataset import sha256_file
 from vvtbench.problem import Estimate, InverseProblem
 
 N_MODES = 10
 FORMAT = "vvtbench.learned-weights"
+SHIPPED = Path(__file__).parent / "weights"
+
+
+def weights_path(name_or_path: str) -> Path:
+    """The weights file: a path to a ``.npz``, or the name of shipped weights
+    (``solvers/weights/NAME.npz``, trained on family NAME's train split)."""
+    text = str(name_or_path)
+    if text.endswith(".npz") or "/" in text or "\\" in text:
+        return Path(text)
+    path = SHIPPED / f"{text}.npz"
+    if not path.is_file():
+        have = sorted(p.stem for p in SHIPPED.glob("*.npz"))
+        raise ValueError(f"learned: no shipped weights {text!r} (shipped: "
+                         f"{', '.join(have) or 'none'}; or give a .npz path)")
+    return path
 
 
 @dataclass
@@ -38,7 +54,9 @@ class LearnedConfig:
     """Options of the learned baseline."""
 
     weights: str = field(default="", metadata={
-        "help": "weights file written by `vvtbench train learned FAMILY` (.npz)"})
+        "help": "weights file written by `vvtbench train learned FAMILY` (.npz), or the name "
+                "of shipped weights (solvers/weights/NAME.npz: cube_defects, bunny_defects, "
+                "drum_defects)"})
     ridge: float = field(default=1.0, metadata={
         "help": "training only: ridge penalty on the standardized features"})
 
@@ -156,7 +174,8 @@ class LearnedSolver:
         if not self.config.weights:
             raise ValueError("learned: give the weights file (--set weights=PATH), written by "
                              "`vvtbench train learned FAMILY`")
-        wts, meta = load_weights(self.config.weights)
+        path = weights_path(self.config.weights)
+        wts, meta = load_weights(path)
         X, v_hom = features(problem)
         Z = (X - wts["mean"]) / wts["std"]
         fw, fv = Z @ wts["coef_w"], Z @ wts["coef_v"]
@@ -165,5 +184,5 @@ class LearnedSolver:
         v = v_hom * np.exp(fv - fv.mean())
         return Estimate(w=w, v=v, runtime_s=time.perf_counter() - t0, config=asdict(self.config),
                         solver=self.name, version=self.version, converged=True,
-                        extra={"weights": str(self.config.weights),
+                        extra={"weights": str(path), "weights_sha256": sha256_file(path),
                                "trained_on": f"{meta.get('family')}/{meta.get('split')}"})

@@ -152,11 +152,137 @@ def test_ranking_keeps_suite_order_and_never_ranks_references_or_invalid(table):
     groups = ranking(df)
     assert [g[0] for g in groups][::2][:2] == ["zeta_first", "drums"]  # not alphabetical
     t = dict(((tr, obs), t) for tr, obs, t in groups)[("zeta_first", "true")]
-    assert t.index[-1] == "oracle" and bool(t.loc["oracle", "reference"])
-    assert t.loc["sensitivity", "invalid"] == 1
+    for _, cell in t.groupby("variation", sort=False):
+        assert cell.solver.iloc[-1] == "oracle" and cell.reference.iloc[-1]
+        assert cell["rank"].iloc[-1] is None and list(cell["rank"].iloc[:-1]) == [1, 2, 3]
+    sens = t[t.solver == "sensitivity"].set_index("variation")
+    assert sens.loc["n_modes=16", "invalid"] == 1 and sens.loc["n_modes=8", "invalid"] == 0
+    assert sens.loc["n_modes=16", "n"] == 3 and sens.loc["n_modes=16", "runs"] == 4
     s = {r["track"]: r for r in summary(df)}
-    assert s["zeta_first"]["best"][0] == "vvt" and s["zeta_first"]["reference"][0] == "oracle"
+    assert s["zeta_first"]["best"]["solver"] == "vvt"
+    assert s["zeta_first"]["best"]["variation"] == "n_modes=16"  # a cell, not a pooled mean
+    assert s["zeta_first"]["reference"]["solver"] == "oracle"
     assert s["zeta_first"]["invalid"] == 1 and s["alpha"]["runs"] == 3
+
+
+def test_sweep_values_are_never_averaged(table):
+    df = pd.read_csv(table / "results.csv")
+    t = dict(((tr, obs), t) for tr, obs, t in ranking(df))[("zeta_first", "extracted")]
+    vvt = t[t.solver == "vvt"]
+    assert list(vvt.variation) == ["n_modes=8", "n_modes=12", "n_modes=16"]  # run order
+    for _, r in vvt.iterrows():
+        d = df[(df.track == "zeta_first") & (df.observation == "extracted")
+               & (df.solver == "vvt") & (df.variation == r.variation)]
+        assert r.n == 4 and np.isclose(r.nc_w_mean, d.nc_w.mean())
+    a = dict(((tr, obs), t) for tr, obs, t in ranking(df))[("alpha", "true")]
+    assert len(a) == 3 and a.variation.nunique() == 3
+
+
+# ------------------------------------------------------------------ statistics on the pages
+def _instances_table(tmp_path, edit=None):
+    """Track `t`, one variation: solvers `a` and `b` on 10 instances (5 scenes x 2 seeds),
+    and the reference `oracle`; ``edit(rows)`` changes the rows first."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for i in range(5):
+        for seed in (0, 1):
+            for solver, base in (("a", 0.6), ("b", 0.4), ("oracle", 0.9)):
+                nc = float(np.clip(base + 0.1 * rng.standard_normal(), -1, 1))
+                r = _row("t", f"fam-test-{i:05d}", "base", {"n_modes": 10}, solver, "true",
+                         nc, seed=seed, reference=solver == "oracle")
+                r.update(false_contrast_w=np.nan, false_contrast_v=np.nan,
+                         runtime_s=1.0 + i + seed)
+                rows.append(r)
+    if edit is not None:
+        edit(rows)
+    path = tmp_path / "results.csv"
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return path
+
+
+def _board(path, out):
+    build(path, out)
+    return ((out / "README.md").read_text(), (out / "index.html").read_text(),
+            json.loads((out / "leaderboard.json").read_text()))
+
+
+def test_ci_cell_is_the_bootstrap_interval_over_instances(tmp_path):
+    from vvtbench.stats import N_BOOT, SEED, bootstrap_ci
+
+    src = _instances_table(tmp_path)
+    md, page, manifest = _board(src, tmp_path / "lb")
+    df = pd.read_csv(src)
+    assert manifest["statistics"]["seed"] == SEED and manifest["statistics"]["n_boot"] == N_BOOT
+    assert "2000 resamples" in md and "seed 0" in md and "percentile bootstrap" in md
+    rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
+    for solver in ("a", "b"):
+        x = df[df.solver == solver].nc_w.to_numpy()
+        lo, hi = bootstrap_ci(x, seed=SEED)
+        mlo, mhi = bootstrap_ci(x, np.median, seed=SEED)
+        cell = f"{x.mean():.2f} [{lo:.2f}, {hi:.2f}]"
+        line = next(ln for ln in md.splitlines() if f"| {solver} |" in ln)
+        assert cell in line and f"{np.median(x):.2f} [{mlo:.2f}, {mhi:.2f}]" in line
+        assert cell in page
+        r = rec[solver]  # machine-readable: numbers
+        assert r["nc_w_n"] == 10 and r["n"] == 10
+        assert (r["nc_w_mean_ci_low"], r["nc_w_mean_ci_high"]) == (lo, hi)
+        assert np.isclose(r["nc_w_mean"], x.mean())
+        assert r["runtime_median_s"] == 3.5 and r["runtime_q25_s"] == 2.25
+    assert rec["a"]["rank"] == 1 and rec["b"]["rank"] == 2 and rec["oracle"]["rank"] is None
+    line = next(ln for ln in md.splitlines() if "| a |" in ln)
+    assert "3.50 (2.25–4.75)" in line  # runtime: median (IQR)
+    # paired: a vs b only (the reference is no competitor), on the 10 shared instances
+    (p,) = manifest["tracks"][0]["paired"]["nc_w"]
+    assert (p["a"], p["b"], p["n"]) == ("a", "b", 10)
+    d = df[df.solver == "a"].nc_w.to_numpy() - df[df.solver == "b"].nc_w.to_numpy()
+    lo, hi = bootstrap_ci(d, seed=SEED)
+    assert np.isclose(p["mean_diff"], d.mean()) and (p["ci_low"], p["ci_high"]) == (lo, hi)
+    assert np.isclose(p["win_rate"], np.mean(d > 0))
+    assert f"| a | b | {d.mean():+.2f} [{lo:+.2f}, {hi:+.2f}] | {np.mean(d > 0):.2f} | 10 |" in md
+
+
+def test_undefined_metrics_are_counted_never_shown_as_numbers(tmp_path):
+    def constant_truth(rows):  # instances of scene 0: NC undefined, false contrast instead
+        for r in rows:
+            if r["scene"] == "fam-test-00000":
+                r.update(nc_w=np.nan, nc_v=np.nan, false_contrast_w=0.2,
+                         false_contrast_v=0.1)
+
+    md, page, manifest = _board(_instances_table(tmp_path, constant_truth), tmp_path / "lb")
+    rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
+    assert rec["a"]["n"] == 10 and rec["a"]["nc_w_n"] == 8 and rec["a"]["nc_v_n"] == 8
+    assert rec["a"]["false_contrast_w_n"] == 2 and rec["a"]["false_contrast_w_mean"] == 0.2
+    line = next(ln for ln in md.splitlines() if "| a |" in ln)
+    assert line.count("(n=8)") == 4  # NC w and v, mean and median: over 8 of 10 instances
+    assert "false contrast w (constant truth)" in md and "0.200 (n=2)" in line
+    assert "nan" not in md.lower() and "nan" not in page.lower()
+    assert manifest["tracks"][0]["paired"]["nc_w"][0]["n"] == 8
+
+
+def test_paired_comparison_only_on_shared_instances_and_failures_counted(tmp_path):
+    def holes(rows):
+        for r in rows:
+            if r["solver"] == "b" and r["scene"] in ("fam-test-00001", "fam-test-00002") \
+                    and r["seed"] == 0:
+                r.update(status="error", error="solve: RuntimeError: boom", nc_w=np.nan,
+                         nc_v=np.nan)
+            if r["solver"] == "a" and r["scene"] == "fam-test-00004" and r["seed"] == 1:
+                r.update(status="invalid", error="non-finite w", nc_w=np.nan, nc_v=np.nan)
+
+    src = _instances_table(tmp_path, holes)
+    md, page, manifest = _board(src, tmp_path / "lb")
+    df = pd.read_csv(src)
+    rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
+    assert (rec["b"]["failed"], rec["b"]["invalid"], rec["b"]["n"]) == (2, 0, 8)
+    assert (rec["a"]["failed"], rec["a"]["invalid"], rec["a"]["n"]) == (0, 1, 9)
+    assert next(r for r in summary(df) if r["track"] == "t")["failed"] == 2
+    (p,) = manifest["tracks"][0]["paired"]["nc_w"]
+    ok = df[df.status == "ok"].pivot_table(index=["scene", "seed"], columns="solver",
+                                           values="nc_w").dropna()
+    assert p["n"] == 7 == len(ok)
+    assert np.isclose(p["mean_diff"], (ok["a"] - ok["b"]).mean())
+    line = next(ln for ln in md.splitlines() if "| b |" in ln and "| 2 |" in ln)
+    assert line.endswith("| 2 | 0 |")  # failed, invalid
 
 
 def test_build_writes_every_figure_kind_and_a_summary(table, tmp_path):
@@ -252,3 +378,14 @@ def test_output_never_writes_through_symlinks_or_over_its_input(table, tmp_path)
     (src / "results.csv").write_text((table / "results.csv").read_text())
     with pytest.raises(LeaderboardError, match="overwritten"):
         build(src / "results.csv", src, overwrite=True)
+
+
+def test_track_order_comes_from_the_run_not_the_table(tmp_path):
+    from vvtbench.leaderboard import suite_track_order
+
+    (tmp_path / "run.json").write_text('{"tracks": ["b", "a", "gone"]}')
+    assert suite_track_order(tmp_path / "results.parquet", ["a", "c", "b"]) == ["b", "a", "c"]
+    assert suite_track_order(tmp_path, ["a", "b"]) == ["b", "a"]
+    (tmp_path / "run.json").write_text("[1, 2]")
+    assert suite_track_order(tmp_path, ["a", "b"]) == ["a", "b"]
+    assert suite_track_order(tmp_path / "x" / "r.csv", ["z", "y"]) == ["z", "y"]

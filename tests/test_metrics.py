@@ -76,3 +76,39 @@ def test_constant_truth_is_scored_by_false_contrast_not_nc():
     ev = evaluate(problem, truth, est_w, truth.v.copy(), modes=False)["metrics"]
     assert ev["nc_w"] is None and ev["false_contrast_w"] == pytest.approx(false_contrast(est_w))
     assert ev["nc_v"] == pytest.approx(1.0) and ev["false_contrast_v"] is None
+
+
+def test_stated_uncertainty_is_saved_with_the_estimate_and_scored_by_coverage(tmp_path):
+    from types import SimpleNamespace
+
+    from vvtbench.bench.stages import write_evaluation
+    from vvtbench.problem import Estimate
+
+    rng = np.random.default_rng(1)
+    grid = lambda x: np.asarray(x, dtype=float).reshape(3, 3, 3)  # noqa: E731
+    problem = SimpleNamespace(to_grid=grid, n_params=27, n_modes=0,
+                              voxel_map=SimpleNamespace(active=np.ones((3, 3, 3), bool)))
+    truth = SimpleNamespace(w=np.linspace(1e4, 2e4, 27), v=np.linspace(1e3, 2e3, 27), meta={})
+    w = truth.w + rng.normal(0, 500.0, 27)
+    w_std = np.where(np.arange(27) < 9, 1e-3, 1e6)  # a third overconfident, the rest not
+    est = Estimate(w=w, v=truth.v.copy(), extra={"w_std": w_std})
+    for name in ("solve", "eval", "bad"):
+        (tmp_path / name).mkdir()
+    est.save(tmp_path / "solve", problem)
+    with np.load(tmp_path / "solve" / "estimate.npz") as z:
+        assert np.array_equal(z["w_std_params"], w_std) and "v_std_params" not in z.files
+        assert z["w_std"].shape == (3, 3, 3)
+    ev = write_evaluation(tmp_path / "eval", problem, truth, est.w, est.v, modes=False,
+                          w_std=w_std)["metrics"]
+    assert ev["interval_coverage_w"] == pytest.approx(18 / 27)
+    assert ev["interval_coverage_v"] is None
+    with np.load(tmp_path / "eval" / "fields.npz") as z:
+        assert np.array_equal(z["w_std"].ravel(), w_std)
+    with pytest.raises(ValueError, match="w_std"):
+        Estimate(w=w, v=w, extra={"w_std": w_std[:3]}).save(tmp_path / "bad", problem)
+    from vvtbench.plots import plot_uncertainty
+
+    png = plot_uncertainty(tmp_path / "u.png", problem, (est.w, est.v), (w_std, None), truth)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValueError, match="no standard deviation"):
+        plot_uncertainty(tmp_path / "none.png", problem, (est.w, est.v), (None, None))

@@ -55,11 +55,15 @@ def _table():
 
 
 def test_track_statistics_one_row_per_sweep_value_and_counts():
-    st = track_statistics(_table())
+    st = track_statistics(_table(), metrics=["nc_w"])
     assert len(st) == 3 * 2  # solvers x n_modes values: never averaged over n_modes
     a8 = st[(st.solver == "a") & (st.variation == "n_modes=8")].iloc[0]
-    assert a8.n == 5 and a8.invalid == 1 and a8.failed == 0
-    assert a8.nc_w_ci_low <= a8.nc_w_mean <= a8.nc_w_ci_high
+    assert a8.n == 5 and a8.nc_w_n == 5 and a8.invalid == 1 and a8.failed == 0
+    assert a8.runs == 6
+    assert a8.nc_w_mean_ci_low <= a8.nc_w_mean <= a8.nc_w_mean_ci_high
+    assert a8.nc_w_median_ci_low <= a8.nc_w_median <= a8.nc_w_median_ci_high
+    assert (a8.runtime_q25_s, a8.runtime_median_s, a8.runtime_q75_s) == (3.0, 4.0, 5.0)
+    assert (a8.runtime_min_s, a8.runtime_max_s) == (2.0, 6.0)
     assert bool(st[st.solver == "oracle"].reference.all())
 
 
@@ -67,3 +71,28 @@ def test_paired_table_excludes_references():
     pt = paired_table(_table())
     assert set(zip(pt.a, pt.b, strict=True)) == {("a", "b")}
     assert (pt.mean_diff > 0.15).all() and (pt.win_rate == 1.0).all()
+
+
+def test_summarize_gives_the_median_its_interval_and_counts_finite_values():
+    s = summarize([0.1, 0.2, np.nan, 0.3, 0.4, 0.5])
+    assert s["n"] == 5 and np.isclose(s["mean"], 0.3) and s["median"] == 0.3
+    assert s["median_ci_low"] <= s["median"] <= s["median_ci_high"]
+    assert (s["mean_ci_low"], s["mean_ci_high"]) == bootstrap_ci([0.1, 0.2, 0.3, 0.4, 0.5])
+    empty = summarize([np.nan])
+    assert empty["n"] == 0 and np.isnan([v for k, v in empty.items() if k != "n"]).all()
+
+
+def test_paired_table_pairs_shared_instances_higher_mean_first_and_failed_cells():
+    t = _table()
+    t.loc[(t.solver == "b") & (t.scene == "s3"), ["status", "nc_w"]] = ["error", np.nan]
+    t.loc[(t.solver == "a") & (t.scene == "s4") & (t.variation == "n_modes=20"), "nc_w"] = \
+        np.nan  # undefined on that instance
+    pt = paired_table(t)
+    assert list(pt.variation) == ["n_modes=8", "n_modes=20"]  # the table's order
+    assert list(pt.n) == [4, 4]  # s0 invalid for a at 8 (and s3 failed for b); s3, s4 at 20
+    assert (pt.a == "a").all()  # the higher mean first: a - b > 0
+    st = track_statistics(t, metrics=["nc_w"])
+    b = st[st.solver == "b"].iloc[0]
+    assert (b.n, b.failed, b.nc_w_n) == (5, 1, 5)
+    none = track_statistics(t.assign(status="error", nc_w=np.nan), metrics=["nc_w"])
+    assert (none.n == 0).all() and none.nc_w_mean.isna().all() and (none.nc_w_n == 0).all()

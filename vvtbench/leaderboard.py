@@ -2,12 +2,17 @@
 
 Writes into the output folder (default ``leaderboard/``): ``README.md`` and ``index.html`` (a
 summary, then per track in the order of the suite (first appearance in the table) one ranking
-table per observation source and the track's figures), ``results.csv`` (a copy of the table),
-``figures/`` and ``leaderboard.json``, which marks the folder as written by vvtbench and lists
-its files. Figures (:mod:`vvtbench.plots`): NC against each swept value (number of modes, α_v,
-geometry scale, ...), intrinsic-resolution curves, and per scene the voxel fields of the truth
-and of every solver and observation source (values and contrast views), read from each run's
-``fields.npz`` (the ``estimate_path`` column, relative to the results file's folder).
+table per observation source with a row per variation and solver, the paired comparisons and
+the track's figures), ``results.csv`` (a copy of the table), ``figures/`` and
+``leaderboard.json``, which marks the folder as written by vvtbench, lists its files and holds
+the statistics as numbers. Statistics (:mod:`vvtbench.stats`, docs/results.md "Statistics"):
+mean and median of NC w and v with their percentile bootstrap intervals over instances, the
+number of instances each is over, runtime median and IQR, failed and invalid counts, and paired
+comparisons between ranked solvers on shared instances. Figures (:mod:`vvtbench.plots`): NC
+against each swept value (number of modes, α_v, geometry scale, ...), intrinsic-resolution
+curves, and per scene the voxel fields of the truth and of every solver and observation source
+(values and contrast views), read from each run's ``fields.npz`` (the ``estimate_path``
+column, relative to the results file's folder).
 
 Data safety: the output folder may hold only files listed in its ``leaderboard.json``; a folder
 holding other files is refused unless ``overwrite=True``, and even then only the leaderboard's
@@ -26,10 +31,40 @@ from pathlib import Path
 import numpy as np
 
 from ._version import __version__
+from .stats import LEVEL, N_BOOT, SEED, paired_table, track_statistics
 
-RANK_COLUMNS = [("nc_w", "NC w"), ("nc_v", "NC v"), ("nc_at_sigma_star_w", "NC w @ σ*"),
-                ("sigma_star_w", "σ* w (vox)"), ("mode_mac", "mode MAC"),
-                ("freq_err_scaled", "freq err (scaled)"), ("runtime_s", "runtime (s)")]
+#: ranked metrics, each as mean and median with their bootstrap intervals over instances
+RANK_METRICS = [("nc_w", "NC w"), ("nc_v", "NC v")]
+#: metrics given as the mean of their finite values
+MEAN_COLUMNS = [("nc_at_sigma_star_w", "NC w @ σ*"), ("sigma_star_w", "σ* w (vox)"),
+                ("mode_mac", "mode MAC"), ("freq_err_scaled", "freq err (scaled)")]
+#: shown only where a table has a value: the false contrast of instances whose truth is
+#: constant (there NC is undefined, docs/metrics.md) and the coverage of stated intervals
+UNDEFINED_NC_COLUMNS = [("false_contrast_w", "false contrast w (constant truth)"),
+                        ("false_contrast_v", "false contrast v (constant truth)"),
+                        ("interval_coverage_w", "95 % interval coverage w"),
+                        ("interval_coverage_v", "95 % interval coverage v")]
+_OBS_ORDER = {"true": 0, "extracted": 1}
+_PCT = f"{LEVEL * 100:g}\u00a0%"  # "95 %" (no line break inside)
+
+LEGEND = (
+    "Every statistic is over the instances (scene × seed) of one track, observation source "
+    "and variation: a sweep value (n_modes, alpha_v, ...) is never pooled with another. "
+    f"`mean [low, high]`: the mean and its {_PCT} percentile bootstrap interval over "
+    f"instances ({N_BOOT} resamples, numpy default_rng seed {SEED}); the median likewise. "
+    "With few instances the interval is too narrow (the percentile bootstrap under-covers "
+    "below about 10): read it with n. "
+    "n: instances with a valid run; a metric undefined on an instance (NC where the truth is "
+    "constant: the false contrast is given instead) is left out, and its cell then says over "
+    "how many instances it is (n=k). –: no value; a mean without an interval is over one "
+    "instance. Runtime: median (interquartile range) of the valid runs, in seconds. "
+    "failed / invalid: runs that raised / estimates that were not scored. Interval coverage "
+    "(solvers that state per-voxel standard deviations only): the fraction of voxels whose "
+    "truth lies within estimate ± 1.96 std, nominal 0.95, not ranked. Paired comparisons, "
+    "per track, source and variation, between ranked solvers on the instances both solved "
+    "validly: A − B, the mean of the per-instance differences with its bootstrap interval, "
+    "the win rate of A (ties count half) and the number of pairs; A is the one with the higher "
+    "mean.")
 
 
 def _plt():
@@ -41,72 +76,171 @@ def _plt():
     return plt
 
 
-def ranking(df):
-    """Per track and observation: solvers ranked by mean NC of w (ties: NC of v) over their
-    valid rows. Reference solvers (``reference``: they saw the truth) are not ranked: they are
-    listed after the ranked ones, with a note when a ranked solver is above them."""
+def _metric_columns(df) -> tuple[list[str], list[str]]:
+    means = [c for c, _ in MEAN_COLUMNS + UNDEFINED_NC_COLUMNS if c in df.columns]
+    return [c for c, _ in RANK_METRICS], means
+
+
+def _page_order(t, df):
+    """``t`` (rows with track, observation and variation columns) sorted stably as the pages
+    show them: tracks in the table's order, true then extracted modes, variations in the
+    table's (the suite's) order."""
+    tracks = {x: i for i, x in enumerate(dict.fromkeys(df.track))}
+    variations = {x: i for i, x in enumerate(dict.fromkeys(zip(df.track, df.variation,
+                                                                 strict=True)))}
+    key = t.assign(_t=t.track.map(tracks),
+                   _v=[variations[k] for k in zip(t.track, t.variation, strict=True)],
+                   _o=t.observation.map(lambda o: _OBS_ORDER.get(o, 2)))
+    order = key.sort_values(["_t", "_o", "observation", "_v"], kind="stable").index
+    return t.loc[order]
+
+
+def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
+    """Per track (first-appearance order: the suite's) and observation source, one table
+    with a row per variation and solver (:func:`vvtbench.stats.track_statistics`).
+
+    Within a variation the solvers are ranked by mean NC of w (ties: NC of v) over their
+    valid instances; a solver without a valid NC w is not ranked. Reference solvers
+    (``reference``: they saw the truth) are never ranked: they follow the ranked ones, with a
+    note when a ranked solver of the same variation is above them.
+
+    Returns
+    -------
+    list of (track, observation, pandas.DataFrame)
+        The table has the track_statistics columns, ``rank`` (int, or None when not ranked)
+        and ``note``.
+    """
     import pandas as pd
 
-    if "reference" not in df.columns:
-        df = df.assign(reference=False)
-    ok = df[df.status == "ok"]
-    groups = []
-    keys = list(dict.fromkeys(zip(df.track, df.observation, strict=True)))
-    order = {t: i for i, t in enumerate(dict.fromkeys(df.track))}
-    keys.sort(key=lambda k: (order[k[0]], {"true": 0, "extracted": 1}.get(k[1], 2), k[1]))
-    for track, obs in keys:
-        g = df[(df.track == track) & (df.observation == obs)]
-        gok = ok[(ok.track == track) & (ok.observation == obs)]
-        agg = gok.groupby("solver")[[c for c, _ in RANK_COLUMNS]].mean(numeric_only=True)
-        counts = g.groupby("solver").size().rename("runs")
-        errs = g[g.status == "error"].groupby("solver").size().rename("errors")
-        bad = g[g.status == "invalid"].groupby("solver").size().rename("invalid")
-        ref = g.groupby("solver")["reference"].any().rename("reference")
-        t = pd.concat([agg, counts, errs, bad, ref], axis=1).fillna(
-            {"errors": 0, "invalid": 0})
-        t[["errors", "invalid"]] = t[["errors", "invalid"]].astype(int)
-        t = t.sort_values(["reference", "nc_w", "nc_v"], ascending=[True, False, False],
-                          na_position="last")
-        best = t[~t.reference.astype(bool)]["nc_w"].max()
-        t["note"] = [f"below a ranked solver (NC w {best:.3f})"
-                     if r.reference and np.isfinite(best) and r.nc_w < best else ""
-                     for r in t.itertuples()]
-        groups.append((track, obs, t))
-    return groups
+    metrics, means = _metric_columns(df)
+    st = track_statistics(df, metrics=metrics, means=means, seed=seed)
+    if st.empty:
+        return []
+    st = _page_order(st, df).assign(
+        _unranked=lambda t: t.reference | ~np.isfinite(t.nc_w_mean.astype(float)))
+    st = st.sort_values(["reference", "nc_w_mean", "nc_v_mean"],
+                        ascending=[True, False, False], na_position="last", kind="stable")
+    st = _page_order(st, df)
+    cell = ["track", "observation", "variation"]
+    rank = (~st._unranked).astype(int).groupby([st[c] for c in cell], sort=False).cumsum()
+    st["rank"] = pd.Series([None if u else int(r) for u, r in
+                            zip(st._unranked, rank, strict=True)], index=st.index, dtype=object)
+    best = st.nc_w_mean.where(~st._unranked).groupby([st[c] for c in cell]).transform("max")
+    st["note"] = [f"below a ranked solver (NC w {b:.2f})" if ref and np.isfinite(b)
+                  and np.isfinite(m) and m < b else ""
+                  for ref, m, b in zip(st.reference, st.nc_w_mean, best, strict=True)]
+    st = st.drop(columns=["_unranked"]).reset_index(drop=True)
+    return [(track, obs, t.reset_index(drop=True))
+            for (track, obs), t in st.groupby(["track", "observation"], sort=False)]
 
 
-def _cells(t):
-    """(rank, solver label, formatted values, runs, errors, invalid) of each table row."""
-    rank = 0
-    for solver, r in t.iterrows():
+# --------------------------------------------------------------------------- cells
+def _num(x, digits: int = 2, sign: bool = False) -> str:
+    """``x`` with ``digits`` decimals, "–" when it is not a finite number."""
+    try:
+        ok = np.isfinite(float(x))
+    except (TypeError, ValueError):
+        return "–"
+    return f"{float(x):{'+' if sign else ''}.{digits}f}" if ok else "–"
+
+
+def ci_cell(value, low, high, n: int | None = None, of: int | None = None,
+            sign: bool = False, digits: int = 2) -> str:
+    """``0.41 [0.33, 0.49]``: a value with its interval (the interval left out when there is
+    none), ``(n=k)`` appended when the value is over fewer instances ``n`` than the row's
+    ``of``; "–" when there is no value."""
+    if n == 0 or not np.isfinite(float(value)):
+        return "–"
+    text = _num(value, digits, sign)
+    if np.isfinite(float(low)) and np.isfinite(float(high)):
+        text += f" [{_num(low, digits, sign)}, {_num(high, digits, sign)}]"
+    if n is not None and of is not None and n < of:
+        text += f" (n={n})"
+    return text
+
+
+def _seconds(x: float) -> str:
+    return f"{x:.0f}" if x >= 100 else f"{x:#.3g}"
+
+
+def _runtime_cell(r) -> str:
+    if not np.isfinite(r["runtime_median_s"]):
+        return "–"
+    return (f"{_seconds(r['runtime_median_s'])} ({_seconds(r['runtime_q25_s'])}–"
+            f"{_seconds(r['runtime_q75_s'])})")
+
+
+def _ranking_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
+    """The header and the rows (cells, HTML class) of a ranking table."""
+    optional = [(c, label) for c, label in UNDEFINED_NC_COLUMNS
+                if f"{c}_n" in t and (t[f"{c}_n"] > 0).any()]
+    head = ["variation", "rank", "solver"]
+    for _, label in RANK_METRICS:
+        head += [f"{label} mean [{_PCT} CI]", f"{label} median [{_PCT} CI]"]
+    head += ["n", *[label for _, label in MEAN_COLUMNS + optional], "runtime s: median (IQR)",
+             "failed", "invalid"]
+    rows, last = [], None
+    for _, r in t.iterrows():
         if r["reference"]:
-            label, shown = f"{solver} (reference)", "ref"
+            label, shown = f"{r['solver']} (reference)", "ref"
         else:
-            rank += 1
-            label, shown = solver, str(rank)
+            label, shown = str(r["solver"]), "–" if r["rank"] is None else str(r["rank"])
         if r["note"]:
             label += f" -- {r['note']}"
-        vals = [f"{r[c]:.3f}" if np.isfinite(r[c]) else "–" for c, _ in RANK_COLUMNS]
-        yield shown, label, vals, int(r["runs"]), int(r["errors"]), int(r["invalid"])
+        cells = [str(r["variation"]), shown, label]
+        for m, _ in RANK_METRICS:
+            for stat in ("mean", "median"):
+                cells.append(ci_cell(r[f"{m}_{stat}"], r[f"{m}_{stat}_ci_low"],
+                                     r[f"{m}_{stat}_ci_high"], r[f"{m}_n"], r["n"]))
+        cells.append(str(int(r["n"])))
+        for c, _ in MEAN_COLUMNS + optional:
+            if f"{c}_mean" not in r:
+                cells.append("–")
+                continue
+            cells.append(ci_cell(r[f"{c}_mean"], np.nan, np.nan, r[f"{c}_n"], r["n"],
+                                 digits=3))
+        cells += [_runtime_cell(r), str(int(r["failed"])), str(int(r["invalid"]))]
+        cls = " ".join(filter(None, ["ref" if r["reference"] else "",
+                                     "group" if r["variation"] != last else ""]))
+        last = r["variation"]
+        rows.append((cells, cls))
+    return head, rows
 
 
-_HEAD = ["rank", "solver", *[label for _, label in RANK_COLUMNS], "runs", "errors", "invalid"]
+def _paired_rows(p) -> tuple[list[str], list[tuple[list[str], str]]]:
+    """The header and rows of a paired-comparison table (:func:`stats.paired_table`)."""
+    head = ["source", "variation", "A", "B", f"A − B: mean [{_PCT} CI]", "A wins",
+            "pairs"]
+    rows, last = [], None
+    for _, r in p.iterrows():
+        key = (r["observation"], r["variation"])
+        rows.append(([f"{r['observation']} modes", str(r["variation"]), str(r["a"]),
+                      str(r["b"]), ci_cell(r["mean_diff"], r["ci_low"], r["ci_high"],
+                                           r["n"], sign=True),
+                      _num(r["win_rate"]), str(int(r["n"]))],
+                     "group" if key != last else ""))
+        last = key
+    return head, rows
 
 
-def _md_table(t) -> str:
-    lines = ["| " + " | ".join(_HEAD) + " |", "|" + "---|" * len(_HEAD)]
-    for rank, label, vals, runs, errs, bad in _cells(t):
-        lines.append(f"| {rank} | {label} | " + " | ".join(vals) + f" | {runs} | {errs} | {bad} |")
+def _md(head: list[str], rows) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
+              for cells, _ in rows]
     return "\n".join(lines)
 
 
-def _html_table(t) -> str:
-    rows = ["<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in _HEAD) + "</tr>"]
-    for rank, label, vals, runs, errs, bad in _cells(t):
-        cls = ' class="ref"' if rank == "ref" else ""
-        rows.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in
-                                           [rank, label, *vals, runs, errs, bad]) + "</tr>")
-    return "<table>" + "".join(rows) + "</table>"
+def _html(head: list[str], rows, left: int = 1) -> str:
+    """A table; the first ``left`` columns are text (left-aligned)."""
+    def td(i, x, tag="td"):
+        cls = ' class="l"' if i < left else ""
+        return f"<{tag}{cls}>{html.escape(str(x))}</{tag}>"
+
+    out = ["<tr>" + "".join(td(i, h, "th") for i, h in enumerate(head)) + "</tr>"]
+    for cells, cls in rows:
+        out.append((f'<tr class="{cls}">' if cls else "<tr>")
+                   + "".join(td(i, x) for i, x in enumerate(cells)) + "</tr>")
+    return '<div class="scroll"><table>' + "".join(out) + "</table></div>"
 
 
 # --------------------------------------------------------------------------- figures
@@ -291,40 +425,64 @@ def prepare_output(out: Path, source: Path, overwrite: bool = False) -> set[str]
 
 
 # --------------------------------------------------------------------------- pages
-def summary(df) -> list[dict]:
-    """Per track (first-appearance order): the best ranked (non-reference) solver and
-    observation by mean NC of w, the best reference, and the counts of runs, failed and
-    invalid rows."""
+def summary(df, groups: list | None = None) -> list[dict]:
+    """Per track (first-appearance order): the best ranked cell (solver, observation source and
+    variation with the highest mean NC of w), the best reference cell, and the counts of
+    runs, failed and invalid rows.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        The results table.
+    groups : list, optional
+        Its :func:`ranking` (computed when not given).
+
+    Returns
+    -------
+    list of dict
+        ``track``, ``best`` and ``reference`` (None, or a dict: ``solver``, ``observation``,
+        ``variation``, ``nc_w_mean``, ``nc_w_mean_ci_low``, ``nc_w_mean_ci_high``,
+        ``nc_w_n``), ``runs``, ``failed``, ``invalid``.
+    """
+    import pandas as pd
+
+    groups = ranking(df) if groups is None else groups
+    cells = (pd.concat([t for _, _, t in groups], ignore_index=True) if groups else None)
+    keys = ["solver", "observation", "variation", "nc_w_mean", "nc_w_mean_ci_low",
+            "nc_w_mean_ci_high", "nc_w_n"]
+    counts = df.groupby("track", sort=False).status.agg(
+        runs="size", failed=lambda s: int((s == "error").sum()),
+        invalid=lambda s: int((s == "invalid").sum()))
     out = []
-    groups = ranking(df)
-    for track in dict.fromkeys(df.track):
-        g = df[df.track == track]
-        best = ref = None
-        for tr, obs, t in groups:
-            if tr != track:
-                continue
-            ranked = t[~t.reference.astype(bool) & np.isfinite(t.nc_w)]
-            if len(ranked) and (best is None or ranked.nc_w.iloc[0] > best[2]):
-                best = (ranked.index[0], obs, float(ranked.nc_w.iloc[0]))
-            refs = t[t.reference.astype(bool) & np.isfinite(t.nc_w)]
-            if len(refs) and (ref is None or refs.nc_w.max() > ref[2]):
-                ref = (refs.nc_w.idxmax(), obs, float(refs.nc_w.max()))
-        out.append({"track": track, "best": best, "reference": ref, "runs": len(g),
-                    "failed": int((g.status == "error").sum()),
-                    "invalid": int((g.status == "invalid").sum())})
+    for track, c in counts.iterrows():
+        best = {}
+        for name, ref in (("best", False), ("reference", True)):
+            t = (cells[(cells.track == track) & (cells.reference == ref)
+                       & np.isfinite(cells.nc_w_mean.astype(float))]
+                 if cells is not None else [])
+            best[name] = (None if len(t) == 0 else
+                          t.loc[t.nc_w_mean.astype(float).idxmax(), keys].to_dict())
+        out.append({"track": track, **best, "runs": int(c.runs), "failed": int(c.failed),
+                    "invalid": int(c.invalid)})
     return out
 
 
 def _fmt_best(b) -> str:
-    return "–" if b is None else f"{b[0]} ({b[1]} modes): {b[2]:.3f}"
+    if b is None:
+        return "–"
+    return (f"{b['solver']} ({b['observation']} modes, {b['variation']}): "
+            + ci_cell(b["nc_w_mean"], b["nc_w_mean_ci_low"], b["nc_w_mean_ci_high"])
+            + f", n={int(b['nc_w_n'])}")
 
 
-_CSS = """body{font-family:system-ui,sans-serif;max-width:1250px;margin:auto;padding:1em;
-color:#222}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.9em}
-td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}th{background:#eee}
-td:nth-child(2){text-align:left}tr.ref td{color:#666;font-style:italic;background:#f7f7f7}
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1400px;margin:auto;padding:1em;
+color:#222}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em}
+td,th{border:1px solid #ccc;padding:3px 7px;text-align:right;white-space:nowrap}
+th{background:#eee;white-space:normal}td.l,th.l{text-align:left}
+tr.group td{border-top:2px solid #888}
+tr.ref td{color:#666;font-style:italic;background:#f7f7f7}.scroll{overflow-x:auto}
 img{max-width:100%;display:block;margin:.3em 0 1em;border:1px solid #eee}
-nav a{margin-right:.8em}.note{color:#555;font-size:.9em}
+nav a{margin-right:.8em}.note{color:#555;font-size:.9em;max-width:75em}
 figure{margin:0}figcaption{font-size:.85em;color:#444}"""
 
 
@@ -349,7 +507,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     base = results if results.is_dir() else results.parent
     problems = check_results(df)
     styles = Styles(df.solver.unique(), df.observation.unique())
-    tracks = list(dict.fromkeys(df.track))
+    tracks = suite_track_order(results, list(dict.fromkeys(df.track)))
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "figures").mkdir(exist_ok=True)
@@ -370,21 +528,24 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                 os.replace(tmp / Path(rel).name, out / rel)  # atomic, replaces a link itself
                 written.add(rel)
 
-    rows = summary(df)
+    groups = ranking(df)
+    rows = summary(df, groups)
+    paired = {m: _page_order(paired_table(df, m, seed=SEED), df) for m, _ in RANK_METRICS}
     n_failed = int((df.status == "error").sum())
     n_invalid = int((df.status == "invalid").sum())
     intro = (f"Generated by vvtbench {__version__} from `{results}`: {len(df)} runs "
              f"({n_failed} failed, {n_invalid} invalid), {df.solver.nunique()} solvers, "
-             f"{len(tracks)} tracks. Solvers are ranked per track and observation source by "
-             "mean NC of the stiffness field w over the track's valid runs (centered "
-             "normalized correlation, docs/metrics.md). Reference solvers (they saw the "
-             "truth: an upper bound) are marked `ref` and not ranked; failed and invalid "
+             f"{len(tracks)} tracks. Solvers are ranked per track, observation source and "
+             "variation by mean NC of the stiffness field w over the valid instances "
+             "(centered normalized correlation, docs/metrics.md). Reference solvers (they saw "
+             "the truth: an upper bound) are marked `ref` and not ranked; failed and invalid "
              "runs are counted and never ranked.")
-    md = ["# vvtbench leaderboard\n", intro + "\n"]
+    md = ["# vvtbench leaderboard\n", intro + "\n", f"**Statistics.** {LEGEND}\n"]
     if problems:
         md.append("**Schema problems:** " + "; ".join(problems[:5]) + "\n")
     md.append("## Summary\n")
-    md.append("| track | best ranked solver: NC w | reference: NC w | runs | failed | invalid |")
+    md.append(f"| track | best ranked: NC w mean [{_PCT} CI] | reference: NC w mean "
+              f"[{_PCT} CI] | runs | failed | invalid |")
     md.append("|---|---|---|---|---|---|")
     for r in rows:
         md.append(f"| [{r['track']}](#{_slug(r['track'])}) | {_fmt_best(r['best'])} | "
@@ -392,16 +553,30 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                   f"{r['invalid']} |")
     md.append("")
     body = []
-    groups = ranking(df)
+    tracks_json = []
     for track in tracks:
         md.append(f'<a id="{_slug(track)}"></a>\n\n## {track}\n')
         body.append(f'<section id="{_slug(track)}"><h2>{html.escape(track)}</h2>')
+        ranked = []
         for tr, obs, t in groups:
             if tr != track:
                 continue
-            md.append(f"### {track} — {obs} modes\n\n" + _md_table(t) + "\n")
+            head, trows = _ranking_rows(t)
+            md.append(f"### {track} — {obs} modes\n\n" + _md(head, trows) + "\n")
             body.append(f"<h3>{html.escape(track)} — {html.escape(obs)} modes</h3>"
-                        + _html_table(t))
+                        + _html(head, trows, left=3))
+            ranked.append(t)
+        p = paired["nc_w"][paired["nc_w"].track == track]
+        if len(p):
+            head, prows = _paired_rows(p)
+            title = f"{track} — paired comparisons, NC w (same instances)"
+            md.append(f"### {title}\n\n" + _md(head, prows) + "\n")
+            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, prows, left=4))
+        tracks_json.append({
+            "track": track,
+            "ranking": [rec for t in ranked for rec in t.to_dict("records")],
+            "paired": {m: paired[m][paired[m].track == track].to_dict("records")
+                       for m in paired}})
         ext = extraction_table(df, track)
         if ext is not None:
             md.append(f"### {track} — extraction (detected modes against the true ones)\n\n"
@@ -416,12 +591,13 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                         f"{html.escape(track)}: {html.escape(caption)}\">"
                         "</figure>")
         body.append("</section>")
-    summary_html = ("<table><tr><th>track</th><th>best ranked solver: NC w</th>"
-                    "<th>reference: NC w</th><th>runs</th><th>failed</th><th>invalid</th></tr>"
-                    + "".join(f"<tr><td><a href=\"#{_slug(r['track'])}\">"
+    summary_html = ("<table><tr><th class=\"l\">track</th><th class=\"l\">best ranked: NC w "
+                    f"mean [{_PCT} CI]</th><th class=\"l\">reference: NC w mean [{_PCT} CI]</th>"
+                    "<th>runs</th><th>failed</th><th>invalid</th></tr>"
+                    + "".join(f"<tr><td class=\"l\"><a href=\"#{_slug(r['track'])}\">"
                               f"{html.escape(r['track'])}</a></td>"
-                              f"<td>{html.escape(_fmt_best(r['best']))}</td>"
-                              f"<td>{html.escape(_fmt_best(r['reference']))}</td>"
+                              f"<td class=\"l\">{html.escape(_fmt_best(r['best']))}</td>"
+                              f"<td class=\"l\">{html.escape(_fmt_best(r['reference']))}</td>"
                               f"<td>{r['runs']}</td><td>{r['failed']}</td>"
                               f"<td>{r['invalid']}</td></tr>" for r in rows) + "</table>")
     schema = ("<p class=\"note\"><b>Schema problems:</b> "
@@ -434,6 +610,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
 <style>{_CSS}</style></head><body>
 <h1>vvtbench leaderboard</h1>
 <p>{html.escape(intro).replace("`", "")} Data: <a href="results.csv">results.csv</a>.</p>
+<p class="note"><b>Statistics.</b> {html.escape(LEGEND).replace("`", "")}</p>
 {schema}<nav>{nav}</nav><h2>Summary</h2>{summary_html}
 {''.join(body)}
 </body></html>
@@ -448,8 +625,30 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     write_json(out / MANIFEST, {
         "generator": "vvtbench", "vvtbench": __version__, "source": str(results),
         "files": sorted(written),
-        "figures": [[t, c, r] for t in tracks for c, r in figs[t]]})
+        "figures": [[t, c, r] for t in tracks for c, r in figs[t]],
+        "statistics": {"interval": "percentile bootstrap over instances", "level": LEVEL,
+                       "n_boot": N_BOOT, "seed": SEED, "instance": ["scene", "seed"],
+                       "cell": ["track", "observation", "variation", "solver"],
+                       "track_order": "the suite file's (run.json beside the table), else "
+                                      "first appearance in the results table",
+                       "legend": LEGEND},
+        "tracks": tracks_json})
     return out
+
+
+def suite_track_order(results: str | Path, tracks: list[str]) -> list[str]:
+    """``tracks`` in the suite file's order, read from the run's ``run.json`` (beside the
+    results table, or in the run folder given); tracks it does not list keep their order of
+    first appearance, after the listed ones."""
+    p = Path(results)
+    run_json = p / "run.json" if p.is_dir() else p.parent / "run.json"
+    try:
+        listed = json.loads(run_json.read_text()).get("tracks", [])
+    except (OSError, ValueError, AttributeError):
+        listed = []  # no run.json (a table from elsewhere): first appearance
+    order = [t for t in listed if isinstance(t, str) and t in tracks] if isinstance(
+        listed, list) else []
+    return order + [t for t in tracks if t not in order]
 
 
 def _md_frame(t) -> str:

@@ -166,11 +166,14 @@ def false_contrast(estimate: np.ndarray) -> float:
     return float(np.std(x) / abs(np.mean(x)))
 
 
-def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -> dict:
+def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
+             w_std: np.ndarray | None = None, v_std: np.ndarray | None = None) -> dict:
     """Every metric of a valid estimate: NC (centred and uncentred) of w and v against the
     truth, the intrinsic resolution of each (``sigma_star_*``, ``nc_at_sigma_star_*`` and the
-    curves), and optionally the mode match against the observed modes (``mode_mac``,
-    ``freq_err_raw``, ``freq_err_scaled``; None with a note when the forward solve fails).
+    curves), optionally the mode match against the observed modes (``mode_mac``,
+    ``freq_err_raw``, ``freq_err_scaled``; None with a note when the forward solve fails), and
+    for stated per-parameter standard deviations the 95 % interval coverage
+    (``interval_coverage_w``, ``interval_coverage_v``; None when not stated).
 
     Returns ``{"metrics": {...}, "curves": {"w": {...}, "v": {...}}, "notes": [...]}``.
     """
@@ -192,6 +195,9 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -
         metrics[f"sigma_star_{name}"] = ir["sigma_star"]
         metrics[f"nc_at_sigma_star_{name}"] = ir["nc_at_sigma_star"]
         curves[name] = {"sigmas": ir["sigmas"], "nc": ir["nc"]}
+    for name, est, std, tru in (("w", w, w_std, truth.w), ("v", v, v_std, truth.v)):
+        metrics[f"interval_coverage_{name}"] = (
+            None if std is None else interval_coverage(est, std, tru, z=COVERAGE_Z))
     metrics.update(mode_mac=None, freq_err_raw=None, freq_err_scaled=None,
                    mode_mac_true=None, freq_err_true_scaled=None)
     if modes:
@@ -226,6 +232,9 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True) -
 
 # --------------------------------------------------------------------------- calibration
 # (uncertainty of solvers that report per-voxel standard deviations: issue 16)
+
+
+COVERAGE_Z = 1.96  # the interval scored in the results table: estimate +- 1.96 std (95 %)
 
 
 def interval_coverage(estimate, std, truth, z: float = 1.96) -> float:

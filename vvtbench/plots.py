@@ -109,14 +109,11 @@ class Styles:
 
 def bootstrap_band(values: Sequence[float], level: float = 0.95, n_boot: int = 2000,
                    seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap interval of the mean of ``values`` (NaN, NaN with < 2 values)."""
-    x = np.asarray([v for v in values if np.isfinite(v)], dtype=float)
-    if x.size < 2:
-        return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = x[rng.integers(0, x.size, size=(n_boot, x.size))].mean(axis=1)
-    a = (1 - level) / 2
-    return float(np.quantile(means, a)), float(np.quantile(means, 1 - a))
+    """Percentile bootstrap interval of the mean of ``values`` (NaN, NaN with < 2 values):
+    :func:`vvtbench.stats.bootstrap_ci`, the one bootstrap of the leaderboard."""
+    from .stats import bootstrap_ci
+
+    return bootstrap_ci(values, np.mean, n_boot=n_boot, level=level, seed=seed)
 
 
 # --------------------------------------------------------------------------- material fields
@@ -357,6 +354,77 @@ def plot_fields(path: str | Path, problem, estimates: Mapping[str, tuple], truth
     tv = problem.to_grid(truth.v) if truth is not None else None
     kind = "membrane" if getattr(problem, "kind", "solid") == "membrane" else "solid"
     return plot_field_grids(path, tw, tv, grids, kind, normalized=normalized, title=title)
+
+
+def plot_uncertainty(path: str | Path, problem, estimate: tuple, std: tuple, truth=None,
+                     title: str | None = None) -> Path:
+    """A solver's stated uncertainty beside its estimate, per field (w, v) and voxel layer:
+    the estimate, its relative standard deviation ``std / value`` and, with ``truth``, the
+    error in units of the stated deviation ``|estimate - truth| / std`` (above 1.96: the
+    truth lies outside the 95 % interval; the fraction at most 1.96 is the interval coverage).
+
+    ``estimate`` and ``std`` are ``(w, v)`` per parameter (``std`` entries may be None: that
+    field is not drawn). Returns ``path``.
+    """
+    from .metrics import COVERAGE_Z, interval_coverage
+
+    matplotlib, plt = _mpl()
+    kind = "membrane" if getattr(problem, "kind", "solid") == "membrane" else "solid"
+    units = field_units(kind)
+    rows: list[tuple[str, np.ndarray, str, object]] = []
+    for f, (name, est, sd) in enumerate(zip("wv", estimate, std, strict=True)):
+        if sd is None:
+            continue
+        est, sd = np.asarray(est, dtype=float), np.asarray(sd, dtype=float)
+        viridis = matplotlib.colormaps["viridis"].with_extremes(bad=_EMPTY)
+        g_est = problem.to_grid(est)
+        rows.append((f"{name} estimate", g_est, units[f], _value_norm([g_est], "auto")[0],
+                     viridis))
+        rel = problem.to_grid(np.abs(sd) / np.abs(est))
+        hi = float(np.nanmax(rel)) if np.isfinite(rel).any() else 1.0
+        rows.append((f"{name} std / {name}", rel, "std / value",
+                     matplotlib.colors.Normalize(0.0, max(hi, 1e-6)),
+                     matplotlib.colormaps["magma"].with_extremes(bad=_EMPTY)))
+        if truth is not None:
+            tru = np.asarray(getattr(truth, name), dtype=float)
+            z = problem.to_grid(np.abs(est - tru) / np.maximum(np.abs(sd), 1e-300))
+            cov = interval_coverage(est, sd, tru, z=COVERAGE_Z)
+            rows.append((f"|{name} - truth| / std\n(95 % coverage {cov:.2f})", z,
+                         "|error| / std",
+                         matplotlib.colors.Normalize(0.0, 4.0),
+                         matplotlib.colormaps["RdYlBu_r"].with_extremes(bad=_EMPTY,
+                                                                        over="#67001f")))
+    if not rows:
+        raise ValueError("plot_uncertainty: no standard deviation to draw")
+    layers = len(_layers(rows[0][1]))
+    panel = 0.9
+    fig_w, fig_h = 2.2 + panel * layers + 1.6, len(rows) * panel * 1.1 + 1.1
+    fig = plt.figure(figsize=(fig_w, fig_h))
+    gs = fig.add_gridspec(len(rows), layers + 2, width_ratios=[2.2] + [1] * layers + [0.12],
+                          left=0.01, right=1 - 1.2 / fig_w, top=1 - 0.8 / fig_h,
+                          bottom=0.03, wspace=0.06, hspace=0.25)
+    for i, (label, grid, bar_label, norm, cmap) in enumerate(rows):
+        im = None
+        for k, img in enumerate(_layers(grid)):
+            ax = fig.add_subplot(gs[i, 1 + k])
+            im = ax.imshow(np.ma.masked_invalid(img), origin="lower", cmap=cmap, norm=norm,
+                           interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if i == 0 and layers > 1:
+                ax.set_title(f"z{k + 1}" + (" bottom" if k == 0 else " top"
+                                            if k == layers - 1 else ""), fontsize=7)
+        lax = fig.add_subplot(gs[i, 0])
+        lax.axis("off")
+        lax.text(1.0, 0.5, label, ha="right", va="center", fontsize=8,
+                 transform=lax.transAxes)
+        bar = fig.colorbar(im, cax=fig.add_subplot(gs[i, layers + 1]),
+                           extend="max" if "truth" in label else "neither")
+        bar.set_label(bar_label, fontsize=7)
+        bar.ax.tick_params(labelsize=6)
+    fig.suptitle((title or "Stated uncertainty") + "\nlayers of the voxel grid, bottom to top; "
+                 "|error| / std above 1.96: the truth is outside the 95 % interval", fontsize=8)
+    return save_figure(fig, path)
 
 
 # --------------------------------------------------------------------------- curves

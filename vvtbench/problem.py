@@ -160,7 +160,9 @@ class Estimate:
     config : the solver's configuration (a plain dict).
     solver, version : solver name and version.
     converged : whether the solver's own stopping rule was met.
-    extra : optional arrays (e.g. the optimized 3-D modes ``U`` or eigenvalues).
+    extra : optional arrays (e.g. the optimized 3-D modes ``U`` or eigenvalues); a solver
+        that states its uncertainty puts per-parameter standard deviations in ``w_std`` and
+        ``v_std`` (saved with the estimate and scored by the interval coverage).
     """
 
     w: np.ndarray
@@ -191,12 +193,29 @@ class Estimate:
                   "active": problem.voxel_map.active}
         if self.w.shape == (problem.n_params,):
             arrays.update(w=problem.to_grid(self.w), v=problem.to_grid(self.v))
+            for name in ("w_std", "v_std"):
+                std = self.std(name)
+                if std is not None:
+                    arrays[f"{name}_params"] = std
+                    arrays[name] = problem.to_grid(std)
         write_npz(folder / "estimate.npz", arrays)
         write_json(folder / "estimate.json", {
             "solver": self.solver, "solver_version": self.version, "config": self.config,
             "runtime_s": self.runtime_s or wall_s, "wall_s": wall_s,
             "converged": self.converged, "iterations": len(self.history),
             "history": self.history, "extra": self.extra_scalars()})
+
+    def std(self, name: str) -> np.ndarray | None:
+        """The stated per-parameter standard deviation ``extra[name]`` (``"w_std"`` or
+        ``"v_std"``) as a float array of the estimate's shape, or None when not given."""
+        value = self.extra.get(name)
+        if value is None:
+            return None
+        value = np.asarray(value, dtype=float).ravel()
+        if value.shape != self.w.shape:
+            raise ValueError(f"extra[{name!r}] has shape {value.shape}, the estimate "
+                             f"{self.w.shape}")
+        return value
 
     def extra_scalars(self) -> dict[str, Any]:
         """The entries of ``extra`` that are not arrays (written to estimate.json)."""

@@ -19,7 +19,8 @@ METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_s
                   "freq_err_raw", "freq_err_scaled", "mode_mac_true", "freq_err_true_scaled",
                   "extraction_precision", "extraction_recall",
                   "extraction_mean_rel_freq_error", "extraction_mean_mac",
-                  "false_contrast_w", "false_contrast_v")
+                  "false_contrast_w", "false_contrast_v",
+                  "interval_coverage_w", "interval_coverage_v")
 
 COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "config", "scene",
            "variation",
@@ -202,6 +203,7 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
            "extraction_precision": (0.0, 1.0), "extraction_recall": (0.0, 1.0),
            "extraction_mean_rel_freq_error": (0.0, None), "extraction_mean_mac": (0.0, 1.0),
            "false_contrast_w": (0.0, None), "false_contrast_v": (0.0, None),
+           "interval_coverage_w": (0.0, 1.0), "interval_coverage_v": (0.0, 1.0),
            "runtime_s": (0.0, None)}
 REQUIRED = tuple(c for c in COLUMNS if c not in OPTIONAL)
 # finite on every row with status ok

@@ -124,6 +124,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
                 df.attrs["no_rows"] = no_rows_reason(suite, solvers)
         write_json(out_dir / "run.json", {
             "suite": suite.name, "suite_source": suite.source, "solvers": solvers,
+            "tracks": [t.name for t in suite.tracks],
             "vvtbench": __version__, "workers": workers,
             "scheduler": scheduler if isinstance(scheduler, str) else (
                 None if scheduler is None else "client"),

@@ -124,13 +124,17 @@ def _stage_evaluate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     problem, truth = load_observation(cache, observe_key, truth=True)
     with np.load(cache / solve_key / "estimate.npz", allow_pickle=False) as est:
         w, v = est["w_params"], est["v_params"]
-    return write_evaluation(out, problem, truth, w, v)
+        std = {f"{n}_std": est[f"{n}_std_params"] for n in ("w", "v")
+               if f"{n}_std_params" in est.files}
+    return write_evaluation(out, problem, truth, w, v, **std)
 
 
-def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True) -> dict:
+def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True,
+                     w_std=None, v_std=None) -> dict:
     """Score an estimate and write ``metrics.json`` and ``fields.npz`` (grids ``w``, ``v``,
-    ``w_true``, ``v_true``) into ``out``; an invalid estimate (non-finite, not positive, wrong
-    shape) is not scored: ``{"invalid": reason}``. The evaluator of ``run`` and ``solve``."""
+    ``w_true``, ``v_true``, and ``w_std``, ``v_std`` when the solver stated them) into
+    ``out``; an invalid estimate (non-finite, not positive, wrong shape) is not scored:
+    ``{"invalid": reason}``. The evaluator of ``run`` and ``solve``."""
     from ..metrics import evaluate, invalid_reason
 
     out = Path(out)
@@ -141,7 +145,10 @@ def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True) -> dic
         doc = {"invalid": reason, "metrics": {}, "notes": [], "n_modes_observed": problem.n_modes}
         write_json(out / "metrics.json", doc)
         return doc
-    ev = evaluate(problem, truth, w, v, modes=modes)
+    ev = evaluate(problem, truth, w, v, modes=modes, w_std=w_std, v_std=v_std)
+    for name, std in (("w_std", w_std), ("v_std", v_std)):
+        if std is not None:
+            fields[name] = problem.to_grid(np.asarray(std, dtype=float))
     write_npz(out / "fields.npz", {"w": problem.to_grid(w), "v": problem.to_grid(v), **fields})
     write_json(out / "metrics.json", {"metrics": ev["metrics"],
                                       "intrinsic_resolution": ev["curves"],

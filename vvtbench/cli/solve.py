@@ -76,9 +76,12 @@ def _fail(message: str | BaseException) -> int:
 def _field_score(metrics: dict, field: str) -> str:
     """``NC w 0.412``, or the false contrast where the truth is constant (NC undefined)."""
     nc = metrics.get(f"nc_{field}")
+    cov = metrics.get(f"interval_coverage_{field}")
+    cov = "" if cov is None else f" (95 % interval coverage {cov:.2f})"
     if nc is not None:
-        return f"NC {field} {nc:.3f}"
-    return f"{field}: constant truth, false contrast {metrics[f'false_contrast_{field}']:.3f}"
+        return f"NC {field} {nc:.3f}{cov}"
+    return (f"{field}: constant truth, false contrast "
+            f"{metrics[f'false_contrast_{field}']:.3f}{cov}")
 
 
 def _check_output(out: Path, target: Path) -> str | None:
@@ -100,7 +103,7 @@ def main_solve(argv: list[str] | None = None) -> int:
     from ..dataset import DatasetError, open_sample
     from ..io import write_json
     from ..observe import ObserveError, ObserveOptions, observe
-    from ..plots import plot_fields
+    from ..plots import plot_fields, plot_uncertainty
     from ..scene import SceneError, load_scene
 
     args = build_solve_parser().parse_args(argv)
@@ -173,8 +176,9 @@ def main_solve(argv: list[str] | None = None) -> int:
     estimate, wall = run_solver(cls, config, problem, truth)
     out.mkdir(parents=True, exist_ok=True)
     estimate.save(out, problem, wall_s=wall)
+    stds = (estimate.std("w_std"), estimate.std("v_std"))
     ev = write_evaluation(out, problem, truth, estimate.w, estimate.v,
-                          modes=not args.no_mode_match)
+                          modes=not args.no_mode_match, w_std=stds[0], v_std=stds[1])
     write_json(out / "solve.json", {
         **info, "scene": truth.meta.get("scene"), "observation": observation,
         "reference": bool(getattr(cls, "uses_truth", False)), "n_modes": problem.n_modes,
@@ -185,6 +189,9 @@ def main_solve(argv: list[str] | None = None) -> int:
             "matched_true_modes": truth.matched, "extraction_mac": truth.extraction_mac,
             "true_frequencies_hz": truth.frequencies_hz}})
     plot_fields(out / "slices.png", problem, {cls.name: (estimate.w, estimate.v)}, truth)
+    if any(sd is not None for sd in stds) and not ev.get("invalid"):
+        plot_uncertainty(out / "uncertainty.png", problem, (estimate.w, estimate.v), stds, truth,
+                         title=f"{cls.name}: stated uncertainty on {target}")
     m = ev["metrics"]
     score = (f"invalid estimate ({ev['invalid']}), not scored" if ev.get("invalid") else
              ", ".join(_field_score(m, f) for f in "wv"))
