@@ -5,6 +5,10 @@ several of the same view) with a sample's true modes and returns precision, reca
 frequency, damping and shape (MAC) errors.  The formulas are in docs/modes.md, "Scoring
 extraction".  Only NumPy/SciPy and the true arrays are needed: a sample holds them as
 ``s.frequencies_hz``, ``s.damping_ratios`` and ``s["image/modes"]``.
+
+:func:`true_mode_amplitudes` measures, from a sample's truth alone, how large each true mode
+actually is in its video (px), and :func:`score_sample_extraction` scores detections against
+a sample with the headline recall over the modes that are detectable in that video.
 """
 
 from __future__ import annotations
@@ -17,7 +21,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
-__all__ = ["clusters_by_resolution", "score_extraction", "subspace_mac"]
+__all__ = [
+    "DEFAULT_FLOOR_PX",
+    "clusters_by_resolution",
+    "score_extraction",
+    "score_sample_extraction",
+    "subspace_mac",
+    "true_mode_amplitudes",
+]
+
+#: Smallest true image-space amplitude (px) a mode must have in the video to be expected
+#: (the smallest amplitude of issue 17's targets).
+DEFAULT_FLOOR_PX = 1e-3
 
 
 def clusters_by_resolution(frequencies: ArrayLike, resolution_hz: float) -> list[list[int]]:
@@ -103,6 +118,8 @@ def score_extraction(
     fmin: float = 0.0,
     min_mac: float = 0.5,
     uv: ArrayLike | Sequence[ArrayLike] | None = None,
+    amplitudes_px: ArrayLike | None = None,
+    floor_px: float = DEFAULT_FLOOR_PX,
 ) -> dict[str, Any]:
     """Detected modes against the true ones: precision, recall, frequency/damping/MAC errors.
 
@@ -131,16 +148,29 @@ def score_extraction(
         Minimal (subspace) MAC of a match.
     uv : array_like, optional
         ``(m, 2)`` pixel positions of the vertices (per set, or shared) for vertex truth.
+    amplitudes_px : array_like, optional
+        ``(n,)`` amplitude of each true mode in the video (px), e.g. ``line_px`` of
+        :func:`true_mode_amplitudes`.  A cluster is *detectable* when one of its modes reaches
+        ``floor_px``; ``recall`` is then over the detectable clusters.  Default: every
+        cluster in the band is detectable (``recall == recall_all``).
+    floor_px : float, default :data:`DEFAULT_FLOOR_PX` (0.001 px)
+        Detectability floor for ``amplitudes_px``.
 
     Returns
     -------
     dict
         ``precision`` (matched / detected in band; NaN if nothing detected), ``recall``
-        (matched clusters / clusters in band; NaN if none in band), ``recall_modes`` (true
-        modes in matched clusters / true modes in band), ``f1``, ``mean_abs_freq_error_hz``,
+        (matched detectable clusters / detectable clusters in band; NaN if none),
+        ``recall_all`` (matched clusters / clusters in band; NaN if none in band),
+        ``recall_modes`` (true modes in matched clusters / true modes in band), ``f1`` (of
+        ``precision`` and ``recall``), ``n_detectable`` (detectable clusters),
+        ``n_detectable_modes``, ``n_matched_detectable``, ``amplitude_floor_px`` (NaN
+        without ``amplitudes_px``), ``mean_abs_freq_error_hz``,
         ``mean_rel_freq_error``, ``mean_abs_damping_error``, ``mean_rel_damping_error``,
         ``mean_mac``, ``n_detected``, ``n_matched``, ``n_true_in_band``,
-        ``n_clusters_in_band``, ``frequency_resolution_hz``, ``band_hz``, ``min_mac``, and
+        ``n_clusters_in_band``, ``frequency_resolution_hz``, ``band_hz``, ``min_mac``,
+        ``missed``: one dict per unmatched cluster (``true`` indices, ``frequencies_hz``,
+        ``detectable``, ``amplitude_px``: the largest member amplitude or NaN), and
         ``matching``: one dict per match (``set``, ``detected``, ``true`` (indices of the
         cluster), ``nearest_true``, ``frequency_hz``, ``true_frequency_hz``,
         ``abs_freq_error_hz``, ``damping``, ``true_damping``, ``mac``) and ``unmatched``:
@@ -168,6 +198,17 @@ def score_extraction(
     df = 1.0 / float(duration_s)
     band = np.flatnonzero((ft > fmin) & (ft <= fmax))
     clusters = [[int(band[i]) for i in c] for c in clusters_by_resolution(ft[band], df)]
+    if amplitudes_px is None:
+        amp = None
+        detectable = [True] * len(clusters)
+    else:
+        amp = np.atleast_1d(np.asarray(amplitudes_px, dtype=np.float64))
+        if amp.shape != ft.shape:
+            raise ValueError(f"amplitudes_px {amp.shape} and true_frequencies_hz {ft.shape} "
+                             "differ")
+        if not floor_px >= 0:
+            raise ValueError(f"floor_px must be >= 0, got {floor_px}")
+        detectable = [bool(np.any(amp[c] >= floor_px)) for c in clusters]
     matched_clusters: set[int] = set()
     matching: list[dict[str, Any]] = []
     unmatched: list[tuple[int, int, float]] = []
@@ -224,8 +265,17 @@ def score_extraction(
                       if i not in hit]
     n_matched = len(matching)
     n_cl = len(clusters)
+    n_det_cl = int(sum(detectable))
+    n_hit_det = sum(1 for j in matched_clusters if detectable[j])
     precision = n_matched / n_detected if n_detected else float("nan")
-    recall = len(matched_clusters) / n_cl if n_cl else float("nan")
+    recall_all = len(matched_clusters) / n_cl if n_cl else float("nan")
+    recall = n_hit_det / n_det_cl if n_det_cl else float("nan")
+    missed = [{
+        "true": [int(x) for x in c],
+        "frequencies_hz": [float(ft[x]) for x in c],
+        "detectable": detectable[j],
+        "amplitude_px": float("nan") if amp is None else float(amp[c].max()),
+    } for j, c in enumerate(clusters) if j not in matched_clusters]
     recall_modes = (sum(len(clusters[j]) for j in matched_clusters) / band.size
                     if band.size else float("nan"))
     f1 = (2 * precision * recall / (precision + recall)
@@ -239,6 +289,7 @@ def score_extraction(
     return {
         "precision": precision,
         "recall": recall,
+        "recall_all": recall_all,
         "recall_modes": recall_modes,
         "f1": f1,
         "mean_abs_freq_error_hz": _nanmean([m["abs_freq_error_hz"] for m in matching]),
@@ -250,9 +301,168 @@ def score_extraction(
         "n_matched": int(n_matched),
         "n_true_in_band": int(band.size),
         "n_clusters_in_band": int(n_cl),
+        "n_detectable": n_det_cl,
+        "n_detectable_modes": (int(band.size) if amp is None
+                               else int(np.count_nonzero(amp[band] >= floor_px))),
+        "n_matched_detectable": int(n_hit_det),
+        "amplitude_floor_px": float("nan") if amp is None else float(floor_px),
         "frequency_resolution_hz": df,
         "band_hz": [float(fmin), float(fmax)],
         "min_mac": float(min_mac),
         "matching": matching,
         "unmatched": unmatched,
+        "missed": missed,
     }
+
+
+def _modal_coordinates_fit(surface_modes: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n, 3 S)`` least-squares map from stacked surface displacements to modal
+    coordinates (pseudo-inverse of the ``(3 S, n)`` surface mode matrix)."""
+    return np.linalg.pinv(surface_modes.reshape(surface_modes.shape[0], -1).T)
+
+
+def true_mode_amplitudes(sample: Any, *, chunk_frames: int = 2048) -> dict[str, Any]:
+    """How large each true mode actually is in the sample's video, from the truth alone.
+
+    The modal coordinates ``q_i(t)`` (m kg^1/2) of the filmed motion are the least-squares
+    fit of the stored surface displacements ``transient/displacements`` ``(T, S, 3)`` by the
+    true surface mode shapes ``modes/surface`` (exact for the modal simulation, whose motion
+    is a sum of these modes; the projection for a direct one).  With ``g_i = motion_scale *
+    max_p |Psi_i(p)|`` the largest image motion per unit modal coordinate of mode ``i`` over
+    the visible pixels ``p`` (``image/modes``, NaN off the object; px per m kg^1/2):
+
+    * ``peak_px[i] = g_i max_t |q_i(t)|``: the largest image motion the mode makes at any
+      visible pixel in any frame;
+    * ``line_px[i] = g_i (2 / T) |sum_k q_i(t_k) exp(-2 pi i f_d,i t_k)|`` with ``f_d,i =
+      f_i sqrt(1 - zeta_i**2)``: the amplitude of the undamped sinusoid that has the same
+      Fourier coefficient at the mode's frequency over the record, i.e. the strength of its
+      spectral line.  It equals ``peak_px`` for an undamped free vibration and is about
+      ``peak_px (1 - exp(-s T_r)) / (s T_r)`` (``s = 2 pi f zeta``, ``T_r`` the record
+      length) for a free decay: a mode that dies out early leaves a weak line.
+
+    Parameters
+    ----------
+    sample : Sample
+        An opened sample with video (:func:`vvtbench.dataset.open_sample`): needs
+        ``transient/displacements``, ``transient/times``, ``modes/surface`` and
+        ``image/modes``.
+    chunk_frames : int, default 2048
+        Frames read at a time.
+
+    Returns
+    -------
+    dict
+        ``peak_px``, ``line_px``, ``modal_peak`` (``max_t |q_i|``), ``gain_px`` (``g_i``),
+        each ``(n,)`` float64; ``fit_residual`` (relative RMS of the displacements the modes
+        do not explain), ``motion_scale``.
+
+    Raises
+    ------
+    ValueError
+        If the sample lacks the transient (a modes-only sample) or the arrays disagree.
+    """
+    for name in ("transient/displacements", "transient/times", "modes/surface", "image/modes"):
+        if name not in sample:
+            raise ValueError(f"the sample lacks {name!r} (a modes-only sample, or an older "
+                             "format): the modes' amplitudes in the video are unknown")
+    f = np.asarray(sample.frequencies_hz, dtype=np.float64)
+    zeta = np.asarray(sample.damping_ratios, dtype=np.float64)
+    surf = np.asarray(sample["modes/surface"], dtype=np.float64)
+    if surf.shape[0] != f.size:
+        raise ValueError(f"{surf.shape[0]} surface modes for {f.size} frequencies")
+    pinv = _modal_coordinates_fit(surf)
+    times = np.asarray(sample["transient/times"], dtype=np.float64)
+    disp = sample.array("transient/displacements") if hasattr(sample, "array") else \
+        sample["transient/displacements"]
+    n_t = int(disp.shape[0])
+    fd = f * np.sqrt(np.clip(1.0 - zeta**2, 0.0, None))
+    peak_q = np.zeros(f.size)
+    line = np.zeros(f.size, dtype=np.complex128)
+    res2 = tot2 = 0.0
+    for k0 in range(0, n_t, max(1, int(chunk_frames))):
+        k1 = min(n_t, k0 + max(1, int(chunk_frames)))
+        u = np.asarray(disp[k0:k1], dtype=np.float64).reshape(k1 - k0, -1)  # (t, 3 S)
+        q = u @ pinv.T  # (t, n)
+        peak_q = np.maximum(peak_q, np.abs(q).max(axis=0))
+        line += np.einsum("tn,tn->n", q, np.exp(-2j * np.pi * np.outer(times[k0:k1], fd)))
+        r = u - q @ surf.reshape(f.size, -1)
+        res2 += float(np.sum(r * r))
+        tot2 += float(np.sum(u * u))
+    im = np.asarray(sample["image/modes"], dtype=np.float64)
+    if im.shape[0] != f.size:
+        raise ValueError(f"{im.shape[0]} image modes for {f.size} frequencies")
+    norm2 = np.sum(im * im, axis=-1).reshape(f.size, -1)
+    finite = np.isfinite(norm2)
+    gmax = np.sqrt(np.where(finite, norm2, 0.0).max(axis=1, initial=0.0))
+    video = sample.info.get("video", {})
+    scale = float(video.get("motion_scale", 1.0))
+    g = scale * gmax
+    return {
+        "peak_px": g * peak_q,
+        "line_px": g * 2.0 * np.abs(line) / max(n_t, 1),
+        "modal_peak": peak_q,
+        "gain_px": g,
+        "fit_residual": float(np.sqrt(res2 / tot2)) if tot2 > 0 else 0.0,
+        "motion_scale": scale,
+    }
+
+
+def score_sample_extraction(
+    sample: Any,
+    modesets_or_modeset: Any,
+    fmax: float | None = None,
+    *,
+    fmin: float = 0.0,
+    min_mac: float = 0.5,
+    floor_px: float = DEFAULT_FLOOR_PX,
+    amplitudes: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Score detections against an opened sample, recall over the modes detectable in it.
+
+    :func:`score_extraction` of the sample's true modes (``frequencies_hz``,
+    ``damping_ratios``, ``image/modes``) with ``amplitudes_px`` the true modes' spectral-line
+    amplitudes in the video (``line_px`` of :func:`true_mode_amplitudes`) and the
+    detectability floor ``floor_px``: ``recall`` is over the true-mode clusters in the band
+    with a member of at least ``floor_px``, ``recall_all`` over every cluster in the band.
+    See docs/modes.md, "Scoring extraction".
+
+    Parameters
+    ----------
+    sample : Sample
+        Opened sample with video (:func:`vvtbench.dataset.open_sample`).
+    modesets_or_modeset : ModeSet or sequence of ModeSet
+        Detections from the sample's video (several: pooled, see :func:`score_extraction`).
+    fmax : float, optional
+        Upper end of the band (Hz), capped at the highest true mode (true modes above it are
+        not computed, so not missing); default that mode.
+    fmin, min_mac : float
+        See :func:`score_extraction`.
+    floor_px : float, default 0.001
+        Detectability floor (px).
+    amplitudes : dict, optional
+        A precomputed :func:`true_mode_amplitudes` of the sample (it reads the whole
+        transient).
+
+    Returns
+    -------
+    dict
+        The keys of :func:`score_extraction` (``precision``, ``recall``, ``recall_all``,
+        ``n_detectable``, ``mean_rel_freq_error``, ``mean_mac``, ...), plus
+        ``amplitudes_px`` (the per-mode ``line_px`` list) and ``amplitude_fit_residual``.
+    """
+    from .modes.modeset import ModeSet
+
+    sets = [modesets_or_modeset] if isinstance(modesets_or_modeset, ModeSet) else list(
+        modesets_or_modeset)
+    if not sets:
+        raise ValueError("no mode set given")
+    freqs = np.asarray(sample.frequencies_hz, dtype=np.float64)
+    top = float(freqs.max())
+    band = top if not fmax else min(float(fmax), top)
+    amps = true_mode_amplitudes(sample) if amplitudes is None else amplitudes
+    sc = score_extraction(sets, freqs, sample.damping_ratios, sample["image/modes"],
+                          sets[0].n_frames / sets[0].fps, band, fmin=fmin, min_mac=min_mac,
+                          amplitudes_px=amps["line_px"], floor_px=floor_px)
+    sc["amplitudes_px"] = [float(a) for a in amps["line_px"]]
+    sc["amplitude_fit_residual"] = float(amps["fit_residual"])
+    return sc

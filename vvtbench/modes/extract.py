@@ -25,6 +25,7 @@ from ..video import average_frames, open_video
 from .damping import damping_half_power, damping_lorentzian
 from .modeset import ModeSet
 from .peaks import (
+    Peaks,
     align_phase,
     check_band,
     distortion_products,
@@ -85,6 +86,9 @@ def modes_from_displacements(
     false_alarm: float | None = 0.01,
     floor_half_width_bins: int = 32,
     min_bin: int = 3,
+    shoulder_prominence: float | None = 0.05,
+    shoulder_mac: float = 0.5,
+    shoulder_bins: int = 6,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -146,6 +150,15 @@ def modes_from_displacements(
     min_bin : int, default 3
         Lowest peak bin: frequencies below ``min_bin / duration`` (drift, the mean removal
         and the Hann main lobe around DC) are not modes.
+    shoulder_prominence, shoulder_mac, shoulder_bins :
+        Resolved shoulders (docs/modes.md): a significant local maximum whose prominence is
+        below ``prominence`` but at least ``shoulder_prominence`` (decades), and which has a
+        stronger peak within ``shoulder_bins`` bins, is a mode of its own when its complex
+        field differs from those of all such stronger peaks (complex MAC below
+        ``shoulder_mac``): a mode standing on the flank of a stronger neighbour has its own
+        shape, while the flank, the window's sidelobes and noise wiggles on them have the
+        neighbour's.  Kept ones count against ``max_modes`` after the prominent peaks.
+        ``None`` turns this off.
 
     Returns
     -------
@@ -169,10 +182,33 @@ def modes_from_displacements(
         floor_half_width_bins=floor_half_width_bins,
         min_bin=min_bin,
     )
-    Z = bin_fields(disp, pk.bins, detrend=detrend, window=window, block_bytes=block_bytes)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    cand, cand_prom = np.zeros(0, np.int64), np.zeros(0)
+    if shoulder_prominence is not None and shoulder_prominence < prominence and (
+            max_modes is None or len(pk) < max_modes):
+        low = pick_peaks(
+            freqs, power, fps, fmin=band[0], fmax=band[1], prominence=shoulder_prominence,
+            min_separation_hz=min_separation_hz, max_peaks=None,
+            min_power_ratio=min_power_ratio, false_alarm=false_alarm,
+            floor_half_width_bins=floor_half_width_bins, min_bin=min_bin,
+        )
+        pw = np.asarray(power, np.float64)
+        # only candidates with a stronger peak near them need (and get) their field
+        near = np.array([np.any((np.abs(low.bins - k) <= shoulder_bins) & (pw[low.bins] > pw[k]))
+                         for k in low.bins], bool).reshape(-1)
+        new_ = ~np.isin(low.bins, pk.bins) & near
+        cand, cand_prom = low.bins[new_], low.prominences[new_]
+    Z_all = bin_fields(disp, np.concatenate([pk.bins, cand]), detrend=detrend, window=window,
+                       block_bytes=block_bytes)
+    Z, shoulders = Z_all[: len(pk)], []
+    if cand.size:
+        pk, Z, shoulders = _resolved_shoulders(
+            pk, Z, cand, cand_prom, Z_all[len(pk):], np.asarray(freqs, np.float64),
+            np.asarray(power, np.float64), w, shoulder_bins, shoulder_mac,
+            None if max_modes is None else max_modes - len(pk),
+        )
     T = _n_frames(disp)
     gain = window_gain(T, window)
-    w = None if weights is None else np.asarray(weights, dtype=np.float64)
     rows: dict[str, list] = {k: [] for k in _ROWS}
     shapes = []
     rough = []
@@ -222,6 +258,10 @@ def modes_from_displacements(
         roughness=[float(r) for r in rough],
         weighted=weights is not None,
         min_bin=int(min_bin),
+        shoulder_prominence=shoulder_prominence,
+        shoulder_mac=shoulder_mac,
+        shoulder_bins=int(shoulder_bins),
+        shoulders=shoulders,
         noise_floor=None if pk.noise is None else pk.noise.summary(),
         floor_ratio=None if pk.floor_ratio is None else [float(r) for r in pk.floor_ratio],
     )
@@ -281,6 +321,53 @@ def modes_from_displacements(
             rejected.append(entry)
     meta["rejected"] = rejected
     return ms.select(~drop)
+
+
+def _complex_mac(a: NDArray, b: NDArray, w: NDArray[np.float64] | None) -> float:
+    """``|<a, b>_w|**2 / (<a, a>_w <b, b>_w)`` of two complex ``(H, W, 2)`` fields."""
+    ww = np.ones(a.shape[:2]) if w is None else w
+    ab = complex(np.einsum("hwc,hwc,hw->", np.conj(a), b, ww))
+    aa = float(np.einsum("hwc,hw->", np.abs(a) ** 2, ww))
+    bb = float(np.einsum("hwc,hw->", np.abs(b) ** 2, ww))
+    return abs(ab) ** 2 / (aa * bb) if aa > 0 and bb > 0 else 1.0
+
+
+def _resolved_shoulders(pk: Peaks, Z: NDArray, cand: NDArray[np.int64],
+                        cand_prom: NDArray[np.float64], Zc: NDArray,
+                        freqs: NDArray[np.float64], power: NDArray[np.float64],
+                        w: NDArray[np.float64] | None, max_bins: int, max_mac: float,
+                        room: int | None) -> tuple[Peaks, NDArray, list]:
+    """Add the low-prominence candidates ``cand`` (fields ``Zc``) whose field differs from
+    that of every stronger peak within ``max_bins`` bins (complex MAC below ``max_mac``),
+    strongest first, at most ``room`` of them; returns the peaks, their fields and a log
+    (``bin``, ``frequency_hz``, ``mac``, ``kept`` per candidate with a stronger neighbour)."""
+    bins, fields, prom = list(pk.bins), list(Z), list(pk.prominences)
+    log: list[dict] = []
+    n_new = 0
+    for i in np.argsort(-power[cand], kind="stable"):
+        k = int(cand[i])
+        if room is not None and n_new >= room:
+            break
+        near = [j for j, b in enumerate(bins) if abs(b - k) <= max_bins and power[b] > power[k]]
+        if not near:
+            continue
+        mac = max(_complex_mac(Zc[i], fields[j], w) for j in near)
+        keep = mac < max_mac
+        log.append({"bin": k, "frequency_hz": float(freqs[k]), "mac": float(mac),
+                    "kept": bool(keep)})
+        if keep:
+            bins.append(k)
+            fields.append(Zc[i])
+            prom.append(float(cand_prom[i]))
+            n_new += 1
+    if not n_new:
+        return pk, Z, log
+    order = np.argsort(bins, kind="stable")
+    b = np.asarray(bins, np.int64)[order]
+    floor = None if pk.noise is None else pk.noise.floor
+    new = Peaks(bins=b, frequencies_hz=freqs[b], prominences=np.asarray(prom)[order],
+                floor_ratio=None if floor is None else power[b] / floor[b], noise=pk.noise)
+    return new, np.stack([fields[j] for j in order]), log
 
 
 _ROWS = (
@@ -348,6 +435,7 @@ def extract_modes(
     progress: bool = False,
     false_alarm: float | None = 0.01,
     min_bin: int = 3,
+    shoulder_prominence: float | None = 0.05,
     extractor: Any = "phase",
     extractor_config: Any = None,
 ) -> ModeSet:
@@ -382,8 +470,9 @@ def extract_modes(
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
     progress : bool
         Show a tqdm progress bar on stderr.
-    false_alarm, min_bin :
-        Peak significance and the lowest peak bin, see :func:`modes_from_displacements`.
+    false_alarm, min_bin, shoulder_prominence :
+        Peak significance, the lowest peak bin and resolved shoulders, see
+        :func:`modes_from_displacements`.
     extractor : str, class or instance, default "phase"
         Motion extractor plug-in (:mod:`vvtbench.extractors`): a registered name
         (``"phase"``, ``"farneback"``, ...), ``module:Class`` / ``path.py:Class``, a class or an
@@ -484,6 +573,7 @@ def extract_modes(
             output_shape=tuple(pm.shape),
             false_alarm=false_alarm,
             min_bin=min_bin,
+            shoulder_prominence=shoulder_prominence,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
