@@ -680,21 +680,42 @@ def _md_frame(t) -> str:
 
 
 def extraction_table(df, track: str):
-    """Per scene of ``track``: the extraction's precision, recall, relative frequency error
-    and mean MAC of matched modes (one extraction per scene and variation; None when the
-    track has no extracted modes)."""
-    cols = ["extraction_precision", "extraction_recall", "extraction_mean_rel_freq_error",
-            "extraction_mean_mac"]
-    if not set(cols) <= set(df.columns):
+    """Per scene of ``track``: the extraction's precision, recall over the true modes
+    detectable in the video, recall over every true mode in band, relative frequency error
+    and mean MAC of matched modes (one extraction per scene and variation), then their mean
+    over the scenes with its bootstrap interval; None when the track has no extracted modes."""
+    from .stats import summarize
+
+    cols = [c for c in ("extraction_precision", "extraction_recall", "extraction_recall_all",
+                        "extraction_mean_rel_freq_error", "extraction_mean_mac")
+            if c in df.columns]
+    if "extraction_recall" not in cols:
         return None
     d = df[(df.track == track) & (df.observation == "extracted")]
     d = d.dropna(subset=["extraction_recall"])
     if d.empty:
         return None
     t = d.groupby(["scene", "variation"], sort=False)[cols].first().reset_index()
-    return t.rename(columns={c: c.replace("extraction_", "").replace("mean_rel_freq_error",
-                                                                     "freq error (rel.)")
-                             for c in cols} | {"extraction_mean_mac": "mean MAC"})
+    if len(t) > 1:
+        mean = {"scene": f"mean of {len(t)} [{_PCT} CI]", "variation": ""}
+        for c in cols:
+            st = summarize(t[c].astype(float).to_numpy())
+            mean[c] = (f"{st['mean']:.3f} [{st['mean_ci_low']:.2f}, {st['mean_ci_high']:.2f}]"
+                       if np.isfinite(st.get("mean_ci_low", np.nan)) else st["mean"])
+        t = _with_row(t, mean)
+    names = {"extraction_precision": "precision",
+             "extraction_recall": "recall (detectable)",
+             "extraction_recall_all": "recall (all in band)",
+             "extraction_mean_rel_freq_error": "freq error (rel.)",
+             "extraction_mean_mac": "mean MAC"}
+    return t.rename(columns=names)
+
+
+def _with_row(t, row: dict):
+    """``t`` with one more row (object columns where the new row holds text)."""
+    import pandas as pd
+
+    return pd.concat([t.astype(object), pd.DataFrame([row])], ignore_index=True)
 
 
 __all__ = ["LeaderboardError", "build", "extraction_table", "prepare_output", "ranking",

@@ -225,7 +225,7 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
                 if key:
                     metrics[key] = val
     for key, val in (truth.meta.get("extraction") or {}).items():
-        if key in ("precision", "recall", "mean_rel_freq_error", "mean_mac"):
+        if key in ("precision", "recall", "recall_all", "mean_rel_freq_error", "mean_mac"):
             metrics[f"extraction_{key}"] = val
     return {"metrics": metrics, "curves": curves, "notes": notes}
 

@@ -17,6 +17,10 @@ from .suite import Suite, SuiteError, Track, apply_overrides, scene_ref
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 # Bump when a stage's output format or meaning changes (part of every task key).
 CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the contract, no pickle
+#: revision of the mode extraction and of its scoring (part of the extract and observe keys
+#: of extracted tracks only: true-mode tracks keep their cache). 2: shoulder modes, recall
+#: over the modes detectable in the video
+EXTRACTION_REVISION = 2
 
 
 def _canon(x):
@@ -189,7 +193,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             for obs in track.observations:
                 ext_keys = []
                 if obs == "extracted":
-                    ext_keys = [add("extract", [extract_opts], [g], {"options": extract_opts},
+                    ext_keys = [add("extract", [extract_opts, EXTRACTION_REVISION], [g],
+                                    {"options": extract_opts},
                                     name) for g, name in zip(gen_keys, [d["name"] for d in
                                                                         scene_dicts],
                                                              strict=True)]
@@ -199,7 +204,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 obs_payload = {"scene": scene_dicts[0], "inference": inf, "observation": obs,
                                "extract": extract_opts}
                 obs_key = add("observe", [scene_dicts[0], inf, obs,
-                                          extract_opts if obs == "extracted" else {}],
+                                          {**extract_opts, "revision": EXTRACTION_REVISION}
+                                          if obs == "extracted" else {}],
                               [gen_keys[0], *ext_keys], obs_payload, scene_label)
                 if stop < 3:
                     continue

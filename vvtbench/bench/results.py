@@ -17,7 +17,7 @@ from .suite import OBSERVATIONS
 METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_star_w",
                   "sigma_star_v", "nc_at_sigma_star_w", "nc_at_sigma_star_v", "mode_mac",
                   "freq_err_raw", "freq_err_scaled", "mode_mac_true", "freq_err_true_scaled",
-                  "extraction_precision", "extraction_recall",
+                  "extraction_precision", "extraction_recall", "extraction_recall_all",
                   "extraction_mean_rel_freq_error", "extraction_mean_mac",
                   "false_contrast_w", "false_contrast_v",
                   "interval_coverage_w", "interval_coverage_v")
@@ -201,6 +201,7 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
            "freq_err_raw": (0.0, None), "freq_err_scaled": (0.0, None),
            "mode_mac_true": (0.0, 1.0), "freq_err_true_scaled": (0.0, None),
            "extraction_precision": (0.0, 1.0), "extraction_recall": (0.0, 1.0),
+           "extraction_recall_all": (0.0, 1.0),
            "extraction_mean_rel_freq_error": (0.0, None), "extraction_mean_mac": (0.0, 1.0),
            "false_contrast_w": (0.0, None), "false_contrast_v": (0.0, None),
            "interval_coverage_w": (0.0, 1.0), "interval_coverage_v": (0.0, 1.0),

@@ -80,21 +80,19 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
             "meta": {k: v for k, v in problem.meta.items() if k != "camera"}}
 
 
-EXTRACTION_KEYS = ("precision", "recall", "mean_rel_freq_error", "mean_abs_damping_error",
-                   "mean_mac", "n_detected", "n_true_in_band")
+EXTRACTION_KEYS = ("precision", "recall", "recall_all", "n_detectable", "mean_rel_freq_error",
+                   "mean_abs_damping_error", "mean_mac", "n_detected", "n_true_in_band")
 
 
 def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:
     """The extraction's detected modes scored against the true ones of the opened sample
-    ``s`` (:func:`vvtbench.extraction_scores.score_extraction`), pooled over the views."""
-    from ..extraction_scores import score_extraction
+    ``s``, pooled over the views: :func:`vvtbench.extraction_scores.score_sample_extraction`
+    (recall over the true modes detectable in the video, ``recall_all`` over all in band)."""
+    from ..extraction_scores import score_sample_extraction
     from ..modes import ModeSet
 
-    sets = [ModeSet.load(m) for m in modes]
-    freqs = s.frequencies_hz
-    band = float(fmax) if fmax else float(freqs.max())
-    sc = score_extraction(sets, freqs, s.damping_ratios, s["image/modes"],
-                          sets[0].n_frames / sets[0].fps, min(band, float(freqs.max())))
+    sc = score_sample_extraction(s, [ModeSet.load(m) for m in modes],
+                                 float(fmax) if fmax else None)
     return {k: sc[k] for k in EXTRACTION_KEYS}
 
 
