@@ -117,7 +117,15 @@ def test_extracted_modes_are_paired_with_true_ones(sample):
     assert 1 <= problem.n_modes <= 5
     assert truth.modes_3d.shape == (problem.model.n_free, problem.n_modes)
     assert len(set(truth.matched.tolist())) == problem.n_modes
-    assert truth.extraction_mac.min() > 0.5
+    # modes closer than the resolution (1 / 0.5 s) cannot be told apart: a detection is any
+    # combination of its cluster, scored against the cluster's span (as the extraction score)
+    from vvtbench.extraction_scores import clusters_by_resolution, subspace_mac
+
+    f_all = np.sqrt(truth.true_eigenvalues) / (2 * np.pi)
+    cluster_of = {j: c for c in clusters_by_resolution(f_all, 1 / 0.5) for j in c}
+    for i, j in enumerate(truth.matched):
+        assert subspace_mac(problem.gamma[i], truth.image_modes[cluster_of[j]]) > 0.5
+    assert np.median(truth.extraction_mac) > 0.5
     f_obs, f_true = problem.frequencies_hz, truth.frequencies_hz
     assert np.all(np.abs(f_obs - f_true) < 1 / 0.5)  # within the resolution of a 0.5 s video
 
