@@ -167,31 +167,6 @@ def _shift(lam: np.ndarray) -> float:
     return -1e-3 * max(float(lam[0]), 1e-3 * top) if lam[0] > 0 else -1e-3 * top - 1.0
 
 
-def warm_eigenpairs(K, M, factor, X0, n, tol=1e-9, max_it=8):
-    """The ``n`` lowest eigenpairs of K x = lam M x by shift-invert subspace iteration with
-    Rayleigh-Ritz, started from ``X0`` (n_free, p >= n; the previous iteration's modes plus
-    guard vectors), ``factor`` solving (K - sigma M). None when not converged within
-    ``max_it`` iterations (the caller then solves from scratch)."""
-    from vvtbench.fem.modal import backward_errors
-
-    norms = (abs(K).sum(axis=1).max(), abs(M).sum(axis=1).max())
-    X = X0
-    for _ in range(max_it):
-        B = np.hstack([X, factor(np.asarray(M @ X))])
-        for _ in range(2):  # M-orthonormal basis (CGS by the Gram's eigenvectors)
-            g = B.T @ (M @ B)
-            d, V = np.linalg.eigh((g + g.T) / 2)
-            keep = d > 1e-12 * d.max()
-            B = B @ (V[:, keep] / np.sqrt(d[keep]))
-        kr = B.T @ (K @ B)
-        theta, Y = np.linalg.eigh((kr + kr.T) / 2)
-        X = B @ Y[:, :X0.shape[1]]
-        lam = theta[:X0.shape[1]]
-        if backward_errors(K, M, lam[:n], X[:, :n], norms).max() < tol:
-            return lam, X
-    return None
-
-
 # --------------------------------------------------------------------------- derivatives
 
 
@@ -230,34 +205,36 @@ class ShapeDerivatives:
             for _ in range(series_terms - 1):
                 z = fac(np.asarray(M @ z))
                 self.Z.append(z)
-        # one sparse product per mode: [phi, Z_0, Z_1, ...]
-        self._right = np.hstack([phi] + self.Z)
 
     def mode(self, j: int):
-        """(dlam_j / dtheta (2m,), P dphi_j / dtheta (r, 2m)) of model mode j."""
+        """(dlam_j / dtheta (2m,), P dphi_j / dtheta (r, 2m)) of model mode j.
+
+        The projected response operator of mode j, V_j = Phi diag(coef) Q^T + sum_p mu_j^p
+        Z_p (n, r; dense, BLAS), is formed first, so the per-parameter part is two sparse
+        products G^T V_j, H^T V_j with the element-column matrices of phi_j.
+        """
         model, w, v = self.model, self.w, self.v
         m = len(w)
         phi = self.phi[:, j]
         lam = self.lam[j]
-        G = model.stiffness_columns(phi)
-        H = model.mass_columns(phi)
-        gK = G.T @ phi
-        gM = H.T @ phi
+        G = model.stiffness_columns(phi).T.tocsr()  # (m, n): row e = (K_e phi)^T
+        H = model.mass_columns(phi).T.tocsr()
+        gK = G @ phi
+        gM = H @ phi
         dlam = np.concatenate([w * gK, -lam * v * gM])
-        F = sp.hstack([G @ sp.diags(-w), H @ sp.diags(lam * v)]).tocsr()  # (n, 2m)
-        Ft = F.T.tocsr()
-        N, r = self.phi.shape[1], self.Q.shape[0]
-        prod = np.asarray(Ft @ self._right)  # (2m, N + T r)
-        PhiF = prod[:, :N].T  # (N, 2m)
         mu_i = self.mu[j]
         T = len(self.Z)
         series = sum(mu_i ** p / self.mu ** (p + 1) for p in range(T)) if T else 0.0
         gap = self.lam - lam
         far = np.abs(gap) > self.gap_rtol * abs(lam)
         coef = np.where(far, 1.0 / np.where(far, gap, 1.0), 0.0) - series
-        dQ = self.Q @ (coef[:, None] * PhiF)
+        V = self.phi @ (coef[:, None] * self.Q.T)  # (n, r)
         for p in range(T):
-            dQ += mu_i ** p * prod[:, N + p * r:N + (p + 1) * r].T
+            V += mu_i ** p * self.Z[p]
+        # g = -(dK - lam dM) phi: columns -w_e K_e phi (log w), lam v_e M_e phi (log v)
+        dQ = np.empty((self.Q.shape[0], 2 * m))
+        dQ[:, :m] = (G @ V).T * -w
+        dQ[:, m:] = (H @ V).T * (lam * v)
         # mass normalization: c = -1/2 phi^T dM phi (v columns only)
         dQ[:, m:] += np.outer(self.Q[:, j], -0.5 * v * gM)
         return dlam, dQ
@@ -270,7 +247,7 @@ class _State:
     """Model quantities at one parameter vector."""
 
     __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "q", "s", "r_data",
-                 "cost", "data_cost", "K", "M", "factor", "sigma", "guard")
+                 "cost", "data_cost", "K", "M")
 
 
 class SensitivitySolver:
@@ -380,24 +357,8 @@ class SensitivitySolver:
         s.theta = theta
         s.w, s.v = np.exp(theta[:m]), np.exp(theta[m:])
         s.K, s.M = self.model.K(s.w), self.model.M(s.v)
-        s.factor = None
-        got = None
-        if prev is not None:
-            from vvtbench.fem.modal import Factorization
-
-            s.sigma = _shift(prev.lam)
-            s.factor = Factorization((s.K - s.sigma * s.M).tocsc())
-            got = warm_eigenpairs(s.K, s.M, s.factor, prev.guard, self.n_model)
-        if got is None:
-            n_guard = min(self.n_model + 6, self.model.n_free - 1)
-            modes = eigenmodes(s.K, s.M, n_guard)
-            lam_all, vec_all = modes.eigenvalues, modes.vectors
-            if s.factor is None or s.sigma > 0.5 * lam_all[0]:
-                s.sigma = _shift(lam_all)
-                s.factor = None
-        else:
-            lam_all, vec_all = got
-        s.guard = vec_all
+        modes = eigenmodes(s.K, s.M, self.n_model)
+        lam_all, vec_all = modes.eigenvalues, modes.vectors
         s.lam, phi = lam_all[:self.n_model], vec_all[:, :self.n_model]
         Q = np.asarray(self.problem.P @ phi)
         qn = np.maximum(np.sum(Q * Q, axis=0), 1e-300)
@@ -429,7 +390,7 @@ class SensitivitySolver:
         """Dense (k + k r, 2m) Jacobian of the data residuals with respect to theta."""
         cfg = self.config
         der = ShapeDerivatives(self.model, self.problem.P, s.w, s.v, s.lam, s.phi,
-                               cfg.series_terms, cfg.gap_rtol, s.factor, s.sigma)
+                               cfg.series_terms, cfg.gap_rtol)
         k = self.k
         r = self.gamma.shape[1]
         J = np.empty((k + k * r, 2 * self.m))
@@ -493,10 +454,10 @@ class SensitivitySolver:
                 J = self._jacobian(state)
                 Hp, gp = self._prior_system(state.theta)
                 a = self._anchor(state)
-                H = J.T @ J + Hp.toarray() + np.outer(a, a)
-                g = J.T @ state.r_data + gp
-                Hc = np.asarray(T2.T @ (T2.T @ H).T)  # T^T H T (H symmetric)
-                gc = T2.T @ g
+                Jc = J if level == 0 else np.asarray((T2.T @ J.T).T)  # J T
+                ac = T2.T @ a
+                Hc = Jc.T @ Jc + (T2.T @ Hp @ T2).toarray() + np.outer(ac, ac)
+                gc = Jc.T @ state.r_data + T2.T @ gp
                 dA = np.maximum(np.diag(Hc), 1e-12 * max(np.diag(Hc).max(), 1e-300))
                 accepted = False
                 for _ in range(10):
