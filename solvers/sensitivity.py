@@ -107,6 +107,10 @@ class SensitivityConfig:
         "help": "terms of the static-correction series for the modes above the computed ones"})
     gap_rtol: float = field(default=1e-5, metadata={
         "help": "leave out mode pairs with |lam_i - lam_j| < gap_rtol lam_i in dphi"})
+    cluster_rtol: float = field(default=1e-6, metadata={
+        "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
+                "rotated towards the paired observations (Rayleigh quotients as its "
+                "eigenvalues) and its inner couplings are left out of dphi"})
     pairing: str = field(default="track", metadata={
         "help": "'track' (3-D MAC with the previous iteration's modes) or 'observed' "
                 "(re-pair by projected MAC every iteration)"})
@@ -181,10 +185,14 @@ class ShapeDerivatives:
     w, v : material.
     lam, phi : the N lowest eigenpairs of the model at (w, v), mass-normalized.
     series_terms, gap_rtol : see :class:`SensitivityConfig`.
+    factor, sigma : a factorization of K - sigma M and its shift (default: made here).
+    clusters : (N,) cluster label of each mode; couplings inside a cluster are left out, so
+        dphi_j is the derivative of the cluster's invariant subspace (up to a rotation inside
+        it), which is what a rotation-invariant residual needs.
     """
 
     def __init__(self, model, P, w, v, lam, phi, series_terms=3, gap_rtol=1e-5,
-                 factor=None, sigma=None) -> None:
+                 factor=None, sigma=None, clusters=None) -> None:
         from vvtbench.fem.modal import Factorization
 
         self.model, self.w, self.v = model, w, v
@@ -192,6 +200,7 @@ class ShapeDerivatives:
         self.P = sp.csr_matrix(P)
         self.Q = np.asarray(self.P @ phi)
         self.gap_rtol = gap_rtol
+        self.clusters = None if clusters is None else np.asarray(clusters)
         K, M = model.K(w), model.M(v)
         self.M = M
         # a small negative shift keeps K_s definite even without fixed DOFs
@@ -227,6 +236,9 @@ class ShapeDerivatives:
         series = sum(mu_i ** p / self.mu ** (p + 1) for p in range(T)) if T else 0.0
         gap = self.lam - lam
         far = np.abs(gap) > self.gap_rtol * abs(lam)
+        if self.clusters is not None:
+            far &= self.clusters != self.clusters[j]
+        far[j] = False
         coef = np.where(far, 1.0 / np.where(far, gap, 1.0), 0.0) - series
         V = self.phi @ (coef[:, None] * self.Q.T)  # (n, r)
         for p in range(T):
@@ -246,8 +258,8 @@ class ShapeDerivatives:
 class _State:
     """Model quantities at one parameter vector."""
 
-    __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "q", "s", "r_data",
-                 "cost", "data_cost", "K", "M")
+    __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "r_data", "cost",
+                 "data_cost", "K", "M", "Q", "label", "groups", "obs_group", "a", "e")
 
 
 class SensitivitySolver:
@@ -316,36 +328,8 @@ class SensitivitySolver:
             gp = gp + self.D2.T @ (self.tv_w * d / psi)
         return Hp, gp
 
-    def _align_clusters(self, lam, phi, Q, M, pair):
-        """Rotate clusters of repeated eigenvalues towards the paired observations."""
-        from vvtbench.fem.modal import cluster_frequencies
-
-        phi, Q = phi.copy(), Q.copy()
-        for group in cluster_frequencies(lam, rtol=1e-6):
-            if len(group) < 2:
-                continue
-            obs = [i for i in range(self.k) if pair[i] in group]
-            if not obs:
-                continue
-            Qc = Q[:, group]
-            coef, *_ = np.linalg.lstsq(Qc, self.gamma[obs].T, rcond=None)  # (g, n_obs)
-            # basis: the best fits first, completed by the old basis; M-orthonormal (QR in
-            # coefficient space, the cluster's modes being M-orthonormal)
-            Cq, _ = np.linalg.qr(np.hstack([coef, np.eye(len(group))]))
-            Cq = Cq[:, :len(group)]
-            # keep each paired observation on the column it was paired with
-            order = [pair[i] for i in obs]
-            slots = [list(group).index(p) for p in order]
-            rest = [s for s in range(len(group)) if s not in slots]
-            perm = np.empty(len(group), dtype=int)
-            perm[slots] = np.arange(len(obs))
-            perm[rest] = np.arange(len(obs), len(group))
-            R = Cq[:, perm]
-            phi[:, group] = phi[:, group] @ R
-            Q[:, group] = Qc @ R
-        return phi, Q
-
-    def _evaluate(self, theta: np.ndarray, prev: _State | None) -> _State:
+    def _evaluate(self, theta: np.ndarray, prev: _State | None,
+                  label: np.ndarray | None = None) -> _State:
         from scipy.optimize import linear_sum_assignment
 
         from vvtbench.fem.modal import eigenmodes
@@ -370,37 +354,88 @@ class SensitivitySolver:
             mac3 = (old.T @ (s.M @ phi)) ** 2
             _, cols = linear_sum_assignment(-mac3)
         s.pair = np.asarray(cols)
-        phi, Q = self._align_clusters(s.lam, phi, Q, s.M, s.pair)
-        s.phi = phi
-        q = Q[:, s.pair]
-        qn = np.maximum(np.sum(q * q, axis=0), 1e-300)
-        c = np.sum(self.gamma.T * q, axis=0)
-        s.mac = c ** 2 / qn
-        s.s = c / qn
-        s.q = q
+        s.phi, s.Q = phi, Q
+        return self._residuals(s, label)
+
+    def _residuals(self, s: _State, label: np.ndarray | None = None) -> _State:
+        """Data residuals and cost of ``s`` with the clusters ``label`` (default: from its
+        eigenvalues). Trial steps keep the current state's clusters, so that the cost an LM
+        step is judged by does not jump where clusters merge or split."""
+        self._fit_clusters(s, s.Q, label)
         lam_obs = self.problem.eigenvalues
         r_eig = self.sq_eig * np.log(np.maximum(s.lam[s.pair], 1e-300) / lam_obs)
-        r_shape = (self.sq_shape[None, :] * (s.s[None, :] * q - self.gamma.T)).T.ravel()
+        r_shape = (self.sq_shape[:, None] * (-s.e)).ravel()
         s.r_data = np.concatenate([r_eig, r_shape])
         s.data_cost = float(s.r_data @ s.r_data)
-        s.cost = s.data_cost + self._prior(theta)
+        s.cost = s.data_cost + self._prior(s.theta)
         return s
 
+    def _fit_clusters(self, s: _State, Q: np.ndarray, label: np.ndarray | None = None) -> None:
+        """Cluster the model's eigenvalues (``cluster_rtol``), re-pair the observations
+        inside each cluster by eigenvalue order, and fit each observed mode by the projection
+        onto its cluster's projected modes: gamma_i ~ Q_C a_i, e_i = gamma_i - Q_C a_i.
+
+        Sets ``label``, ``groups`` ((members, Q_C, (Q_C^T Q_C)^-1) per cluster holding an
+        observation), ``obs_group``, ``a``, ``e`` (k, r) and ``mac`` = 1 - |e_i|^2.
+        """
+        from scipy.optimize import linear_sum_assignment
+
+        from vvtbench.fem.modal import cluster_frequencies
+
+        if label is None:
+            label = np.empty(len(s.lam), dtype=int)
+            for g, members in enumerate(cluster_frequencies(s.lam,
+                                                            rtol=self.config.cluster_rtol)):
+                label[members] = g
+        s.label = label
+        s.groups, s.obs_group, s.a = [], np.empty(self.k, dtype=int), [None] * self.k
+        s.e = np.empty_like(self.gamma)
+        for g in np.unique(label[s.pair]):
+            obs = np.flatnonzero(label[s.pair] == g)
+            members = np.flatnonzero(label == g)
+            Qc = Q[:, members]
+            if len(obs) > 1:  # inside a cluster: pair by projected MAC
+                qn = np.maximum(np.sum(Qc * Qc, axis=0), 1e-300)
+                _, cols = linear_sum_assignment(-(self.gamma[obs] @ Qc) ** 2 / qn[None, :])
+                s.pair[obs] = members[cols]
+            Ainv = np.linalg.pinv(Qc.T @ Qc)
+            coef = Ainv @ (Qc.T @ self.gamma[obs].T)  # (c, n_obs)
+            s.e[obs] = self.gamma[obs] - (Qc @ coef).T
+            for n, i in enumerate(obs):
+                s.obs_group[i] = len(s.groups)
+                s.a[i] = coef[:, n]
+            s.groups.append((members, Qc, Ainv))
+        s.mac = 1.0 - np.sum(s.e * s.e, axis=1)
+
     def _jacobian(self, s: _State) -> np.ndarray:
-        """Dense (k + k r, 2m) Jacobian of the data residuals with respect to theta."""
+        """Dense (k + k r, 2m) Jacobian of the data residuals with respect to theta.
+
+        Shape residual of observation i in cluster C: r_i = Pi_C gamma_i - gamma_i with
+        Pi_C = Q_C A^-1 Q_C^T, A = Q_C^T Q_C; d(Pi_C gamma) = (I - Pi_C) sum_j a_j dQ_j +
+        Q_C A^-1 [e^T dQ_j]_j (a = A^-1 Q_C^T gamma, e = gamma - Pi_C gamma).
+        """
         cfg = self.config
         der = ShapeDerivatives(self.model, self.problem.P, s.w, s.v, s.lam, s.phi,
-                               cfg.series_terms, cfg.gap_rtol)
+                               cfg.series_terms, cfg.gap_rtol, clusters=s.label)
         k = self.k
         r = self.gamma.shape[1]
         J = np.empty((k + k * r, 2 * self.m))
+        cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+        def mode(j):
+            if j not in cache:
+                cache[j] = der.mode(j)
+            return cache[j]
+
         for i in range(k):
             j = s.pair[i]
-            dlam, dQ = der.mode(j)
-            J[i] = self.sq_eig[i] * dlam / s.lam[j]
-            q = s.q[:, i]
-            b = (self.gamma[i] - 2 * s.s[i] * q) / max(q @ q, 1e-300)
-            J[k + i * r:k + (i + 1) * r] = self.sq_shape[i] * (s.s[i] * dQ + np.outer(q, b @ dQ))
+            J[i] = self.sq_eig[i] * mode(j)[0] / s.lam[j]
+            members, Qc, Ainv = s.groups[s.obs_group[i]]
+            a, e = s.a[i], s.e[i]
+            X = sum(a[c] * mode(jj)[1] for c, jj in enumerate(members))
+            X -= Qc @ (Ainv @ (Qc.T @ X))
+            X += Qc @ (Ainv @ np.array([e @ mode(jj)[1] for jj in members]))
+            J[k + i * r:k + (i + 1) * r] = self.sq_shape[i] * X
         return J
 
     def _anchor(self, s: _State) -> np.ndarray:
@@ -470,7 +505,7 @@ class SensitivitySolver:
                     big = np.abs(delta).max()
                     if big > cfg.max_step:
                         delta *= cfg.max_step / big
-                    trial = self._evaluate(state.theta + delta, state)
+                    trial = self._evaluate(state.theta + delta, state, state.label)
                     n_eval += 1
                     if trial.cost < state.cost:
                         accepted = True
@@ -481,7 +516,7 @@ class SensitivitySolver:
                 if not accepted:
                     break
                 decrease = (state.cost - trial.cost) / max(state.cost, 1e-300)
-                state = trial
+                state = self._residuals(trial)  # the clusters at the new point
                 mu = max(mu / 3.0, 1e-9)
                 rec = {
                     "iteration": it,
