@@ -24,25 +24,42 @@ parameter):
 
 * eigenvalues: dlam_i/dlog w_e = w_e phi_i^T K_e phi_i, dlam_i/dlog v_e = -lam_i v_e
   phi_i^T M_e phi_i (``stiffness_columns`` / ``mass_columns`` of phi_i, since dK/dw_e = K_e).
-* mode shapes, Nelson's form: dphi_i = A_i^+ g + c phi_i, g = -(dK - lam_i dM) phi_i,
-  c = -1/2 phi_i^T dM phi_i, A_i^+ the inverse of K - lam_i M on the M-orthogonal complement
-  of phi_i, A_i^+ = sum_{j != i} phi_j phi_j^T / (lam_j - lam_i). Over the N computed modes
-  this sum is exact; the rest (j > N) is the expansion 1/(mu_j - mu_i) = sum_p mu_i^p /
-  mu_j^(p+1) (mu = lam - sigma), i.e. sum_p mu_i^p [K_s^-1 (M K_s^-1)^p - sum_{j<=N} phi_j
-  phi_j^T / mu_j^(p+1)] with K_s = K - sigma M, truncated after ``series_terms`` terms (error
-  ~ (lam_i / lam_(N+1))^series_terms). Only the projections are needed, so one sparse
-  Cholesky of K_s per iteration and ``series_terms`` multi-right-hand-side solves with P^T,
-  Z_p = K_s^-1 (M K_s^-1)^p P^T, serve every mode and every parameter: P A_i^+ g =
-  Q diag(coef_i) Phi^T g + sum_p mu_i^p Z_p^T g. Pairs of (near-)repeated eigenvalues
-  (relative gap < ``gap_rtol``) are left out (no derivative exists there).
+* mode shapes, Nelson's form (per mode j the projected response operator V_j = Phi diag(coef_j)
+  Q^T + sum_p mu_j^p Z_p (n x r, dense) is formed once, so the per-parameter part is two sparse
+  products with the element columns of phi_j): dphi_i = A_i^+ g + c phi_i, g = -(dK - lam_i dM)
+  phi_i, c = -1/2 phi_i^T dM phi_i, A_i^+ the inverse of K - lam_i M on the M-orthogonal
+  complement of phi_i, A_i^+ = sum_{j != i} phi_j phi_j^T / (lam_j - lam_i). Over the N
+  computed modes this sum is exact; the rest (j > N) is the expansion 1/(mu_j - mu_i) = sum_p
+  mu_i^p / mu_j^(p+1) (mu = lam - sigma), i.e. sum_p mu_i^p [K_s^-1 (M K_s^-1)^p - sum_{j<=N}
+  phi_j phi_j^T / mu_j^(p+1)] with K_s = K - sigma M, truncated after ``series_terms`` terms
+  (error ~ (lam_i / lam_(N+1))^series_terms). Only the projections are needed, so one sparse
+  Cholesky of K_s per iteration and ``series_terms`` multi-right-hand-side solves with P^T, Z_p
+  = K_s^-1 (M K_s^-1)^p P^T, serve every mode and every parameter: P A_i^+ g = Q diag(coef_i)
+  Phi^T g + sum_p mu_i^p Z_p^T g. Pairs of (near-)repeated eigenvalues (relative gap <
+  ``gap_rtol``) are left out (no derivative exists there).
   d r_shape_i = (s_i I + q_i b_i^T) P dphi_i, b_i = (gamma_i - 2 s_i q_i) / |q_i|^2.
 
 Mode tracking: at the start observed modes are paired with model modes by projected-mode MAC
 (optimal assignment); afterwards each paired model mode is followed by the 3-D MAC
 (phi_old^T M phi_new)^2 with the previous iteration's modes (``pairing="track"``), or
-re-paired with the observations every iteration (``pairing="observed"``). Inside a cluster of
-repeated model eigenvalues (the symmetric start) the basis is rotated towards the paired
-observations (any basis of the cluster is an eigenbasis).
+re-paired with the observations every iteration (``pairing="observed"``).
+
+Clusters (2.1): model eigenvalues closer than ``cluster_rtol`` (relative, chained) form a
+cluster C. Inside a near-degenerate cluster the individual modes are not smooth functions of
+theta (they rotate by O(1) under tiny perturbations, their Nelson derivatives grow like
+1/gap), which is what made 2.0's LM reject step after step from the symmetric cube start. So
+the shape residual of an observation paired into C is rotation-invariant, the projection onto
+the cluster's projected modes,
+
+    r_shape_i = Pi_C gamma_i - gamma_i,   Pi_C = Q_C (Q_C^T Q_C)^-1 Q_C^T
+
+(for a single-mode cluster this is s_i q_i - gamma_i above), whose derivative needs only the
+couplings to modes outside C: d(Pi_C gamma) = (I - Pi_C) sum_j a_j dQ_j + Q_C A^-1
+[e^T dQ_j]_j (a = A^-1 Q_C^T gamma, e = gamma - Pi_C gamma), with dQ_j the Nelson derivative
+with the in-cluster couplings left out (``ShapeDerivatives(clusters=...)``). Observations in a
+cluster are re-paired inside it by projected MAC (their eigenvalue residuals). LM trial steps
+are judged with the current state's clusters (the cost is then continuous along the step); an
+accepted point re-clusters.
 
 Continuation: coarse-to-fine voxels. Level l uses blocks of 2^l x 2^l x 2^l voxels (theta =
 T theta_coarse, piecewise constant prolongation), at most ``level_iters`` LM iterations per
@@ -107,7 +124,7 @@ class SensitivityConfig:
         "help": "terms of the static-correction series for the modes above the computed ones"})
     gap_rtol: float = field(default=1e-5, metadata={
         "help": "leave out mode pairs with |lam_i - lam_j| < gap_rtol lam_i in dphi"})
-    cluster_rtol: float = field(default=1e-6, metadata={
+    cluster_rtol: float = field(default=1e-2, metadata={
         "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
                 "rotated towards the paired observations (Rayleigh quotients as its "
                 "eigenvalues) and its inner couplings are left out of dphi"})
@@ -268,7 +285,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.0.0"
+    version = "2.1.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
