@@ -112,9 +112,9 @@ class SensitivityConfig:
     mode_weights: tuple[float, ...] = field(default=(), metadata={
         "help": "confidence of each observed mode (multiplies both its residuals); "
                 "empty: 1 for every mode"})
-    alpha_lap: float = field(default=1e-4, metadata={
+    alpha_lap: float = field(default=3e-5, metadata={
         "help": "Laplacian prior weight on log w and log v"})
-    alpha_tv: float = field(default=1e-4, metadata={
+    alpha_tv: float = field(default=3e-5, metadata={
         "help": "total-variation prior weight on log w and log v"})
     tv_eps: float = field(default=0.05, metadata={
         "help": "smoothing of the TV prior (in log units)"})
