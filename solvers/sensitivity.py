@@ -74,7 +74,7 @@ alpha_lap L^T L (+ TV majorizer) + anchor, s^2 = (data cost) / (number of data r
 w_std = w sqrt(diag Cov_w) (delta method), likewise v_std, times ``std_scale``. Returned in
 ``Estimate.extra`` as ``w_std``, ``v_std``. The raw intervals ignore the model mismatch (voxels
 coarser than the simulation mesh) and are overconfident; ``std_scale`` = 20 was calibrated on
-validation cubes (pooled 95 % coverage 0.86 for w, 0.94 for v; benchmarks/RESULTS.md).
+validation cubes (pooled 95 % coverage 0.84 for w, 0.94 for v; benchmarks/RESULTS.md).
 """
 
 from __future__ import annotations
