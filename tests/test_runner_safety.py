@@ -207,9 +207,11 @@ def test_hostile_plugins_become_their_rows(tiny, tmp_path, workers):
     assert check_results(out / "results.csv") == []
     assert check_results(out / "results.parquet") == []
     for _, _, t in ranking(df):
-        ranked = t[t.nc_w.notna() & ~t.reference.astype(bool)]
+        t = t.set_index("solver")
+        ranked = t[t["rank"].notna() & ~t.reference.astype(bool)]
         assert list(ranked.index) == ["homogeneous"]
-        assert t.loc["nans", "invalid"] == 1 and np.isnan(t.loc["nans", "nc_w"])
+        assert t.loc["nans", "invalid"] == 1 and t.loc["nans", "n"] == 0
+        assert np.isnan(float(t.loc["nans", "nc_w_mean"]))
 
 
 def test_run_exit_codes(tiny, tmp_path, capsys):
