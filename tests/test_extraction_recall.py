@@ -12,7 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from test_modes import pattern  # noqa: E402
+from test_modes import modeset, pattern  # noqa: E402
 
 from vvtbench.extraction_scores import (  # noqa: E402
     DEFAULT_FLOOR_PX,
@@ -27,22 +27,8 @@ N = 16
 
 def _ms(freqs, shapes, fps: float = 100.0, n_frames: int = 200) -> ModeSet:
     k = len(freqs)
-    return ModeSet(
-        frequencies_hz=np.asarray(freqs, float),
-        damping=np.full(k, np.nan),
-        damping_half_power=np.full(k, np.nan),
-        shapes=np.asarray(shapes, np.float32).reshape(k, N, N, 2),
-        amplitudes_px=np.ones(k),
-        peak_bins=np.arange(k),
-        prominences=np.ones(k),
-        collinearity=np.ones(k),
-        shake_mac=np.zeros(k),
-        camera_shake=np.zeros(k, bool),
-        freqs_hz=np.zeros(0),
-        power=np.zeros(0),
-        fps=fps,
-        n_frames=n_frames,
-    )
+    return modeset(freqs, np.asarray(shapes, np.float32).reshape(k, N, N, 2), fps=fps,
+                   n_frames=n_frames)
 
 
 def _truth() -> np.ndarray:

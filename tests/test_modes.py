@@ -245,12 +245,16 @@ def test_camera_shake_flagged_and_excluded() -> None:
     assert not allm.camera_shake[1 - i] and allm.shake_mac[1 - i] < 0.5
 
 
-def _modeset(freqs: list[float], shapes: np.ndarray, source: str) -> ModeSet:
+def modeset(freqs, shapes, *, damping=None, damping_half_power=None, fps: float = 100.0,
+            n_frames: int = 200, metadata: dict | None = None) -> ModeSet:
+    """A hand-made ModeSet of ``freqs`` and ``shapes`` (damping NaN unless given; the peak
+    statistics neutral). The test helper of every mode-set test."""
     k = len(freqs)
     return ModeSet(
-        frequencies_hz=np.array(freqs),
-        damping=np.full(k, 0.01),
-        damping_half_power=np.full(k, 0.01),
+        frequencies_hz=np.asarray(freqs, float),
+        damping=np.full(k, np.nan) if damping is None else np.asarray(damping, float) * np.ones(k),
+        damping_half_power=np.full(k, np.nan) if damping_half_power is None else (
+            np.asarray(damping_half_power, float) * np.ones(k)),
         shapes=shapes,
         amplitudes_px=np.ones(k),
         peak_bins=np.arange(k),
@@ -260,10 +264,15 @@ def _modeset(freqs: list[float], shapes: np.ndarray, source: str) -> ModeSet:
         camera_shake=np.zeros(k, bool),
         freqs_hz=np.zeros(0),
         power=np.zeros(0),
-        fps=100.0,
-        n_frames=100,
-        metadata={"source": source},
+        fps=fps,
+        n_frames=n_frames,
+        **({"metadata": metadata} if metadata is not None else {}),
     )
+
+
+def _modeset(freqs: list[float], shapes: np.ndarray, source: str) -> ModeSet:
+    return modeset(freqs, shapes, damping=0.01, damping_half_power=0.01, n_frames=100,
+                   metadata={"source": source})
 
 
 def test_merge_two_mode_sets() -> None:

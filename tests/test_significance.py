@@ -15,7 +15,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-from test_modes import Speckle, pattern, video  # noqa: E402
+from test_modes import Speckle, modeset, pattern, video  # noqa: E402
 
 from vvtbench.extraction_scores import (  # noqa: E402
     clusters_by_resolution,
@@ -110,22 +110,8 @@ def test_clean_video_at_most_one_false_mode(sp128: Speckle, amps) -> None:
 # --------------------------------------------------------------------------- scoring
 def _ms(freqs, shapes, damping=None) -> ModeSet:
     k = len(freqs)
-    return ModeSet(
-        frequencies_hz=np.asarray(freqs, float),
-        damping=np.full(k, np.nan) if damping is None else np.asarray(damping, float),
-        damping_half_power=np.full(k, np.nan),
-        shapes=np.asarray(shapes, np.float32).reshape(k, *np.shape(shapes)[1:]),
-        amplitudes_px=np.ones(k),
-        peak_bins=np.arange(k),
-        prominences=np.ones(k),
-        collinearity=np.ones(k),
-        shake_mac=np.zeros(k),
-        camera_shake=np.zeros(k, bool),
-        freqs_hz=np.zeros(0),
-        power=np.zeros(0),
-        fps=100.0,
-        n_frames=200,
-    )
+    return modeset(freqs, np.asarray(shapes, np.float32).reshape(k, *np.shape(shapes)[1:]),
+                   damping=damping)
 
 
 def test_clusters_and_subspace_mac() -> None:
