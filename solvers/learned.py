@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import time
+import zipfile
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -137,11 +138,18 @@ def save_weights(path: str | Path, weights: dict, meta: dict) -> Path:
 
 
 def load_weights(path: str | Path) -> tuple[dict, dict]:
-    with np.load(path, allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files}
-    meta = json.loads(arrays.pop("meta_json").tobytes().decode())
-    if meta.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a learned-weights file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(arrays.pop("meta_json").tobytes().decode())
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError, KeyError, AttributeError, UnicodeDecodeError,
+            zipfile.BadZipFile, EOFError):
+        meta = None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a learned-weights file (an .npz written by "
+                         "`vvtbench train learned FAMILY`)")
     return arrays, meta
 
 

@@ -89,3 +89,13 @@ def test_shipped_weights_saw_only_their_familys_train_split(family):
     assert meta["instances"] and all(n.startswith(f"{family}-train-") for n in meta["instances"])
     lo, hi = meta["indices"]
     assert len(meta["instances"]) == hi - lo + 1
+
+
+@pytest.mark.parametrize("content", [b"garbage", b"PK\x03\x04truncated"])
+def test_a_file_that_is_not_weights_is_named_in_one_error(tmp_path, content):
+    from solvers.learned import load_weights
+
+    bad = tmp_path / "w.npz"
+    bad.write_bytes(content)
+    with pytest.raises(ValueError, match="not a learned-weights file"):
+        load_weights(bad)
