@@ -24,9 +24,10 @@ parameter):
 
 * eigenvalues: dlam_i/dlog w_e = w_e phi_i^T K_e phi_i, dlam_i/dlog v_e = -lam_i v_e
   phi_i^T M_e phi_i (``stiffness_columns`` / ``mass_columns`` of phi_i, since dK/dw_e = K_e).
-* mode shapes, Nelson's form (per mode j the projected response operator V_j = Phi diag(coef_j)
-  Q^T + sum_p mu_j^p Z_p (n x r, dense) is formed once, so the per-parameter part is two sparse
-  products with the element columns of phi_j): dphi_i = A_i^+ g + c phi_i, g = -(dK - lam_i dM)
+* mode shapes, Nelson's form (per mode j the per-parameter part is G_j V_j with the projected
+  response operator V_j = Phi diag(coef_j) Q^T + sum_p mu_j^p Z_p and the element columns G_j
+  of phi_j, computed as (G_j Phi) diag(coef_j) Q^T + sum_p mu_j^p G_j Z_p without forming V_j):
+  dphi_i = A_i^+ g + c phi_i, g = -(dK - lam_i dM)
   phi_i, c = -1/2 phi_i^T dM phi_i, A_i^+ the inverse of K - lam_i M on the M-orthogonal
   complement of phi_i, A_i^+ = sum_{j != i} phi_j phi_j^T / (lam_j - lam_i). Over the N
   computed modes this sum is exact; the rest (j > N) is the expansion 1/(mu_j - mu_i) = sum_p
@@ -216,7 +217,7 @@ class ShapeDerivatives:
         from vvtbench.fem.modal import Factorization
 
         self.model, self.w, self.v = model, w, v
-        self.lam, self.phi = lam, phi
+        self.lam, self.phi = lam, np.ascontiguousarray(phi)
         self.P = sp.csr_matrix(P)
         self.Q = np.asarray(self.P @ phi)
         self.gap_rtol = gap_rtol
@@ -230,17 +231,18 @@ class ShapeDerivatives:
         if series_terms > 0:
             fac = factor if factor is not None else Factorization((K - self.sigma * M).tocsc())
             z = fac(np.asarray(self.P.T.toarray()))
-            self.Z.append(z)
+            self.Z.append(np.ascontiguousarray(z))  # row-major: sparse @ dense without copies
             for _ in range(series_terms - 1):
                 z = fac(np.asarray(M @ z))
-                self.Z.append(z)
+                self.Z.append(np.ascontiguousarray(z))
 
     def mode(self, j: int):
         """(dlam_j / dtheta (2m,), P dphi_j / dtheta (r, 2m)) of model mode j.
 
-        The projected response operator of mode j, V_j = Phi diag(coef) Q^T + sum_p mu_j^p
-        Z_p (n, r; dense, BLAS), is formed first, so the per-parameter part is two sparse
-        products G^T V_j, H^T V_j with the element-column matrices of phi_j.
+        With the projected response operator of mode j, V_j = Phi diag(coef) Q^T + sum_p
+        mu_j^p Z_p (n, r), the per-parameter part is G V_j, H V_j with the element-column
+        matrices G, H of phi_j; V_j is never formed: (G Phi) diag(coef) Q^T is a small dense
+        product and G Z_p a sparse one.
         """
         model, w, v = self.model, self.w, self.v
         m = len(w)
@@ -260,13 +262,18 @@ class ShapeDerivatives:
             far &= self.clusters != self.clusters[j]
         far[j] = False
         coef = np.where(far, 1.0 / np.where(far, gap, 1.0), 0.0) - series
-        V = self.phi @ (coef[:, None] * self.Q.T)  # (n, r)
+        # G V and H V without forming the dense (n, r) V: the modal part through the (m, N)
+        # products G Phi, the static part as sparse products with each Z_p
+        CQ = coef[:, None] * self.Q.T  # (N, r)
+        GV = (G @ self.phi) @ CQ
+        HV = (H @ self.phi) @ CQ
         for p in range(T):
-            V += mu_i ** p * self.Z[p]
+            GV += mu_i ** p * (G @ self.Z[p])
+            HV += mu_i ** p * (H @ self.Z[p])
         # g = -(dK - lam dM) phi: columns -w_e K_e phi (log w), lam v_e M_e phi (log v)
         dQ = np.empty((self.Q.shape[0], 2 * m))
-        dQ[:, :m] = (G @ V).T * -w
-        dQ[:, m:] = (H @ V).T * (lam * v)
+        dQ[:, :m] = GV.T * -w
+        dQ[:, m:] = HV.T * (lam * v)
         # mass normalization: c = -1/2 phi^T dM phi (v columns only)
         dQ[:, m:] += np.outer(self.Q[:, j], -0.5 * v * gM)
         return dlam, dQ
@@ -509,7 +516,7 @@ class SensitivitySolver:
                 J = self._jacobian(state)
                 Hp, gp = self._prior_system(state.theta)
                 a = self._anchor(state)
-                Jc = J if level == 0 else np.asarray((T2.T @ J.T).T)  # J T
+                Jc = J if level == 0 else J @ T2.toarray()  # J T (dense BLAS: J is row-major)
                 ac = T2.T @ a
                 Hc = Jc.T @ Jc + (T2.T @ Hp @ T2).toarray() + np.outer(ac, ac)
                 gc = Jc.T @ state.r_data + T2.T @ gp
