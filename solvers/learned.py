@@ -166,6 +166,15 @@ class LearnedSolver:
     def __init__(self, config: LearnedConfig | None = None) -> None:
         self.config = config if config is not None else LearnedConfig()
 
+    @staticmethod
+    def cache_inputs(config: dict) -> dict:
+        """The weights file's sha256 (the runner keys solves by it, not by the name)."""
+        try:
+            path = weights_path(config.get("weights", ""))
+            return {"weights_sha256": sha256_file(path)} if path.is_file() else {}
+        except ValueError:
+            return {}  # solve() reports the missing weights
+
     def solve(self, problem: InverseProblem) -> Estimate:
         """Predict w and v from the features of the observed modes with the trained weights.
 

@@ -62,6 +62,15 @@ cluster are re-paired inside it by projected MAC (their eigenvalue residuals). L
 are judged with the current state's clusters (the cost is then continuous along the step); an
 accepted point re-clusters.
 
+MAC gate (2.2): an observation whose MAC with its paired model mode (or cluster) is below
+``min_mac`` carries no information about the material, only a wrong pull (a false peak of the
+video, a mode the model has not yet reached, a mispairing); model-updating practice pairs only
+correlated modes. Such an observation gets weight 0 in both its eigenvalue and shape residuals
+for that iteration (the best-correlated min(3, k) always stay in); the gate is re-evaluated at
+every accepted point and held fixed along an LM step (like the clusters), and gated
+observations are re-paired by projected MAC among the model modes the others leave free, so
+they come back once the model reaches them. ``extra["active"]`` is the final gate.
+
 Continuation: coarse-to-fine voxels. Level l uses blocks of 2^l x 2^l x 2^l voxels (theta =
 T theta_coarse, piecewise constant prolongation), at most ``level_iters`` LM iterations per
 coarse level, then the full grid for the rest of ``max_iter``.
@@ -71,7 +80,8 @@ log-parameters), so mean(w) = w_mean is imposed exactly by rescaling both fields
 evaluation; an anchor row removes that null direction from the LM system.
 
 Uncertainty (Laplace approximation at the optimum): Cov(theta) = s^2 H^-1, H = J^T J +
-alpha_lap L^T L (+ TV majorizer) + anchor, s^2 = (data cost) / (number of data residuals);
+alpha_lap L^T L (+ TV majorizer) + anchor, s^2 = (data cost) / (number of data residuals of
+the gated-in observations);
 w_std = w sqrt(diag Cov_w) (delta method), likewise v_std, times ``std_scale``. Returned in
 ``Estimate.extra`` as ``w_std``, ``v_std``. The raw intervals ignore the model mismatch (voxels
 coarser than the simulation mesh) and are overconfident; ``std_scale`` = 20 was calibrated on
@@ -131,6 +141,11 @@ class SensitivityConfig:
         "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
                 "rotated towards the paired observations (Rayleigh quotients as its "
                 "eigenvalues) and its inner couplings are left out of dphi"})
+    min_mac: float = field(default=0.5, metadata={
+        "help": "an observed mode whose MAC with its paired model mode (or cluster) is below "
+                "this is left out of the data residuals at that iteration: an uncorrelated "
+                "pair carries no information, only a wrong pull (FE model-updating practice; "
+                "the best-correlated min(3, k) always stay in; 0 keeps every pair)"})
     pairing: str = field(default="track", metadata={
         "help": "'track' (3-D MAC with the previous iteration's modes) or 'observed' "
                 "(re-pair by projected MAC every iteration)"})
@@ -286,7 +301,8 @@ class _State:
     """Model quantities at one parameter vector."""
 
     __slots__ = ("theta", "w", "v", "lam", "phi", "pair", "mac", "r_data", "cost",
-                 "data_cost", "K", "M", "Q", "label", "groups", "obs_group", "a", "e")
+                 "data_cost", "K", "M", "Q", "label", "groups", "obs_group", "a", "e",
+                 "active")
 
 
 class SensitivitySolver:
@@ -295,7 +311,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.1.0"
+    version = "2.2.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -356,7 +372,8 @@ class SensitivitySolver:
         return Hp, gp
 
     def _evaluate(self, theta: np.ndarray, prev: _State | None,
-                  label: np.ndarray | None = None) -> _State:
+                  label: np.ndarray | None = None,
+                  active: np.ndarray | None = None) -> _State:
         from scipy.optimize import linear_sum_assignment
 
         from vvtbench.fem.modal import eigenmodes
@@ -381,17 +398,32 @@ class SensitivitySolver:
             mac3 = (old.T @ (s.M @ phi)) ** 2
             _, cols = linear_sum_assignment(-mac3)
         s.pair = np.asarray(cols)
+        if prev is not None and prev.active is not None and not prev.active.all():
+            # observations left out by the MAC gate are not tracked: re-paired by projected
+            # MAC among the model modes the correlated ones leave free, so they may come back
+            idle = np.flatnonzero(prev.active == 0)
+            free = np.setdiff1d(np.arange(self.n_model), s.pair[prev.active > 0])
+            _, c = linear_sum_assignment(-mac_obs[np.ix_(idle, free)])
+            s.pair[idle] = free[c]
         s.phi, s.Q = phi, Q
-        return self._residuals(s, label)
+        return self._residuals(s, label, active)
 
-    def _residuals(self, s: _State, label: np.ndarray | None = None) -> _State:
+    def _residuals(self, s: _State, label: np.ndarray | None = None,
+                   active: np.ndarray | None = None) -> _State:
         """Data residuals and cost of ``s`` with the clusters ``label`` (default: from its
-        eigenvalues). Trial steps keep the current state's clusters, so that the cost an LM
-        step is judged by does not jump where clusters merge or split."""
+        eigenvalues) and the correlated pairs ``active`` (default: MAC >= ``min_mac``). Trial
+        steps keep the current state's clusters and active pairs, so that the cost an LM step
+        is judged by does not jump where clusters merge or split or a pair crosses the gate."""
         self._fit_clusters(s, s.Q, label)
+        if active is None:
+            active = s.mac >= self.config.min_mac
+            keep = min(3, self.k)
+            if active.sum() < keep:
+                active[np.argsort(-s.mac)[:keep]] = True
+        s.active = np.asarray(active, dtype=float)
         lam_obs = self.problem.eigenvalues
-        r_eig = self.sq_eig * np.log(np.maximum(s.lam[s.pair], 1e-300) / lam_obs)
-        r_shape = (self.sq_shape[:, None] * (-s.e)).ravel()
+        r_eig = s.active * self.sq_eig * np.log(np.maximum(s.lam[s.pair], 1e-300) / lam_obs)
+        r_shape = ((s.active * self.sq_shape)[:, None] * (-s.e)).ravel()
         s.r_data = np.concatenate([r_eig, r_shape])
         s.data_cost = float(s.r_data @ s.r_data)
         s.cost = s.data_cost + self._prior(s.theta)
@@ -455,6 +487,10 @@ class SensitivitySolver:
             return cache[j]
 
         for i in range(k):
+            if not s.active[i]:  # an uncorrelated pair: its residual rows are zero
+                J[i] = 0.0
+                J[k + i * r:k + (i + 1) * r] = 0.0
+                continue
             j = s.pair[i]
             J[i] = self.sq_eig[i] * mode(j)[0] / s.lam[j]
             members, Qc, Ainv = s.groups[s.obs_group[i]]
@@ -532,7 +568,8 @@ class SensitivitySolver:
                     big = np.abs(delta).max()
                     if big > cfg.max_step:
                         delta *= cfg.max_step / big
-                    trial = self._evaluate(state.theta + delta, state, state.label)
+                    trial = self._evaluate(state.theta + delta, state, state.label,
+                                           state.active)
                     n_eval += 1
                     if trial.cost < state.cost:
                         accepted = True
@@ -554,6 +591,7 @@ class SensitivitySolver:
                     "eig_rel_rms": float(np.sqrt(np.mean(
                         (state.lam[state.pair] / problem.eigenvalues - 1) ** 2))),
                     "mean_mac": float(np.mean(state.mac)),
+                    "active": int(state.active.sum()),
                     "mu": mu,
                     "evaluations": n_eval,
                 }
@@ -565,7 +603,7 @@ class SensitivitySolver:
             if level == 0:
                 converged = it < cfg.max_iter
         extra = {"eigenvalues": state.lam[state.pair], "mac": state.mac,
-                 "pairing": state.pair}
+                 "pairing": state.pair, "active": state.active.astype(bool)}
         if cfg.uncertainty:
             extra.update(self._uncertainty(state))
         return Estimate(
@@ -581,7 +619,8 @@ class SensitivitySolver:
         Hp, _ = self._prior_system(state.theta)
         a = self._anchor(state)
         H = J.T @ J + Hp.toarray() + np.outer(a, a)
-        s2 = state.data_cost / max(len(state.r_data), 1)
+        n_rows = state.active.sum() * (1 + self.gamma.shape[1])  # rows of the active pairs
+        s2 = state.data_cost / max(n_rows, 1)
         try:
             cov_diag = np.diag(np.linalg.inv(H)) * s2
         except np.linalg.LinAlgError:

@@ -99,3 +99,27 @@ def test_a_file_that_is_not_weights_is_named_in_one_error(tmp_path, content):
     bad.write_bytes(content)
     with pytest.raises(ValueError, match="not a learned-weights file"):
         load_weights(bad)
+
+
+def test_replaced_weights_are_solved_again_not_served_from_the_cache(tmp_path):
+    """The solve task's key carries the weights file's sha256, not only its name."""
+    import shutil
+
+    from solvers.learned import weights_path
+    from vvtbench.bench import build_graph, parse_suite
+
+    path = tmp_path / "w.npz"
+    shutil.copy(weights_path("cube_defects"), path)
+    suite = parse_suite({"name": "t", "solvers": ["learned"], "seeds": [0],
+                         "tracks": [{"name": "a", "scenes": ["jello_cube_homogeneous"],
+                                     "solver": {"learned": {"weights": str(path)}}}]})
+
+    def solve_keys():
+        tasks, _ = build_graph(suite, suite.solvers)
+        return {k for k, t in tasks.items() if t.stage == "solve"}
+
+    first = solve_keys()
+    assert len(first) == 1 and solve_keys() == first
+    shutil.copy(weights_path("drum_defects"), path)  # same name, other content
+    second = solve_keys()
+    assert len(second) == 1 and second != first

@@ -161,11 +161,12 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 name = load_solver(spec).name
                 over = {**(cfgs.get(spec) or cfgs.get(name) or {}), **(extra or {})}
                 cls, cfg = solver_setup(spec, over)
+                inputs = solver_inputs(cls, cfg)
                 solver_info[ck] = (cls.name, str(cls.version), cfg, None,
-                                   bool(getattr(cls, "uses_truth", False)))
+                                   bool(getattr(cls, "uses_truth", False)), inputs)
             except Exception as error:  # a broken plug-in becomes error rows
                 solver_info[ck] = (spec, "", {}, f"setup: {type(error).__name__}: {error}",
-                                   False)
+                                   False, {})
         return solver_info[ck]
 
     stop = STAGES.index(until)
@@ -210,7 +211,7 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 if stop < 3:
                     continue
                 for spec, vlabel, extra in _track_solvers(track, solvers, info):
-                    name, version, cfg, err, reference = info(spec, extra)
+                    name, version, cfg, err, reference, inputs = info(spec, extra)
                     cfg_hash = content_hash(name, cfg)
                     vname = var.name if not vlabel else (
                         vlabel if var.name == "base" else f"{var.name},{vlabel}")
@@ -222,13 +223,22 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                               solver_name=name, solver_version=version, setup_error=err,
                               reference=reference)
                     if err is None:
-                        sk = add("solve", [name, version, cfg], [obs_key],
+                        sk = add("solve", [name, version, cfg, *([inputs] if inputs else [])],
+                                 [obs_key],
                                  {"solver": spec, "config": cfg}, f"{name}:{scene_label}")
                         ek = add("evaluate", [], [sk, obs_key], {}, f"{name}:{scene_label}")
                         run.solve_key, run.evaluate_key = sk, ek
                     runs.append(run)
     return tasks, runs
 
+
+
+def solver_inputs(cls, config: dict) -> dict:
+    """Content hashes of the files a solver's config names (its ``cache_inputs(config)``, e.g.
+    the learned baseline's weights): they join the solve task's key, so that a replaced file
+    is never served from the cache under the same name."""
+    hook = getattr(cls, "cache_inputs", None)
+    return dict(hook(config)) if callable(hook) else {}
 
 
 def _track_solvers(track: Track, solvers: list[str], info):
