@@ -141,11 +141,12 @@ class SensitivityConfig:
         "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
                 "rotated towards the paired observations (Rayleigh quotients as its "
                 "eigenvalues) and its inner couplings are left out of dphi"})
-    min_mac: float = field(default=0.5, metadata={
+    min_mac: float = field(default=0.0, metadata={
         "help": "an observed mode whose MAC with its paired model mode (or cluster) is below "
                 "this is left out of the data residuals at that iteration: an uncorrelated "
                 "pair carries no information, only a wrong pull (FE model-updating practice; "
-                "the best-correlated min(3, k) always stay in; 0 keeps every pair)"})
+                "the best-correlated min(3, k) always stay in; 0, the default, keeps every "
+                "pair)"})
     pairing: str = field(default="track", metadata={
         "help": "'track' (3-D MAC with the previous iteration's modes) or 'observed' "
                 "(re-pair by projected MAC every iteration)"})
@@ -416,7 +417,8 @@ class SensitivitySolver:
         is judged by does not jump where clusters merge or split or a pair crosses the gate."""
         self._fit_clusters(s, s.Q, label)
         if active is None:
-            active = s.mac >= self.config.min_mac
+            active = (s.mac >= self.config.min_mac if self.config.min_mac > 0
+                      else np.ones(self.k, dtype=bool))
             keep = min(3, self.k)
             if active.sum() < keep:
                 active[np.argsort(-s.mac)[:keep]] = True
