@@ -141,12 +141,12 @@ class SensitivityConfig:
         "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
                 "rotated towards the paired observations (Rayleigh quotients as its "
                 "eigenvalues) and its inner couplings are left out of dphi"})
-    min_mac: float = field(default=0.0, metadata={
+    min_mac: float = field(default=0.5, metadata={
         "help": "an observed mode whose MAC with its paired model mode (or cluster) is below "
                 "this is left out of the data residuals at that iteration: an uncorrelated "
                 "pair carries no information, only a wrong pull (FE model-updating practice; "
-                "the best-correlated min(3, k) always stay in; 0, the default, keeps every "
-                "pair)"})
+                "the best-correlated min(3, k) always stay in; 0 keeps every pair; 0.5 "
+                "chosen on extraction-like val observations, docs/solvers.md)"})
     pairing: str = field(default="track", metadata={
         "help": "'track' (3-D MAC with the previous iteration's modes) or 'observed' "
                 "(re-pair by projected MAC every iteration)"})
