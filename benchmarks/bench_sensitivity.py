@@ -100,8 +100,8 @@ def main() -> None:
                     help="sensitivity option override (repeatable)")
     a = ap.parse_args()
     from solvers.sensitivity import SensitivityConfig
-    sens_cfg = SensitivityConfig(**{kv.split("=", 1)[0]: float(kv.split("=", 1)[1])
-                                    for kv in a.sens})
+    from vvtbench.plugins import parse_overrides
+    sens_cfg = parse_overrides(a.sens, SensitivityConfig)
     if a.scenes:
         names = a.scenes
     elif a.set == "family":

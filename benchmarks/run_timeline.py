@@ -32,6 +32,7 @@ def main() -> None:
     args = ap.parse_args()
     groups: dict[tuple[str, str], list[tuple[float, float]]] = defaultdict(list)
     spans: dict[str, list[float]] = defaultdict(list)
+    scene_of: dict[str, str] = {}  # observe key -> scene name (one read per observation)
     for f in sorted((args.run / "cache").glob("*/*/task.json")):
         t = json.loads(f.read_text())
         sec, end = float(t.get("seconds", 0.0)), f.stat().st_mtime
@@ -41,8 +42,11 @@ def main() -> None:
             kind = "video" if t.get("result", {}).get("video") else "modes-only"
             sub = f"{_family(scene.get('name', ''))} {kind}"
         elif stage == "solve":
-            obs = json.loads((args.run / "cache" / t["deps"][0] / "task.json").read_text())
-            scene = obs.get("payload", {}).get("scene", {}).get("name", "")
+            dep = t["deps"][0]
+            if dep not in scene_of:
+                obs = json.loads((args.run / "cache" / dep / "task.json").read_text())
+                scene_of[dep] = obs.get("payload", {}).get("scene", {}).get("name", "")
+            scene = scene_of[dep]
             sub = f"{payload.get('solver', '?')} on {_family(scene)}"
         else:
             sub = ""

@@ -167,6 +167,8 @@ class SensitivityConfig:
         if np.isscalar(self.mode_weights):
             self.mode_weights = (float(self.mode_weights),)
         self.mode_weights = tuple(float(x) for x in self.mode_weights)
+        if not 0.0 <= self.min_mac <= 1.0:  # NaN fails too
+            raise ValueError(f"min_mac must be in [0, 1], got {self.min_mac!r}")
         if self.series_terms < 0 or self.levels < 0:
             raise ValueError("series_terms and levels must be >= 0")
 
