@@ -101,7 +101,7 @@ from vvtbench.problem import Estimate, InverseProblem
 from .vvt import grid_laplacian
 
 __all__ = ["SensitivityConfig", "SensitivitySolver", "grid_differences",
-           "coarsening", "ShapeDerivatives"]
+           "coarsening", "ShapeDerivatives", "compress_observation"]
 
 
 @dataclass
@@ -199,6 +199,46 @@ def coarsening(voxel_map, level: int) -> sp.csr_matrix:
     _, block = np.unique(ijk, axis=0, return_inverse=True)
     block = np.asarray(block).ravel()
     return sp.csr_matrix((np.ones(n), (np.arange(n), block)), shape=(n, block.max() + 1))
+
+
+def compress_observation(P, gamma: np.ndarray):
+    """An observation operator with fewer rows and the same shape residuals.
+
+    Every projected mode P phi lies in range(P), so with an orthonormal basis U of it the
+    shape residual of a unit gamma against any combination of projected modes splits into
+    |U^T gamma - (U^T P) phi a|^2 + |gamma - U U^T gamma|^2, the second term constant. When
+    P has more rows than columns (a membrane seen in two image directions per node), the
+    solver works with P_c = U^T P and gamma_c = U^T gamma: identical costs, MACs and
+    Jacobian normal equations, fewer rows.
+
+    Parameters
+    ----------
+    P : (r, n) observation operator.
+    gamma : (k, r) observed image-space modes.
+
+    Returns
+    -------
+    P_c : (r_c, n) with r_c = min(r, n), dense when compressed, ``P`` itself otherwise.
+    gamma_c : (k, r_c).
+    rest : (k,) the constant |gamma - U U^T gamma|^2 of each observation.
+
+    Examples
+    --------
+    >>> P = np.kron(np.eye(3), [[1.0], [2.0]])          # 3 DOFs, each seen in 2 rows
+    >>> g = np.array([[1.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    >>> Pc, gc, rest = compress_observation(P, g)
+    >>> Pc.shape, round(float(gc[0] @ gc[0] + rest[0]), 12)
+    ((3, 3), 1.0)
+    """
+    r, n = P.shape
+    gamma = np.asarray(gamma, dtype=float)
+    if r <= n:
+        return P, gamma, np.zeros(len(gamma))
+    dense = P.toarray() if sp.issparse(P) else np.asarray(P, dtype=float)
+    U, R = np.linalg.qr(dense)
+    gamma_c = gamma @ U
+    rest = np.maximum(np.sum(gamma * gamma, axis=1) - np.sum(gamma_c * gamma_c, axis=1), 0.0)
+    return R, gamma_c, rest
 
 
 # --------------------------------------------------------------------------- eigenpairs
@@ -314,7 +354,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.2.0"
+    version = "2.2.1"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -333,7 +373,9 @@ class SensitivitySolver:
         self.k = problem.n_modes
         self.n_model = min(self.k + max(cfg.n_extra, 0), self.model.n_free - 1)
         self.w_mean = problem.w_mean if cfg.w_mean is None else cfg.w_mean
-        self.gamma = problem.gamma / np.linalg.norm(problem.gamma, axis=1, keepdims=True)
+        gamma = problem.gamma / np.linalg.norm(problem.gamma, axis=1, keepdims=True)
+        self.r_obs = gamma.shape[1]
+        self.P, self.gamma, self.gamma_rest = compress_observation(problem.P, gamma)
         cw = np.ones(self.k)
         if cfg.mode_weights:
             if len(cfg.mode_weights) != self.k:
@@ -391,7 +433,7 @@ class SensitivitySolver:
         modes = eigenmodes(s.K, s.M, self.n_model)
         lam_all, vec_all = modes.eigenvalues, modes.vectors
         s.lam, phi = lam_all[:self.n_model], vec_all[:, :self.n_model]
-        Q = np.asarray(self.problem.P @ phi)
+        Q = np.asarray(self.P @ phi)
         qn = np.maximum(np.sum(Q * Q, axis=0), 1e-300)
         mac_obs = (self.gamma @ Q) ** 2 / qn[None, :]
         if prev is None or cfg.pairing == "observed":
@@ -429,7 +471,8 @@ class SensitivitySolver:
         r_eig = s.active * self.sq_eig * np.log(np.maximum(s.lam[s.pair], 1e-300) / lam_obs)
         r_shape = ((s.active * self.sq_shape)[:, None] * (-s.e)).ravel()
         s.r_data = np.concatenate([r_eig, r_shape])
-        s.data_cost = float(s.r_data @ s.r_data)
+        s.data_cost = float(s.r_data @ s.r_data
+                            + np.sum((s.active * self.sq_shape) ** 2 * self.gamma_rest))
         s.cost = s.data_cost + self._prior(s.theta)
         return s
 
@@ -468,7 +511,7 @@ class SensitivitySolver:
                 s.obs_group[i] = len(s.groups)
                 s.a[i] = coef[:, n]
             s.groups.append((members, Qc, Ainv))
-        s.mac = 1.0 - np.sum(s.e * s.e, axis=1)
+        s.mac = 1.0 - np.sum(s.e * s.e, axis=1) - self.gamma_rest
 
     def _jacobian(self, s: _State) -> np.ndarray:
         """Dense (k + k r, 2m) Jacobian of the data residuals with respect to theta.
@@ -478,7 +521,7 @@ class SensitivitySolver:
         Q_C A^-1 [e^T dQ_j]_j (a = A^-1 Q_C^T gamma, e = gamma - Pi_C gamma).
         """
         cfg = self.config
-        der = ShapeDerivatives(self.model, self.problem.P, s.w, s.v, s.lam, s.phi,
+        der = ShapeDerivatives(self.model, self.P, s.w, s.v, s.lam, s.phi,
                                cfg.series_terms, cfg.gap_rtol, clusters=s.label)
         k = self.k
         r = self.gamma.shape[1]
@@ -623,7 +666,7 @@ class SensitivitySolver:
         Hp, _ = self._prior_system(state.theta)
         a = self._anchor(state)
         H = J.T @ J + Hp.toarray() + np.outer(a, a)
-        n_rows = state.active.sum() * (1 + self.gamma.shape[1])  # rows of the active pairs
+        n_rows = state.active.sum() * (1 + self.r_obs)  # rows of the active pairs
         s2 = state.data_cost / max(n_rows, 1)
         try:
             cov_diag = np.diag(np.linalg.inv(H)) * s2

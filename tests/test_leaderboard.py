@@ -152,12 +152,15 @@ def test_ranking_keeps_suite_order_and_never_ranks_references_or_invalid(table):
     groups = ranking(df)
     assert [g[0] for g in groups][::2][:2] == ["zeta_first", "drums"]  # not alphabetical
     t = dict(((tr, obs), t) for tr, obs, t in groups)[("zeta_first", "true")]
-    for _, cell in t.groupby("variation", sort=False):
+    for variation, cell in t.groupby("variation", sort=False):
         assert cell.solver.iloc[-1] == "oracle" and cell.reference.iloc[-1]
-        assert cell["rank"].iloc[-1] is None and list(cell["rank"].iloc[:-1]) == [1, 2, 3]
+        # sensitivity answered 3 of 4 runs at n_modes=16 (< MIN_VALID_FRACTION): not ranked
+        ranks = [1, 2, None] if variation == "n_modes=16" else [1, 2, 3]
+        assert cell["rank"].iloc[-1] is None and list(cell["rank"].iloc[:-1]) == ranks
     sens = t[t.solver == "sensitivity"].set_index("variation")
     assert sens.loc["n_modes=16", "invalid"] == 1 and sens.loc["n_modes=8", "invalid"] == 0
     assert sens.loc["n_modes=16", "n"] == 3 and sens.loc["n_modes=16", "runs"] == 4
+    assert sens.loc["n_modes=16", "note"] == "not ranked: valid on 3 of 4 runs"
     s = {r["track"]: r for r in summary(df)}
     assert s["zeta_first"]["best"]["solver"] == "vvt"
     assert s["zeta_first"]["best"]["variation"] == "n_modes=16"  # a cell, not a pooled mean
@@ -281,8 +284,11 @@ def test_paired_comparison_only_on_shared_instances_and_failures_counted(tmp_pat
                                            values="nc_w").dropna()
     assert p["n"] == 7 == len(ok)
     assert np.isclose(p["mean_diff"], (ok["a"] - ok["b"]).mean())
-    line = next(ln for ln in md.splitlines() if "| b |" in ln and "| 2 |" in ln)
-    assert line.endswith("| 2 | 0 |")  # failed, invalid
+    # b answered 8 of 10 (< MIN_VALID_FRACTION): not ranked, below a; a, 9 of 10, is ranked
+    line = next(ln for ln in md.splitlines() if "| b -- not ranked: valid on 8 of 10" in ln)
+    assert line.endswith("| 2 | 0 |") and "| – | b" in line  # failed, invalid; no rank
+    assert rec["a"]["rank"] == 1 and rec["b"]["rank"] is None
+    assert next(r for r in summary(df) if r["track"] == "t")["best"]["solver"] == "a"
 
 
 def test_build_writes_every_figure_kind_and_a_summary(table, tmp_path):

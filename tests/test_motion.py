@@ -378,3 +378,31 @@ def test_gaussian_smooth_matches_ndimage(shape: tuple[int, ...], sigma: float) -
     a = np.random.default_rng(4).random(shape).astype(np.float32)
     want = gaussian_filter(a, sigma, axes=(-2, -1), mode="reflect", truncate=3.0)
     np.testing.assert_allclose(gaussian_smooth(a, sigma), want, atol=1e-6)
+
+
+@pytest.mark.parametrize("fraction", [0.01, 0.6])
+def test_smoothing_of_kept_samples_sparse_and_dense_agree(speckle: Speckle, fraction) -> None:
+    """The two ways of smoothing the normal matrix with samples taken out (a scatter of the
+    kernel around each removed sample, or dense smoothing of what is kept) agree, whether
+    few samples are removed (the scatter is used) or most (dense)."""
+    pm = PhaseMotion(speckle.ref, n_scales=3, n_orientations=4)
+    rng = np.random.default_rng(0)
+    h, w = pm.grid_shape
+    B = 3
+    removed = rng.random((B, h, w)) < fraction
+    idx = rng.integers(0, B * h * w, size=int(fraction * B * h * w))
+    vals = (0.1 * rng.random((3, len(idx)))).astype(np.float32)
+    dense = pm._smooth_kept(removed, (idx, vals))
+    sparse = pm._smooth_removed(removed, (idx, vals), dense=False)
+    assert np.array_equal(pm._smooth_removed(removed, (idx, vals)), dense if fraction > 0.1
+                          else sparse)  # the automatic choice
+    scale = float(np.abs(pm._m_smooth).max())
+    np.testing.assert_allclose(dense, sparse, atol=2e-5 * scale)
+    # and against scipy, on the kept samples alone
+    from scipy.ndimage import gaussian_filter
+
+    keep = pm._m[:, None] * ~removed[None]
+    ref = gaussian_filter(keep.astype(np.float64), pm.sigma / pm.grid_stride, axes=(-2, -1),
+                          mode="reflect", truncate=3.0)
+    if fraction < 0.1:  # without extra samples
+        np.testing.assert_allclose(pm._smooth_kept(removed), ref, atol=2e-5 * scale)

@@ -44,6 +44,9 @@ UNDEFINED_NC_COLUMNS = [("false_contrast_w", "false contrast w (constant truth)"
                         ("false_contrast_v", "false contrast v (constant truth)"),
                         ("interval_coverage_w", "95 % interval coverage w"),
                         ("interval_coverage_v", "95 % interval coverage v")]
+#: a solver is ranked in a cell only when at least this fraction of its runs there gave a
+#: valid estimate: a mean over the instances it chose to answer cannot outrank one over all
+MIN_VALID_FRACTION = 0.9
 _OBS_ORDER = {"true": 0, "extracted": 1}
 _PCT = f"{LEVEL * 100:g}\u00a0%"  # "95 %" (no line break inside)
 
@@ -58,7 +61,9 @@ LEGEND = (
     "constant: the false contrast is given instead) is left out, and its cell then says over "
     "how many instances it is (n=k). –: no value; a mean without an interval is over one "
     "instance. Runtime: median (interquartile range) of the valid runs, in seconds. "
-    "failed / invalid: runs that raised / estimates that were not scored. Interval coverage "
+    "failed / invalid: runs that raised / estimates that were not scored; a solver valid on "
+    f"fewer than {MIN_VALID_FRACTION:.0%} of its runs in a cell is not ranked there (–). "
+    "Interval coverage "
     "(solvers that state per-voxel standard deviations only): the fraction of voxels whose "
     "truth lies within estimate ± 1.96 std, nominal 0.95, not ranked. Paired comparisons, "
     "per track, source and variation, between ranked solvers on the instances both solved "
@@ -100,7 +105,9 @@ def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
     with a row per variation and solver (:func:`vvtbench.stats.track_statistics`).
 
     Within a variation the solvers are ranked by mean NC of w (ties: NC of v) over their
-    valid instances; a solver without a valid NC w is not ranked. Reference solvers
+    valid instances; a solver without a valid NC w, or valid on fewer than
+    :data:`MIN_VALID_FRACTION` of its runs in the cell, is not ranked (its mean would be
+    over the instances it chose to answer) and follows the ranked ones. Reference solvers
     (``reference``: they saw the truth) are never ranked: they follow the ranked ones, with a
     note when a ranked solver of the same variation is above them.
 
@@ -116,10 +123,12 @@ def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
     st = track_statistics(df, metrics=metrics, means=means, seed=seed)
     if st.empty:
         return []
+    few = st.n < MIN_VALID_FRACTION * st.runs
     st = _page_order(st, df).assign(
-        _unranked=lambda t: t.reference | ~np.isfinite(t.nc_w_mean.astype(float)))
-    st = st.sort_values(["reference", "nc_w_mean", "nc_v_mean"],
-                        ascending=[True, False, False], na_position="last", kind="stable")
+        _unranked=lambda t: t.reference | ~np.isfinite(t.nc_w_mean.astype(float)) | few)
+    st = st.sort_values(["reference", "_unranked", "nc_w_mean", "nc_v_mean"],
+                        ascending=[True, True, False, False], na_position="last",
+                        kind="stable")
     st = _page_order(st, df)
     cell = ["track", "observation", "variation"]
     rank = (~st._unranked).astype(int).groupby([st[c] for c in cell], sort=False).cumsum()
@@ -127,8 +136,11 @@ def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
                             zip(st._unranked, rank, strict=True)], index=st.index, dtype=object)
     best = st.nc_w_mean.where(~st._unranked).groupby([st[c] for c in cell]).transform("max")
     st["note"] = [f"below a ranked solver (NC w {b:.2f})" if ref and np.isfinite(b)
-                  and np.isfinite(m) and m < b else ""
-                  for ref, m, b in zip(st.reference, st.nc_w_mean, best, strict=True)]
+                  and np.isfinite(m) and m < b
+                  else f"not ranked: valid on {n} of {runs} runs" if not ref and n < runs
+                  * MIN_VALID_FRACTION else ""
+                  for ref, m, b, n, runs in zip(st.reference, st.nc_w_mean, best, st.n,
+                                                st.runs, strict=True)]
     st = st.drop(columns=["_unranked"]).reset_index(drop=True)
     return [(track, obs, t.reset_index(drop=True))
             for (track, obs), t in st.groupby(["track", "observation"], sort=False)]
@@ -476,7 +488,8 @@ def summary(df, groups: list | None = None) -> list[dict]:
         best = {}
         for name, ref in (("best", False), ("reference", True)):
             t = (cells[(cells.track == track) & (cells.reference == ref)
-                       & np.isfinite(cells.nc_w_mean.astype(float))]
+                       & np.isfinite(cells.nc_w_mean.astype(float))
+                       & (ref | cells["rank"].notna())]
                  if cells is not None else [])
             best[name] = (None if len(t) == 0 else
                           t.loc[t.nc_w_mean.astype(float).idxmax(), keys].to_dict())

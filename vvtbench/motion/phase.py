@@ -414,6 +414,7 @@ class PhaseMotion:
         self,
         removed: NDArray[np.bool_],
         extra: tuple[NDArray[np.intp], NDArray[np.float32]] | None = None,
+        dense: bool | None = None,
     ) -> NDArray[np.float32]:
         """``smooth(m_frame)`` for ``m_frame = m * keep - sum(extra)``, by sparse scatter.
 
@@ -422,10 +423,19 @@ class PhaseMotion:
         :meth:`_smooth`) around each removed pixel and each ``extra`` point (flat index into
         ``(B, h, w)``, values ``(3, n)``), done with ``numpy.bincount``; much cheaper than
         smoothing three dense channels per frame when ~1 % of the pixels are touched.  The
-        arithmetic of a frame does not depend on the other frames of the batch.
+        arithmetic of a frame does not depend on the other frames of the batch. Where many
+        samples are touched (``dense`` None: when it is cheaper) :meth:`_smooth_kept` smooths
+        the kept samples densely instead.
         """
         B = removed.shape[0]
         h, w = self.grid_shape
+        s = self.sigma / self.grid_stride
+        r = int(3.0 * s + 0.5)
+        n_touched = int(np.count_nonzero(removed)) + (0 if extra is None else len(extra[0]))
+        if dense is None:  # dense separable smoothing is cheaper when much is touched
+            dense = n_touched * (2 * r + 1) > 2 * B * h * w
+        if dense:
+            return self._smooth_kept(removed, extra)
         fb, fy, fx = np.nonzero(removed)
         vals = self._m[:, fy, fx]
         if extra is not None:
@@ -437,8 +447,6 @@ class PhaseMotion:
             fy = np.concatenate([fy, ey])[order]
             fx = np.concatenate([fx, ex])[order]
             vals = np.concatenate([vals, ev[:, ok]], axis=1)[:, order]
-        s = self.sigma / self.grid_stride
-        r = int(3.0 * s + 0.5)
         k = np.exp(-0.5 * (np.arange(-r, r + 1) / s) ** 2)
         k /= k.sum()
         off = np.arange(-r, r + 1)
@@ -453,6 +461,28 @@ class PhaseMotion:
             wts = (vals[c].astype(np.float64)[:, None, None] * kk).ravel()
             corr = np.bincount(target, weights=wts, minlength=B * h * w)
             np.subtract(self._m_smooth[c][None], corr.reshape(B, h, w), out=out[c])
+        np.maximum(out[0], 0.0, out=out[0])  # round-off where everything was removed
+        np.maximum(out[2], 0.0, out=out[2])
+        return out
+
+    def _smooth_kept(
+        self,
+        removed: NDArray[np.bool_],
+        extra: tuple[NDArray[np.intp], NDArray[np.float32]] | None = None,
+    ) -> NDArray[np.float32]:
+        """:meth:`_smooth_removed` by smoothing ``m * keep - sum(extra)`` densely: the same
+        result (up to rounding) when a large part of the grid is touched."""
+        B = removed.shape[0]
+        h, w = self.grid_shape
+        keep = ~removed
+        mf = self._m[:, None] * keep[None]
+        if extra is not None:
+            idx, ev = extra
+            ok = keep.reshape(-1)[idx]
+            for c in range(3):
+                corr = np.bincount(idx[ok], weights=ev[c, ok], minlength=B * h * w)
+                mf[c] -= corr.reshape(B, h, w).astype(np.float32)
+        out = self._smooth(mf)
         np.maximum(out[0], 0.0, out=out[0])  # round-off where everything was removed
         np.maximum(out[2], 0.0, out=out[2])
         return out
