@@ -230,7 +230,7 @@ def test_compressed_observation_gives_the_same_fit(monkeypatch):
                         lambda P, g: (P, np.asarray(g), np.zeros(len(g))))
     full = SensitivitySolver(cfg).solve(pb)
     assert len(short.history) == len(full.history) >= 2
-    for a, b in zip(short.history, full.history):
+    for a, b in zip(short.history, full.history, strict=True):
         assert a["cost"] == pytest.approx(b["cost"], rel=1e-8)
         assert a["mean_mac"] == pytest.approx(b["mean_mac"], rel=1e-8)
     assert np.allclose(short.w, full.w, rtol=1e-6)
