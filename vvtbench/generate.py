@@ -1,7 +1,7 @@
 """Dataset generator: a scene becomes one sample folder (video + ground truth + manifest).
 
 ``generate(scene, out_dir)`` simulates the scene, renders every frame through the scene's
-camera, streams the frames to a lossless 16-bit FFV1 video chunk by chunk, and writes the ground
+camera, streams the frames to a lossless 16-bit FFVHUFF video chunk by chunk, and writes the ground
 truth a solver or a metric could need; ``generate(scene, out_dir, video=False)`` writes a
 *modes-only* sample (the truth without the video and the transient response) in about a
 second. :func:`vvtbench.dataset.open_sample` reads either back. The folder layout, every
@@ -43,7 +43,7 @@ from .io import write_json
 from .observe import default_voxel_shape
 from .scene import Scene, load_scene
 from .sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
-from .video import PLAYBACK_FPS, VideoWriter, concat_videos
+from .video import LOSSLESS_CODEC, PLAYBACK_FPS, VideoWriter, concat_videos
 
 __all__ = [
     "FULL_WELL_ELECTRONS",
@@ -137,7 +137,7 @@ _DESCRIPTIONS = {
                    "P = K[R|t] (3x4), width, height (px), fov_y_deg",
     "truth.json": "small ground truth: modal frequencies (Hz), damping ratios, Rayleigh "
                   "coefficients, video/camera-model settings, voxel grid, array index",
-    "video.mkv": "lossless video, FFV1 gray16le, DN stored LSB-aligned in "
+    "video.mkv": "lossless video, FFVHUFF gray16le, DN stored LSB-aligned in "
                  "[0, 2^bit_depth - 1] (truth.json video.bit_depth)",
     "video.mp4": "consumer-camera video, 8-bit gray H.264 (lossy, CRF in truth.json)",
     "rest.png": "rest-pose frame, noise-free, 8-bit (for viewing)",
@@ -578,7 +578,7 @@ def _write_info(ctx: _Context, truth: dict) -> None:
         "seed": scene.seed,
         "video": {
             "file": None if not filmed else ("video.mp4" if consumer else "video.mkv"),
-            "codec": None if not filmed else ("h264" if consumer else "ffv1"),
+            "codec": None if not filmed else ("h264" if consumer else LOSSLESS_CODEC),
             "lossless": not consumer,
             "crf": opts.consumer_crf,
             "pixel_format": "gray" if consumer else "gray16le",
