@@ -6,11 +6,11 @@
   uint8), frame-exactly (``-fps_mode passthrough``: no frame is dropped or duplicated because
   of time stamps).
 * :class:`VideoWriter` encodes integer gray frames: lossless FFVHUFF (the default: FFmpeg's
-  Huffman-coded HuffYUV, 15x faster to encode and 6x faster to decode than FFV1 at 16 bits, files
-  about 25 % larger) or FFV1 (``gray16le`` or ``gray``) in Matroska, or H.264 (the consumer track and previews); :func:`concat_videos` joins
-  segments. Both write a temporary file unique to the process next to the output and rename
-  it into place when done (atomic; a symbolic link at the output is replaced, never written
-  through).
+  Huffman-coded HuffYUV, 15x faster to encode and 6x faster to decode than FFV1 at 16 bits,
+  files about 25 % larger) or FFV1 (``gray16le`` or ``gray``) in Matroska, or H.264 (the
+  consumer track and previews); :func:`concat_videos` joins segments. Both write a temporary
+  file unique to the process next to the output and rename it into place when done (atomic;
+  a symbolic link at the output is replaced, never written through).
 * :func:`count_frames` counts a file's frames packet by packet (no decoding).
 * :func:`open_video` opens any frame source for motion extraction as float32 gray frames.
 
@@ -339,8 +339,9 @@ class VideoWriter:
     capture_fps : stored exactly in the stream tag ``CAPTURE_FPS`` (None: no tag).
     pix_fmt : frames given as ``"gray16le"`` (uint16) or ``"gray"`` (uint8).
     codec : ``"ffvhuff"`` or ``"ffv1"`` (lossless; stored in ``pix_fmt``; FFVHUFF is much
-        cheaper to encode and decode, FFV1 smaller and slice-checksummed) or ``"h264"`` (libx264, 8-bit;
-        ``yuv420p`` output, odd sizes padded with zeros to even at the bottom/right).
+        cheaper to encode and decode, FFV1 smaller and slice-checksummed) or ``"h264"``
+        (libx264, 8-bit; ``yuv420p`` output, odd sizes padded with zeros to even at the
+        bottom/right).
     crf : H.264 constant rate factor (``codec="h264"``).
     playback_fps : the container's nominal rate (see :data:`PLAYBACK_FPS`).
 
