@@ -201,6 +201,10 @@ def coarsening(voxel_map, level: int) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(n), (np.arange(n), block)), shape=(n, block.max() + 1))
 
 
+#: largest P (entries) compressed by a dense QR (160 MB); larger ones are used as they are
+_COMPRESS_MAX_ENTRIES = 20_000_000
+
+
 def compress_observation(P, gamma: np.ndarray):
     """An observation operator with fewer rows and the same shape residuals.
 
@@ -218,8 +222,8 @@ def compress_observation(P, gamma: np.ndarray):
 
     Returns
     -------
-    P_c : (r_c, n) with r_c = min(r, n), dense when compressed, ``P`` itself otherwise.
-    gamma_c : (k, r_c).
+    P_c : (n, n), dense, when r > n (and P has at most 2e7 entries); ``P`` itself otherwise.
+    gamma_c : (k, n) when compressed, else ``gamma``.
     rest : (k,) the constant |gamma - U U^T gamma|^2 of each observation.
 
     Examples
@@ -232,7 +236,7 @@ def compress_observation(P, gamma: np.ndarray):
     """
     r, n = P.shape
     gamma = np.asarray(gamma, dtype=float)
-    if r <= n:
+    if r <= n or r * n > _COMPRESS_MAX_ENTRIES:  # nothing to gain / a dense QR too large
         return P, gamma, np.zeros(len(gamma))
     dense = P.toarray() if sp.issparse(P) else np.asarray(P, dtype=float)
     U, R = np.linalg.qr(dense)
