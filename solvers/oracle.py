@@ -79,7 +79,7 @@ def full_field_problem(problem: InverseProblem, U: np.ndarray) -> InverseProblem
     n = problem.model.n_free
     gamma = (U / np.linalg.norm(U, axis=0)).T
     return replace(problem, P=sp.identity(n, format="csr"), gamma=gamma,
-                   visible_nodes=np.arange(n), meta=dict(problem.meta))
+                   visible_nodes=np.arange(n), meta=dict(problem.meta), mode_snr=None)
 
 
 def fit_score(full: InverseProblem, w: np.ndarray, v: np.ndarray) -> float:

@@ -8,8 +8,11 @@ computed; observed mode i is paired with model mode p(i) (below) and the residua
     r_shape_i = sqrt(weight_shape c_i) (s_i q_i - gamma_i),  q_i = P phi_p(i),
                 s_i = gamma_i . q_i / |q_i|^2              (the least-squares scale)
 
-with gamma_i of unit length and c_i the confidence of observed mode i (``mode_weights``; the
-problem carries no per-mode noise today, so the default is 1). The cost is
+with gamma_i of unit length and c_i the confidence of observed mode i (2.3: from the
+problem's ``mode_snr``, the spectral SNR of an extracted mode, c_i = 1 / (model_noise + 1 / (1
++ snr_i)) scaled to mean 1, since about 1 / (1 + snr) of a shape's energy is noise and
+``model_noise`` is what the model cannot fit at any SNR; equal for true modes;
+``mode_weights`` overrides). The cost is
 
     C = sum |r_eig|^2 + sum |r_shape|^2 + alpha_lap (|L log w|^2 + |L log v|^2)
         + 2 alpha_tv sum_edges (sqrt((D log w)_e^2 + eps^2) + sqrt((D log v)_e^2 + eps^2))
@@ -101,7 +104,7 @@ from vvtbench.problem import Estimate, InverseProblem
 from .vvt import grid_laplacian
 
 __all__ = ["SensitivityConfig", "SensitivitySolver", "grid_differences",
-           "coarsening", "ShapeDerivatives", "compress_observation"]
+           "coarsening", "ShapeDerivatives", "compress_observation", "noise_weights"]
 
 
 @dataclass
@@ -122,7 +125,13 @@ class SensitivityConfig:
         "help": "weight of the projected mode-shape residuals (unit-length gamma)"})
     mode_weights: tuple[float, ...] = field(default=(), metadata={
         "help": "confidence of each observed mode (multiplies both its residuals); "
-                "empty: 1 for every mode"})
+                "empty: from the problem's mode_snr (see model_noise), 1 for every mode "
+                "where it has none"})
+    model_noise: float = field(default=0.1, metadata={
+        "help": "noise-weighted modes: c_i = 1 / (model_noise + 1 / (1 + snr_i)), scaled to "
+                "mean 1, where the problem carries each mode's spectral SNR (extracted "
+                "modes); model_noise is the share of a shape the model cannot fit whatever "
+                "the SNR (chosen on val videos, docs/solvers.md)"})
     alpha_lap: float = field(default=3e-5, metadata={
         "help": "Laplacian prior weight on log w and log v"})
     alpha_tv: float = field(default=3e-5, metadata={
@@ -167,6 +176,8 @@ class SensitivityConfig:
         if np.isscalar(self.mode_weights):
             self.mode_weights = (float(self.mode_weights),)
         self.mode_weights = tuple(float(x) for x in self.mode_weights)
+        if not self.model_noise > 0:  # NaN fails too
+            raise ValueError(f"model_noise must be > 0, got {self.model_noise!r}")
         if not 0.0 <= self.min_mac <= 1.0:  # NaN fails too
             raise ValueError(f"min_mac must be in [0, 1], got {self.min_mac!r}")
         if self.series_terms < 0 or self.levels < 0:
@@ -246,6 +257,24 @@ def compress_observation(P, gamma: np.ndarray):
 
 
 # --------------------------------------------------------------------------- eigenpairs
+
+
+def noise_weights(snr: np.ndarray | None, model_noise: float, k: int) -> np.ndarray:
+    """Per-mode confidence from the spectral SNR: ``1 / (model_noise + 1 / (1 + snr))``,
+    scaled to mean 1 (the priors keep their balance with the data); a mode of unknown SNR
+    (``nan``) gets the mean weight of the others, and equal weights without any SNR.
+
+    >>> noise_weights(np.array([1.0, 1e4, np.nan]), 0.1, 3).round(3)
+    array([0.286, 1.714, 1.   ])
+    >>> noise_weights(None, 0.1, 2)
+    array([1., 1.])
+    """
+    if snr is None or not np.isfinite(snr).any():
+        return np.ones(k)
+    snr = np.asarray(snr, dtype=float)
+    c = 1.0 / (model_noise + 1.0 / (1.0 + snr))
+    c[~np.isfinite(c)] = np.mean(c[np.isfinite(c)])
+    return c / np.mean(c)
 
 
 def _shift(lam: np.ndarray) -> float:
@@ -358,7 +387,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.2.1"
+    version = "2.3.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -380,12 +409,13 @@ class SensitivitySolver:
         gamma = problem.gamma / np.linalg.norm(problem.gamma, axis=1, keepdims=True)
         self.r_obs = gamma.shape[1]
         self.P, self.gamma, self.gamma_rest = compress_observation(problem.P, gamma)
-        cw = np.ones(self.k)
+        cw = noise_weights(problem.mode_snr, cfg.model_noise, self.k)
         if cfg.mode_weights:
             if len(cfg.mode_weights) != self.k:
                 raise ValueError(f"mode_weights has {len(cfg.mode_weights)} entries, the "
                                  f"problem has {self.k} modes")
             cw = np.asarray(cfg.mode_weights, dtype=float)
+        self.mode_weights = cw
         self.sq_eig = np.sqrt(cfg.weight_eig * cw)
         self.sq_shape = np.sqrt(cfg.weight_shape * cw)
         L = grid_laplacian(problem.voxel_map)

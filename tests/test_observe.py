@@ -62,6 +62,9 @@ def _same_problem(a: InverseProblem, b: InverseProblem) -> None:
     np.testing.assert_array_equal(a.visible_nodes, b.visible_nodes)
     assert abs(a.P - b.P).max() < 1e-9 * abs(a.P).max()
     assert a.n_params == b.n_params and a.w0 == b.w0 and a.v0 == b.v0
+    assert (a.mode_snr is None) == (b.mode_snr is None)
+    if a.mode_snr is not None:
+        np.testing.assert_array_equal(a.mode_snr, b.mode_snr)
 
 
 def test_sample_is_observed_without_the_simulator(sample, scene, no_simulator):
@@ -128,6 +131,31 @@ def test_extracted_modes_are_paired_with_true_ones(sample):
     assert np.median(truth.extraction_mac) > 0.5
     f_obs, f_true = problem.frequencies_hz, truth.frequencies_hz
     assert np.all(np.abs(f_obs - f_true) < 1 / 0.5)  # within the resolution of a 0.5 s video
+
+
+def test_extracted_modes_carry_the_snr_their_peaks_were_tested_with(sample):
+    """Each extracted mode's ``mode_snr`` is its peak's power over the noise floor, the
+    number the extraction's significance test compared with its threshold; true modes carry
+    none (noise-free); selecting modes keeps them paired."""
+    from vvtbench.dataset import open_sample
+    from vvtbench.modes import extract_modes
+
+    s = open_sample(sample)
+    ms = extract_modes(s.read_frames(), s.fps)
+    problem, _ = observe(sample, observation="extracted", modes=[ms], **OPTS)
+    snr = problem.mode_snr
+    assert snr is not None and snr.shape == (problem.n_modes,)
+    tested = np.asarray(ms.metadata["floor_ratio"])  # of every significant peak
+    assert np.all(snr > ms.metadata["noise_floor"]["factor"])
+    for x in snr:
+        assert np.min(np.abs(tested / x - 1)) < 1e-9
+    assert observe(sample, **OPTS)[0].mode_snr is None
+    np.testing.assert_array_equal(problem.select_modes([0]).mode_snr, snr[:1])
+    with pytest.raises(ValueError, match="mode_snr"):
+        InverseProblem(model=problem.model, gamma=problem.gamma,
+                       eigenvalues=problem.eigenvalues, P=problem.P,
+                       visible_nodes=problem.visible_nodes, mode_snr=snr[:-1] if
+                       len(snr) > 1 else np.ones(2))
 
 
 def test_selecting_modes_keeps_problem_and_truth_paired(sample):

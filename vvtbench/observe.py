@@ -536,16 +536,17 @@ def _with_extracted(problem: InverseProblem, truth: Truth, modesets: list, camer
 
     from .metrics import mac_matrix
 
-    gamma, freqs, info = _sample_extracted(problem, modesets, camera, opts)
+    gamma, freqs, snr, info = _sample_extracted(problem, modesets, camera, opts)
     mac = mac_matrix(gamma, truth.image_modes)
     rows, cols = linear_sum_assignment(-mac)
     order = np.argsort(rows)
     rows, cols = rows[order], cols[order]
     sign = np.sign(np.einsum("ij,ij->i", gamma[rows], truth.image_modes[cols]) + 1e-300)
-    gamma, freqs = gamma[rows], freqs[rows]
+    gamma, freqs, snr = gamma[rows], freqs[rows], snr[rows]
     true_f = np.sqrt(np.clip(truth.true_eigenvalues[cols], 0, None)) / (2 * np.pi)
     meta = {**problem.meta, **info, "extracted_frequencies_hz": freqs.tolist()}
-    problem = replace(problem, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, meta=meta)
+    problem = replace(problem, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, meta=meta,
+                      mode_snr=snr)
     truth = replace(truth, modes_3d=truth.modes_3d[:, cols] * sign[None, :],
                     eigenvalues=(2 * np.pi * true_f) ** 2, matched=cols,
                     extraction_mac=mac[rows, cols], meta=dict(truth.meta))
@@ -554,8 +555,9 @@ def _with_extracted(problem: InverseProblem, truth: Truth, modesets: list, camer
 
 def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
                       opts: ObserveOptions):
-    """(gamma (k, 2 n_vis) unit rows, frequencies (k,), meta) of the lowest extracted modes
-    sampled at the visible vertices' pixels."""
+    """(gamma (k, 2 n_vis) unit rows, frequencies (k,), spectral SNR (k,), meta) of the
+    lowest extracted modes sampled at the visible vertices' pixels. A mode merged from
+    several videos has the sum of its sources' SNRs (independent noise)."""
     from .modes import merge_modesets, sample_modes
 
     sets = list(modesets)
@@ -563,10 +565,15 @@ def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
         raise ObserveError("no mode sets given")
     if len(sets) == 1:
         ms = sets[0].select(~sets[0].camera_shake)
+        snr = ms.line_snr()
     else:
         ms = merge_modesets(sets, freq_tol=opts.merge_freq_tol, min_mac=opts.merge_min_mac)
+        source_snr = [s.select(~s.camera_shake).line_snr() for s in sets]
+        snr = np.array([sum(source_snr[i][j] for i, j in members)
+                        for members in ms.metadata["members"]], dtype=float)
     n_extracted = len(ms)
-    ms = ms.select(np.argsort(ms.frequencies_hz)[: opts.n_modes])
+    lowest = np.argsort(ms.frequencies_hz)[: opts.n_modes]
+    ms, snr = ms.select(lowest), snr[lowest]
     if len(ms) == 0:
         raise ObserveError("no modes were extracted from the video")
     scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
@@ -575,7 +582,7 @@ def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
     norms = np.linalg.norm(gamma, axis=1)
     keep = norms > 0
     info = {"source": "extracted from the video", "n_modes_extracted": int(n_extracted)}
-    return gamma[keep] / norms[keep, None], ms.frequencies_hz[keep], info
+    return gamma[keep] / norms[keep, None], ms.frequencies_hz[keep], snr[keep], info
 
 
 def _voxel_truth(rec: _Record, model: ParametricModel, scale: np.ndarray):
@@ -639,11 +646,11 @@ def _observe_real(real: RealVideo, opts: ObserveOptions) -> InverseProblem:
             for m in (opts.modes or real.modes)]
     stub = InverseProblem(model=model, gamma=np.zeros((1, P.shape[0])), eigenvalues=[1.0], P=P,
                           visible_nodes=visible, meta={"geometry_scale": [1.0, 1.0, 1.0]})
-    gamma, freqs, info = _sample_extracted(stub, sets, camera, opts)
+    gamma, freqs, snr, info = _sample_extracted(stub, sets, camera, opts)
     meta.update(info, observation="extracted", n_visible=int(len(visible)),
                 inference_shape=list(shape), inference_element=mesh.element, nu=nu,
                 camera=camera.to_dict(), geometry_scale=[1.0, 1.0, 1.0],
                 extracted_frequencies_hz=freqs.tolist())
     return InverseProblem(model=model, gamma=gamma, eigenvalues=(2 * np.pi * freqs) ** 2, P=P,
                           visible_nodes=visible, w0=real.w0, v0=real.v0, w_mean=real.w0,
-                          kind=kind, meta=meta)
+                          kind=kind, meta=meta, mode_snr=snr)

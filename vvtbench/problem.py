@@ -51,6 +51,10 @@ class InverseProblem:
     kind : "solid" or "membrane".
     meta : provenance of the observation (camera, geometry scale, inference grid, source
         of the modes, extracted frequencies); never the scene or the truth.
+    mode_snr : (k,) spectral signal-to-noise ratio of each observed mode (power at its peak
+        over the motion spectrum's noise floor, :meth:`ModeSet.line_snr`; about
+        ``1 / (1 + snr)`` of a shape's energy is noise), ``nan`` where unknown; ``None`` for
+        noise-free (true) modes and for problems written before it existed.
     """
 
     model: ParametricModel
@@ -63,10 +67,18 @@ class InverseProblem:
     w_mean: float = 9000.0
     kind: str = "solid"
     meta: dict[str, Any] = field(default_factory=dict)
+    mode_snr: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.gamma = np.atleast_2d(np.asarray(self.gamma, dtype=float))
         self.eigenvalues = np.asarray(self.eigenvalues, dtype=float).ravel()
+        if self.mode_snr is not None:
+            self.mode_snr = np.asarray(self.mode_snr, dtype=float).ravel()
+            if self.mode_snr.shape != self.eigenvalues.shape:
+                raise ValueError(f"mode_snr needs shape ({len(self.eigenvalues)},) (one per "
+                                 f"mode), got {self.mode_snr.shape}")
+            if np.any(self.mode_snr <= 0):
+                raise ValueError("mode_snr must be positive (or nan where unknown)")
         self.P = sp.csr_matrix(self.P)
         self.visible_nodes = np.asarray(self.visible_nodes, dtype=np.int64)
         k = len(self.eigenvalues)
@@ -108,7 +120,8 @@ class InverseProblem:
         if len(idx) == 0 or idx.max() >= self.n_modes:
             raise ValueError(f"mode selection {index!r} out of range; {self.n_modes} modes")
         return replace(self, gamma=self.gamma[idx], eigenvalues=self.eigenvalues[idx],
-                       meta=dict(self.meta))
+                       meta=dict(self.meta),
+                       mode_snr=None if self.mode_snr is None else self.mode_snr[idx])
 
     def save(self, folder: str | Path) -> None:
         """``problem.npz`` + ``problem.json`` in ``folder`` (plain arrays and JSON, no pickle;
@@ -122,6 +135,8 @@ class InverseProblem:
                   "gamma": self.gamma, "eigenvalues": self.eigenvalues,
                   "visible_nodes": self.visible_nodes, "P_data": self.P.data,
                   "P_indices": self.P.indices, "P_indptr": self.P.indptr}
+        if self.mode_snr is not None:
+            arrays["mode_snr"] = self.mode_snr
         write_npz(folder / "problem.npz", arrays)
         write_json(folder / "problem.json", {
             "element": mesh.element, "grid": m.voxel_map.grid.to_dict(),
@@ -144,7 +159,8 @@ class InverseProblem:
                           shape=tuple(doc["P_shape"]))
         return cls(model=model, gamma=a["gamma"], eigenvalues=a["eigenvalues"], P=P,
                    visible_nodes=a["visible_nodes"], w0=doc["w0"], v0=doc["v0"],
-                   w_mean=doc["w_mean"], kind=doc["kind"], meta=doc["meta"])
+                   w_mean=doc["w_mean"], kind=doc["kind"], meta=doc["meta"],
+                   mode_snr=a.get("mode_snr"))
 
 
 @dataclass

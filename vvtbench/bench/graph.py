@@ -21,6 +21,9 @@ CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the
 #: of extracted tracks only: true-mode tracks keep their cache). 2: shoulder modes, recall
 #: over the modes detectable in the video
 EXTRACTION_REVISION = 2
+#: revision of the observation of extracted modes (observe keys of extracted tracks only; the
+#: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``)
+OBSERVE_REVISION = 2
 
 
 def _canon(x):
@@ -205,7 +208,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 obs_payload = {"scene": scene_dicts[0], "inference": inf, "observation": obs,
                                "extract": extract_opts}
                 obs_key = add("observe", [scene_dicts[0], inf, obs,
-                                          {**extract_opts, "revision": EXTRACTION_REVISION}
+                                          {**extract_opts, "revision": EXTRACTION_REVISION,
+                                           "observe_revision": OBSERVE_REVISION}
                                           if obs == "extracted" else {}],
                               [gen_keys[0], *ext_keys], obs_payload, scene_label)
                 if stop < 3:

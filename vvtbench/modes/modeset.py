@@ -141,6 +141,40 @@ class ModeSet:
             ok &= np.isfinite(zh) & (zh > 0.5 * z) & (zh < 2.0 * z)
         return ok
 
+    def line_snr(self) -> NDArray[np.float64]:
+        """``(k,)`` power at each mode's peak bin over the spectrum's noise floor there.
+
+        The floor is :func:`.significance.noise_floor` over the extraction band
+        (``metadata["band_hz"]``, ``min_bin``, ``noise_floor.half_width_bins``), the model the
+        peaks were tested against; ``1 / (1 + snr)`` is about the fraction of a mode shape's
+        energy that is noise. ``nan`` where the set has no spectrum (merged sets) or a mode
+        no peak bin.
+
+        >>> f = np.arange(129.0); p = np.ones(129); p[40] = 1e3
+        >>> z = np.zeros((1, 2, 2, 2), np.float32); one = np.ones(1)
+        >>> ms = ModeSet(one * 40.0, one, one, z, one, np.array([40]), one, one, 0 * one,
+        ...              np.zeros(1, bool), f, p, 256.0, 256)
+        >>> ms.line_snr().round()
+        array([1000.])
+        """
+        from .significance import noise_floor
+
+        out = np.full(len(self), np.nan)
+        ok = (self.peak_bins >= 0) & (self.peak_bins < self.power.size)
+        if not ok.any() or self.power.size < 3:
+            return out
+        f = self.freqs_hz
+        lo, hi = self.metadata.get("band_hz", (f[1], f[-1]))
+        first = max(1, int(self.metadata.get("min_bin", 1)))
+        band = np.flatnonzero((f >= lo) & (f <= hi) & (np.arange(f.size) >= first))
+        sl = slice(int(band[0]), int(band[-1]) + 1) if band.size else slice(1, f.size)
+        half = int((self.metadata.get("noise_floor") or {}).get("half_width_bins", 32))
+        floor = noise_floor(self.power, sl, half_width_bins=half).floor
+        b = self.peak_bins[ok]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[ok] = self.power[b] / floor[b]
+        return out
+
     @property
     def omegas(self) -> NDArray[np.float64]:
         """Angular frequencies ``2 pi f`` (rad/s); ``lambda = omega**2``."""
