@@ -85,9 +85,10 @@ def main() -> None:
             for a, b in pairs:
                 if a in w and b in w:
                     p = paired_comparison(w[a], w[b])
-                    print(f"  paired NC w {a} - {b}: {p['mean_diff']:+.3f} [{p['ci_low']:+.3f}, "
-                          f"{p['ci_high']:+.3f}], {a} higher on {p['win_rate']:.0%} of "
-                          f"{p['n']} instances")
+                    ci = (f" [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}]"
+                          if np.isfinite(p["ci_low"]) else " (no interval)")
+                    print(f"  paired NC w {a} - {b}: {p['mean_diff']:+.3f}{ci}, {a} higher on "
+                          f"{p['win_rate']:.0%} of {p['n']} instances")
             for r in ref:
                 if r not in w:
                     continue
