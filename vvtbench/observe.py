@@ -568,7 +568,7 @@ def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
         snr = ms.line_snr()
     else:
         ms = merge_modesets(sets, freq_tol=opts.merge_freq_tol, min_mac=opts.merge_min_mac)
-        source_snr = [s.select(~s.camera_shake).line_snr() for s in sets]
+        source_snr = [s.line_snr()[~s.camera_shake] for s in sets]  # merge drops shake
         snr = np.array([sum(source_snr[i][j] for i, j in members)
                         for members in ms.metadata["members"]], dtype=float)
     n_extracted = len(ms)
