@@ -74,6 +74,15 @@ every accepted point and held fixed along an LM step (like the clusters), and ga
 observations are re-paired by projected MAC among the model modes the others leave free, so
 they come back once the model reaches them. ``extra["active"]`` is the final gate.
 
+Robust point weights (2.4): a measured mode shape can be wrong at some points in every mode
+at once (on a rendered cube, the face edges: their shading changes as the faces tilt, which a
+phase-based extractor reads as motion), and a least-squares fit then stiffens the field there
+to keep those points still. For measured modes (the problem carries ``mode_snr``) each observed
+point j gets a Cauchy weight u_j = 1 / (1 + E_j / (``robust_scale``^2 median E)) on its two
+rows, E_j = sum_i c_i |e_ij|^2 its share of the shape residual at the current fit (iteratively
+reweighted least squares: at the start of each finer level and after every accepted step of
+the full grid); the weighted rows of each mode are rescaled to unit length.
+
 Continuation: coarse-to-fine voxels. Level l uses blocks of 2^l x 2^l x 2^l voxels (theta =
 T theta_coarse, piecewise constant prolongation), at most ``level_iters`` LM iterations per
 coarse level, then the full grid for the rest of ``max_iter``.
@@ -150,6 +159,19 @@ class SensitivityConfig:
         "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
                 "rotated towards the paired observations (Rayleigh quotients as its "
                 "eigenvalues) and its inner couplings are left out of dphi"})
+    robust_scale: float = field(default=0.5, metadata={
+        "help": "robust (Cauchy) weights of the observed points, for measured modes (the "
+                "problem carries mode_snr): point j's two rows get u_j = 1 / (1 + E_j / "
+                "(robust_scale^2 median E)), E_j its share of the confidence-weighted shape "
+                "residual over the modes, re-evaluated at each finer level and after every "
+                "accepted step of the full grid (IRLS). A point the video gets wrong in "
+                "every mode (a cube's face edges, whose shading changes as they move) then "
+                "stops pulling the field. 0.5 chosen on val videos (docs/solvers.md); 0: "
+                "equal weights"})
+    robust_points: str = field(default="measured", metadata={
+        "help": "'measured' (robust point weights when the problem's modes were measured, "
+                "i.e. carry mode_snr; true modes have no outliers, only model error), "
+                "'always' or 'never'"})
     min_mac: float = field(default=0.5, metadata={
         "help": "an observed mode whose MAC with its paired model mode (or cluster) is below "
                 "this is left out of the data residuals at that iteration: an uncorrelated "
@@ -178,6 +200,11 @@ class SensitivityConfig:
         self.mode_weights = tuple(float(x) for x in self.mode_weights)
         if not self.model_noise > 0:  # NaN fails too
             raise ValueError(f"model_noise must be > 0, got {self.model_noise!r}")
+        if self.robust_points not in ("measured", "always", "never"):
+            raise ValueError(f"robust_points must be 'measured', 'always' or 'never', got "
+                             f"{self.robust_points!r}")
+        if not self.robust_scale >= 0:  # NaN fails too
+            raise ValueError(f"robust_scale must be >= 0, got {self.robust_scale!r}")
         if not 0.0 <= self.min_mac <= 1.0:  # NaN fails too
             raise ValueError(f"min_mac must be in [0, 1], got {self.min_mac!r}")
         if self.series_terms < 0 or self.levels < 0:
@@ -387,7 +414,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.3.0"
+    version = "2.4.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -408,7 +435,8 @@ class SensitivitySolver:
         self.w_mean = problem.w_mean if cfg.w_mean is None else cfg.w_mean
         gamma = problem.gamma / np.linalg.norm(problem.gamma, axis=1, keepdims=True)
         self.r_obs = gamma.shape[1]
-        self.P, self.gamma, self.gamma_rest = compress_observation(problem.P, gamma)
+        self.P0, self.gamma0 = sp.csr_matrix(problem.P), gamma
+        self._observe(np.ones(self.r_obs // 2 if self.r_obs % 2 == 0 else self.r_obs))
         cw = noise_weights(problem.mode_snr, cfg.model_noise, self.k)
         if cfg.mode_weights:
             if len(cfg.mode_weights) != self.k:
@@ -416,6 +444,8 @@ class SensitivitySolver:
                                  f"problem has {self.k} modes")
             cw = np.asarray(cfg.mode_weights, dtype=float)
         self.mode_weights = cw
+        self.robust = (cfg.robust_points == "always"
+                       or (cfg.robust_points == "measured" and problem.mode_snr is not None))
         self.sq_eig = np.sqrt(cfg.weight_eig * cw)
         self.sq_shape = np.sqrt(cfg.weight_shape * cw)
         L = grid_laplacian(problem.voxel_map)
@@ -425,6 +455,44 @@ class SensitivitySolver:
         self.D2 = sp.block_diag([D, D]).tocsr()
         self.tv_w = np.concatenate([np.ones(D.shape[0]), sv * np.ones(D.shape[0])]) \
             * cfg.alpha_tv
+
+    def _observe(self, point_weights: np.ndarray) -> None:
+        """Observation rows weighted by ``point_weights`` (one per observed point: two
+        image coordinates each), each observed mode rescaled to unit length, compressed."""
+        self.point_weights = np.asarray(point_weights, dtype=float)
+        d = np.sqrt(np.repeat(self.point_weights, self.r_obs // len(self.point_weights)))
+        gamma = self.gamma0 * d
+        self.gamma_scale = np.linalg.norm(gamma, axis=1)
+        gamma /= self.gamma_scale[:, None]
+        self.P, self.gamma, self.gamma_rest = compress_observation(
+            sp.diags(d) @ self.P0, gamma)
+
+    def _point_residuals(self, s: _State) -> np.ndarray:
+        """Each observed point's share of the weighted shape residual at ``s``, in the
+        unweighted observation (the fit's coefficients, the equal-weight residual rows)."""
+        Q0 = np.asarray(self.P0 @ s.phi)
+        energy = np.zeros(len(self.point_weights))
+        for i in range(self.k):
+            if not s.active[i]:
+                continue
+            members = s.groups[s.obs_group[i]][0]
+            e = self.gamma0[i] - self.gamma_scale[i] * (Q0[:, members] @ s.a[i])
+            energy += self.mode_weights[i] * np.sum(
+                (e * e).reshape(len(energy), -1), axis=1)
+        return energy
+
+    def _reweight(self, s: _State) -> _State:
+        """IRLS step of the robust point weights (Cauchy), then ``s`` re-evaluated."""
+        c = self.config.robust_scale
+        if c <= 0 or not self.robust:
+            return s
+        energy = self._point_residuals(s)
+        scale = np.median(energy)
+        if not scale > 0:
+            return s
+        self._observe(1.0 / (1.0 + energy / (c * c * scale)))
+        s.Q = np.asarray(self.P @ s.phi)
+        return self._residuals(s)
 
     def _normalize(self, theta: np.ndarray) -> np.ndarray:
         """The anchor: shift log w and log v together so that mean(w) = w_mean."""
@@ -601,7 +669,8 @@ class SensitivitySolver:
         -------
         Estimate
             ``extra``: ``w_std``, ``v_std`` (per-voxel standard deviations, Laplace
-            approximation; when ``uncertainty``), ``eigenvalues``, ``mac``, ``pairing``.
+            approximation; when ``uncertainty``), ``eigenvalues``, ``mac``, ``pairing``,
+            ``active``, ``point_weights`` (the robust weight of each observed point).
         """
         from .homogeneous import HomogeneousSolver
 
@@ -628,6 +697,8 @@ class SensitivitySolver:
             cap = cfg.level_iters if level > 0 else cfg.max_iter
             level_it = 0
             mu = max(mu, cfg.mu0)  # a new level: new parameters, start damped again
+            if history:
+                state = self._reweight(state)
             while it < cfg.max_iter and level_it < cap:
                 t0 = time.perf_counter()
                 J = self._jacobian(state)
@@ -662,6 +733,8 @@ class SensitivitySolver:
                     break
                 decrease = (state.cost - trial.cost) / max(state.cost, 1e-300)
                 state = self._residuals(trial)  # the clusters at the new point
+                if level == 0:  # IRLS: the point weights follow the fine level's fit
+                    state = self._reweight(state)
                 mu = max(mu / 3.0, 1e-9)
                 rec = {
                     "iteration": it,
@@ -684,7 +757,8 @@ class SensitivitySolver:
             if level == 0:
                 converged = it < cfg.max_iter
         extra = {"eigenvalues": state.lam[state.pair], "mac": state.mac,
-                 "pairing": state.pair, "active": state.active.astype(bool)}
+                 "pairing": state.pair, "active": state.active.astype(bool),
+                 "point_weights": self.point_weights}
         if cfg.uncertainty:
             extra.update(self._uncertainty(state))
         return Estimate(
