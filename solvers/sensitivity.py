@@ -436,7 +436,8 @@ class SensitivitySolver:
         gamma = problem.gamma / np.linalg.norm(problem.gamma, axis=1, keepdims=True)
         self.r_obs = gamma.shape[1]
         self.P0, self.gamma0 = sp.csr_matrix(problem.P), gamma
-        self._observe(np.ones(self.r_obs // 2 if self.r_obs % 2 == 0 else self.r_obs))
+        self.rows_per_point = 2 if self.r_obs % 2 == 0 else 1  # image (dx, dy) per point
+        self._observe(np.ones(self.r_obs // self.rows_per_point))
         cw = noise_weights(problem.mode_snr, cfg.model_noise, self.k)
         if cfg.mode_weights:
             if len(cfg.mode_weights) != self.k:
@@ -444,8 +445,9 @@ class SensitivitySolver:
                                  f"problem has {self.k} modes")
             cw = np.asarray(cfg.mode_weights, dtype=float)
         self.mode_weights = cw
-        self.robust = (cfg.robust_points == "always"
-                       or (cfg.robust_points == "measured" and problem.mode_snr is not None))
+        self.robust = cfg.robust_scale > 0 and (
+            cfg.robust_points == "always"
+            or (cfg.robust_points == "measured" and problem.mode_snr is not None))
         self.sq_eig = np.sqrt(cfg.weight_eig * cw)
         self.sq_shape = np.sqrt(cfg.weight_shape * cw)
         L = grid_laplacian(problem.voxel_map)
@@ -460,7 +462,7 @@ class SensitivitySolver:
         """Observation rows weighted by ``point_weights`` (one per observed point: two
         image coordinates each), each observed mode rescaled to unit length, compressed."""
         self.point_weights = np.asarray(point_weights, dtype=float)
-        d = np.sqrt(np.repeat(self.point_weights, self.r_obs // len(self.point_weights)))
+        d = np.sqrt(np.repeat(self.point_weights, self.rows_per_point))
         gamma = self.gamma0 * d
         self.gamma_scale = np.linalg.norm(gamma, axis=1)
         gamma /= self.gamma_scale[:, None]
@@ -478,19 +480,18 @@ class SensitivitySolver:
             members = s.groups[s.obs_group[i]][0]
             e = self.gamma0[i] - self.gamma_scale[i] * (Q0[:, members] @ s.a[i])
             energy += self.mode_weights[i] * np.sum(
-                (e * e).reshape(len(energy), -1), axis=1)
+                (e * e).reshape(-1, self.rows_per_point), axis=1)
         return energy
 
     def _reweight(self, s: _State) -> _State:
         """IRLS step of the robust point weights (Cauchy), then ``s`` re-evaluated."""
-        c = self.config.robust_scale
-        if c <= 0 or not self.robust:
+        if not self.robust:
             return s
         energy = self._point_residuals(s)
         scale = np.median(energy)
         if not scale > 0:
             return s
-        self._observe(1.0 / (1.0 + energy / (c * c * scale)))
+        self._observe(1.0 / (1.0 + energy / (self.config.robust_scale ** 2 * scale)))
         s.Q = np.asarray(self.P @ s.phi)
         return self._residuals(s)
 
