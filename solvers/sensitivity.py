@@ -189,6 +189,15 @@ class SensitivityConfig:
     std_scale: float = field(default=20.0, metadata={
         "help": "multiplies the Laplace standard deviations (calibration: chosen on the "
                 "validation cubes for 95 % coverage of the z = 1.96 intervals)"})
+    mode_stages: tuple[int, ...] = field(default=(4,), metadata={
+        "help": "restart by continuation in the mode count when the fit of all modes leaves "
+                "the eigenvalues unmatched (relative rms above restart_eig_rms): fit the "
+                "lowest k observed modes first (coarse to fine from the homogeneous start), "
+                "for each k here in increasing order, then all modes from the last fit (fine "
+                "level only); kept if its eigenvalue misfit is lower. () never restarts. "
+                "(4,) chosen on the drum_defects val split (docs/solvers.md)"})
+    restart_eig_rms: float = field(default=0.1, metadata={
+        "help": "relative rms eigenvalue misfit above which the continuation restart runs"})
     w_mean: float | None = field(default=None, metadata={
         "help": "anchor for mean(w) (default: the problem's prior)"})
 
@@ -198,6 +207,15 @@ class SensitivityConfig:
         if np.isscalar(self.mode_weights):
             self.mode_weights = (float(self.mode_weights),)
         self.mode_weights = tuple(float(x) for x in self.mode_weights)
+        if np.isscalar(self.mode_stages):
+            self.mode_stages = (self.mode_stages,)
+        if not all((isinstance(k, (int, np.integer)) and not isinstance(k, bool)
+                    or isinstance(k, float) and k.is_integer()) and k >= 1
+                   for k in self.mode_stages):
+            raise ValueError(f"mode_stages must be integers >= 1, got {self.mode_stages!r}")
+        self.mode_stages = tuple(int(k) for k in self.mode_stages)
+        if not self.restart_eig_rms >= 0:  # NaN fails too
+            raise ValueError(f"restart_eig_rms must be >= 0, got {self.restart_eig_rms!r}")
         if not self.model_noise > 0:  # NaN fails too
             raise ValueError(f"model_noise must be > 0, got {self.model_noise!r}")
         if self.robust_points not in ("measured", "always", "never"):
@@ -414,7 +432,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.4.0"
+    version = "2.5.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -678,10 +696,66 @@ class SensitivitySolver:
         t_start = time.perf_counter()
         cfg = self.config
         self._setup(problem)
+        all_levels = list(range(cfg.levels, -1, -1))
+        state, history, converged = self._fit(
+            problem, self._homogeneous_start(problem, HomogeneousSolver), all_levels, callback,
+            stage=problem.n_modes)
+        stages = sorted({k for k in cfg.mode_stages if k < problem.n_modes})
+        if stages and self._eig_rms(state) > cfg.restart_eig_rms:
+            # restart with a continuation by mode count: the lowest modes first (their
+            # pairing with the model's is unambiguous even far from the truth), each fit
+            # the start of the next; kept if it matches the eigenvalues better
+            kept = (state, history, converged, self.point_weights)
+            theta = None
+            restart: list[dict] = []
+            for k in stages:
+                sub = problem.select_modes(np.arange(k))
+                self._setup(sub)
+                if theta is None:
+                    theta, levels = self._homogeneous_start(sub, HomogeneousSolver), all_levels
+                else:
+                    levels = [0]
+                st, hist, _ = self._fit(sub, theta, levels, callback, stage=k)
+                restart += hist
+                theta = st.theta
+            self._setup(problem)
+            st, hist, conv = self._fit(problem, theta, [0], callback, stage=problem.n_modes)
+            restart += hist
+            if self._eig_rms(st) < self._eig_rms(state):
+                state, converged = st, conv
+                history = history + [dict(r, restart=True) for r in restart]
+            else:
+                state, history, converged, pw = kept
+                self._observe(pw)
+                history = history + [dict(r, restart=True, kept=False) for r in restart]
+        extra = {"eigenvalues": state.lam[state.pair], "mac": state.mac,
+                 "pairing": state.pair, "active": state.active.astype(bool),
+                 "point_weights": self.point_weights}
+        if cfg.uncertainty:
+            extra.update(self._uncertainty(state))
+        return Estimate(
+            w=state.w, v=state.v, history=history, runtime_s=time.perf_counter() - t_start,
+            config=asdict(cfg), solver=self.name, version=self.version, converged=converged,
+            extra=extra,
+        )
+
+    def _eig_rms(self, state: _State) -> float:
+        """Relative rms misfit of the paired eigenvalues."""
+        return float(np.sqrt(np.mean((state.lam[state.pair] / self.problem.eigenvalues - 1)
+                                     ** 2)))
+
+    def _homogeneous_start(self, problem: InverseProblem, homogeneous) -> np.ndarray:
+        """Log-parameters of the best homogeneous fit, scaled to mean(w) = w_mean."""
+        start = homogeneous().solve(problem)
+        return np.concatenate([np.log(start.w * self.w_mean / np.mean(start.w)),
+                               np.log(start.v * self.w_mean / np.mean(start.w))])
+
+    def _fit(self, problem: InverseProblem, theta: np.ndarray, levels: list[int], callback,
+             stage: int) -> tuple[_State, list[dict], bool]:
+        """Levenberg-Marquardt from ``theta`` over the given coarsening levels (coarse first);
+        returns the final state, the history and whether the fine level converged."""
+        cfg = self.config
         m = self.m
-        start = HomogeneousSolver().solve(problem)
-        theta = np.concatenate([np.log(start.w * self.w_mean / np.mean(start.w)),
-                                np.log(start.v * self.w_mean / np.mean(start.w))])
         state = self._evaluate(theta, None)
         mu = cfg.mu0
         history: list[dict] = []
@@ -689,7 +763,6 @@ class SensitivitySolver:
         n_eval = 1
         it = 0
         J = None
-        levels = list(range(cfg.levels, -1, -1))
         for level in levels:
             Tm = coarsening(problem.voxel_map, level)
             if level > 0 and Tm.shape[1] >= m:
@@ -749,6 +822,7 @@ class SensitivitySolver:
                     "active": int(state.active.sum()),
                     "mu": mu,
                     "evaluations": n_eval,
+                    "modes": stage,
                 }
                 history.append(rec)
                 if callback is not None:
@@ -757,16 +831,7 @@ class SensitivitySolver:
                     break
             if level == 0:
                 converged = it < cfg.max_iter
-        extra = {"eigenvalues": state.lam[state.pair], "mac": state.mac,
-                 "pairing": state.pair, "active": state.active.astype(bool),
-                 "point_weights": self.point_weights}
-        if cfg.uncertainty:
-            extra.update(self._uncertainty(state))
-        return Estimate(
-            w=state.w, v=state.v, history=history, runtime_s=time.perf_counter() - t_start,
-            config=asdict(cfg), solver=self.name, version=self.version, converged=converged,
-            extra=extra,
-        )
+        return state, history, converged
 
     def _uncertainty(self, state: _State) -> dict:
         """Laplace approximation: per-voxel standard deviations of w and v."""

@@ -290,3 +290,26 @@ def test_points_a_video_gets_wrong_in_every_mode_are_down_weighted():
     np.testing.assert_array_equal(SensitivitySolver().solve(pb).extra["point_weights"], 1.0)
     with pytest.raises(ValueError, match="robust_points"):
         SensitivityConfig(robust_points="sometimes")
+
+
+def test_continuation_restart_keeps_the_better_eigenvalue_fit():
+    """A fit that leaves the eigenvalues unmatched restarts from the lowest modes; the result
+    with the lower eigenvalue misfit is kept and the history says which."""
+    pb, truth = _own_defect_cube()
+    cfg = dict(max_iter=4, level_iters=2, uncertainty=False)
+    direct = SensitivitySolver(SensitivityConfig(mode_stages=(), **cfg)).solve(pb)
+    forced = SensitivitySolver(SensitivityConfig(mode_stages=(3,), restart_eig_rms=0.0,
+                                                 **cfg)).solve(pb)
+    restart = [r for r in forced.history if r.get("restart")]
+    assert restart and {r["modes"] for r in restart} == {3, pb.n_modes}
+    assert not any(r.get("restart") for r in direct.history)
+
+    def misfit(e):
+        return np.sqrt(np.mean((e.extra["eigenvalues"] / pb.eigenvalues - 1) ** 2))
+
+    assert misfit(forced) <= misfit(direct) + 1e-12
+    kept = not any(r.get("kept") is False for r in restart)
+    assert np.allclose(forced.w, direct.w) != kept
+    for bad in ({"mode_stages": (0,)}, {"mode_stages": (2.5,)}, {"restart_eig_rms": np.nan}):
+        with pytest.raises(ValueError):
+            SensitivityConfig(**bad)

@@ -86,6 +86,7 @@ class ExtractOptions(_Strict):
     detrend: Literal["mean", "linear", "none"] | None = Field(
         None, description="'mean', 'linear' or 'none'")
     shake_threshold: Fraction | None = Field(None, description="a MAC in [0, 1]")
+    line_fit: bool | None = Field(None, description="true or false")
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")

@@ -151,6 +151,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
         action="store_true",
         help="keep peaks that are harmonics / intermodulation products of stronger ones",
     )
+    ap.add_argument("--line-fit", action="store_true",
+                    help="fit the peaks as lines across all pixels (close modes resolved) and "
+                    "add significant lines of the residual (docs/modes.md, 'Line fit')")
     ap.add_argument("--memory-budget-mb", type=positive_float, default=1024.0)
     ap.add_argument("--tmpdir", default=None, help="where displacements spill to disk")
     ap.add_argument("--no-plots", action="store_true")
@@ -197,6 +200,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             memory_budget=int(args.memory_budget_mb * (1 << 20)),
             tmpdir=args.tmpdir,
             progress=not args.quiet,
+            line_fit=args.line_fit,
         )
     except (ValueError, FileNotFoundError) as e:
         from . import explain

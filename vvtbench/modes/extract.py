@@ -11,6 +11,7 @@ mode is a near-uniform translation are flagged as camera shake and dropped unles
 from __future__ import annotations
 
 import logging
+import math
 import sys
 import time
 from collections.abc import Iterable
@@ -23,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..motion.phase import upsample_periodic
 from ..video import average_frames, open_video
 from .damping import damping_half_power, damping_lorentzian
+from .lines import Lines, clean_lines, peak_gain
 from .modeset import ModeSet
 from .peaks import (
     Peaks,
@@ -34,6 +36,7 @@ from .peaks import (
     roughness,
     translation_mac,
 )
+from .significance import noise_floor
 from .spectrum import (
     DEFAULT_BUDGET,
     DisplacementStore,
@@ -89,6 +92,8 @@ def modes_from_displacements(
     shoulder_prominence: float | None = 0.05,
     shoulder_mac: float = 0.5,
     shoulder_bins: int = 6,
+    line_fit: bool = False,
+    line_radius: int = 4,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -159,6 +164,12 @@ def modes_from_displacements(
         shape, while the flank, the window's sidelobes and noise wiggles on them have the
         neighbour's.  Kept ones count against ``max_modes`` after the prominent peaks.
         ``None`` turns this off.
+    line_fit : bool, default False
+        Multi-channel line fit (:mod:`.lines`, docs/modes.md "Line fit"): the picked peaks
+        become lines fitted with the window's exact kernel to the complex fields of every
+        pixel at the ``line_radius`` bins around them (close modes under one peak separate,
+        frequency, damping and amplitude come from the fit), and significant lines of the
+        residual spectrum with a shape of their own are added (up to ``max_modes`` in all).
 
     Returns
     -------
@@ -209,6 +220,12 @@ def modes_from_displacements(
         )
     T = _n_frames(disp)
     gain = window_gain(T, window)
+    lines = None
+    if line_fit and len(pk):
+        lines, pk, Z = _fit_lines(disp, pk, Z, np.asarray(freqs, np.float64),
+                                  np.asarray(power, np.float64), float(fps), T, band, w,
+                                  window, detrend, block_bytes, false_alarm, min_bin,
+                                  floor_half_width_bins, shoulder_mac, max_modes)
     rows: dict[str, list] = {k: [] for k in _ROWS}
     shapes = []
     rough = []
@@ -219,15 +236,23 @@ def modes_from_displacements(
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
-        zeta, _, _ = damping_lorentzian(freqs, power, int(k), window=window, n_frames=T)
-        f_ref = refine_frequency(freqs, power, int(k))
+        if lines is not None:
+            # the fitted line: exact frequency and damping; the amplitude of the undamped
+            # sinusoid with the same spectral line (|A| = a / 2 at the record's start)
+            f_ref = float(lines.kappa[i]) * float(fps) / T
+            zeta = float(lines.half_width[i] / lines.kappa[i])
+            amp = 2.0 * norm * float(peak_gain(lines.half_width[i], T, window)[0]) / gain
+        else:
+            zeta, _, _ = damping_lorentzian(freqs, power, int(k), window=window, n_frames=T)
+            f_ref = refine_frequency(freqs, power, int(k))
+            delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
+            amp = 2.0 * norm / gain / scalloping(delta, window)
         rows["frequencies_hz"].append(f_ref)
         rows["damping"].append(zeta)
         rows["damping_half_power"].append(
             damping_half_power(freqs, power, int(k), window=window, n_frames=T)
         )
-        delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
-        rows["amplitudes_px"].append(2.0 * norm / gain / scalloping(delta, window))
+        rows["amplitudes_px"].append(amp)
         rows["peak_bins"].append(int(k))
         rows["prominences"].append(float(pk.prominences[i]))
         rows["collinearity"].append(coll)
@@ -264,6 +289,10 @@ def modes_from_displacements(
         shoulders=shoulders,
         noise_floor=None if pk.noise is None else pk.noise.summary(),
         floor_ratio=None if pk.floor_ratio is None else [float(r) for r in pk.floor_ratio],
+        line_fit=None if lines is None else {
+            "added_hz": [float(k) * float(fps) / T for k in lines.kappa[lines.added]],
+            "candidates": lines.log,
+        },
     )
     ms = ModeSet(
         shapes=np.array(shapes, dtype=np.float32).reshape(len(shapes), H, W, 2),
@@ -321,6 +350,40 @@ def modes_from_displacements(
             rejected.append(entry)
     meta["rejected"] = rejected
     return ms.select(~drop)
+
+
+def _fit_lines(disp: DisplacementStore | ArrayLike, pk: Peaks, Z: NDArray,
+               freqs: NDArray[np.float64], power: NDArray[np.float64], fps: float, T: int,
+               band: tuple[float, float], w: NDArray[np.float64] | None, window: Window,
+               detrend: str, block_bytes: int, false_alarm: float | None, min_bin: int,
+               floor_half_width_bins: int, max_mac: float, max_modes: int | None,
+               radius: int = 4) -> tuple[Lines, Peaks, NDArray]:
+    """Picked peaks -> fitted lines plus the residual's lines; the peaks and fields to analyse
+    (fields are the lines' complex amplitudes ``A``, not windowed DFTs)."""
+    n_top = T // 2
+    lo = max(int(min_bin), int(math.ceil(band[0] * T / fps - 1e-9)), 1)
+    hi = min(int(math.floor(band[1] * T / fps + 1e-9)), n_top - 1)
+    first, last = max(1, lo - radius), min(n_top, hi + radius)
+    fshape = Z.shape[1:]
+    fields = bin_fields(disp, np.arange(first, last + 1), detrend=detrend, window=window,
+                        block_bytes=block_bytes).reshape(last - first + 1, -1)
+    wc = None if w is None else np.repeat(w.reshape(-1), fshape[-1])
+    kappa0 = np.array([refine_frequency(freqs, power, int(k)) for k in pk.bins]) * T / fps
+    lines = clean_lines(fields, first, power, kappa0, T, band=(lo, hi), weights=wc,
+                        window=window, radius=radius,
+                        false_alarm=0.01 if false_alarm is None else false_alarm,
+                        floor_half_width_bins=floor_half_width_bins, max_mac=max_mac,
+                        max_lines=max_modes)
+    bins = np.clip(np.rint(lines.kappa).astype(np.int64), 1, n_top)
+    nf = noise_floor(lines.residual, slice(lo, hi + 1), false_alarm=0.01 if false_alarm is None
+                     else false_alarm, half_width_bins=floor_half_width_bins)
+    prom = np.log10(np.maximum(lines.power, 1e-300) / nf.floor[bins])
+    orig = np.flatnonzero(~lines.added)
+    if orig.size == len(pk):
+        prom[orig] = pk.prominences
+    new = Peaks(bins=bins, frequencies_hz=lines.kappa * fps / T, prominences=prom,
+                floor_ratio=lines.power / nf.floor[bins], noise=nf)
+    return lines, new, lines.shapes.reshape(len(bins), *fshape)
 
 
 def _complex_mac(a: NDArray, b: NDArray, w: NDArray[np.float64] | None) -> float:
@@ -438,6 +501,7 @@ def extract_modes(
     shoulder_prominence: float | None = 0.05,
     extractor: Any = "phase",
     extractor_config: Any = None,
+    line_fit: bool = False,
 ) -> ModeSet:
     """Extract image-space modes from a video end to end.
 
@@ -481,6 +545,8 @@ def extract_modes(
         not given.
     extractor_config : dataclass instance or mapping, optional
         The extractor's ``Config`` (or overrides of its defaults).
+    line_fit : bool, default False
+        Multi-channel line fit and residual search, see :func:`modes_from_displacements`.
 
     Returns
     -------
@@ -574,6 +640,7 @@ def extract_modes(
             false_alarm=false_alarm,
             min_bin=min_bin,
             shoulder_prominence=shoulder_prominence,
+            line_fit=line_fit,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
