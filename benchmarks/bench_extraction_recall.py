@@ -16,6 +16,7 @@ with other options).
 Usage::
 
     python benchmarks/bench_extraction_recall.py runs/paper/cache [--reextract] \
+        [--set line_fit=true --set max_modes=null] \
         [--out /tmp/extract] [--modes DIR] [--floors 0.001 0.003 0.01] \
         [--scenes jello_cube_defect ...]
 
@@ -59,7 +60,14 @@ def main() -> None:
     ap.add_argument("--modes", type=Path, default=None,
                     help="score the mode sets saved in MODES/<generate task hash> instead")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=JSON",
+                    help="with --reextract: override an extract option, e.g. line_fit=true, "
+                    "max_modes=null (repeatable)")
     args = ap.parse_args()
+    overrides = {}
+    for kv in args.set:
+        key, _, val = kv.partition("=")
+        overrides[key] = json.loads(val)
 
     tasks = _extract_tasks(args.cache)
     rows = []
@@ -76,6 +84,7 @@ def main() -> None:
                     continue
                 ms = ModeSet.load(args.modes / gen.parent.parent.name)
             elif args.reextract:
+                options = {**options, **overrides}
                 ms = extract_modes(s.video_path, s.fps, workers=args.workers, **options)
                 ms.save(args.out / folder.name)
             else:

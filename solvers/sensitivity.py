@@ -85,7 +85,10 @@ the full grid); the weighted rows of each mode are rescaled to unit length.
 
 Continuation: coarse-to-fine voxels. Level l uses blocks of 2^l x 2^l x 2^l voxels (theta =
 T theta_coarse, piecewise constant prolongation), at most ``level_iters`` LM iterations per
-coarse level, then the full grid for the rest of ``max_iter``.
+coarse level, then the full grid for the rest of ``max_iter``. 2.5: for true modes, a fit
+that ends with the eigenvalues unmatched (relative rms above ``restart_eig_rms``) is restarted
+by a continuation in the mode count (the lowest ``mode_stages`` modes first, their fit the
+start of the fit of all modes); the result with the lower eigenvalue misfit is kept.
 
 Mean anchor on w: the modes are invariant under (w, v) -> c (w, v) (and so are the priors on
 log-parameters), so mean(w) = w_mean is imposed exactly by rescaling both fields at every
@@ -194,7 +197,9 @@ class SensitivityConfig:
                 "the eigenvalues unmatched (relative rms above restart_eig_rms): fit the "
                 "lowest k observed modes first (coarse to fine from the homogeneous start), "
                 "for each k here in increasing order, then all modes from the last fit (fine "
-                "level only); kept if its eigenvalue misfit is lower. () never restarts. "
+                "level only); kept if its eigenvalue misfit is lower. Only for true "
+                "modes (no mode_snr): measured modes carry false and missed modes whose "
+                "eigenvalue misfit says little about the fit. () never restarts. "
                 "(4,) chosen on the drum_defects val split (docs/solvers.md)"})
     restart_eig_rms: float = field(default=0.1, metadata={
         "help": "relative rms eigenvalue misfit above which the continuation restart runs"})
@@ -701,7 +706,8 @@ class SensitivitySolver:
             problem, self._homogeneous_start(problem, HomogeneousSolver), all_levels, callback,
             stage=problem.n_modes)
         stages = sorted({k for k in cfg.mode_stages if k < problem.n_modes})
-        if stages and self._eig_rms(state) > cfg.restart_eig_rms:
+        if (stages and problem.mode_snr is None
+                and self._eig_rms(state) > cfg.restart_eig_rms):
             # restart with a continuation by mode count: the lowest modes first (their
             # pairing with the model's is unambiguous even far from the truth), each fit
             # the start of the next; kept if it matches the eigenvalues better

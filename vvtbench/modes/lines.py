@@ -249,8 +249,8 @@ class Lines:
     added : ndarray
         ``(M,)`` bool, found in the residual (not among the starting peaks).
     residual : ndarray
-        ``(F,)`` the power spectrum with the fitted lines removed (bins outside every group
-        are the spectrum's own).
+        ``(F,)`` the power spectrum with every fitted line removed from the bins of
+        ``fields`` (other bins are the spectrum's own).
     log : list of dict
         Every residual candidate tried (``bin``, ``kept``, ``reason``).
     """
