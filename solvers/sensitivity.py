@@ -88,7 +88,8 @@ T theta_coarse, piecewise constant prolongation), at most ``level_iters`` LM ite
 coarse level, then the full grid for the rest of ``max_iter``. 2.5: for true modes, a fit
 that ends with the eigenvalues unmatched (relative rms above ``restart_eig_rms``) is restarted
 by a continuation in the mode count (the lowest ``mode_stages`` modes first, their fit the
-start of the fit of all modes); the result with the lower eigenvalue misfit is kept.
+start of the fit of all modes); 2.6: the result whose modes match the observed shapes
+better (higher mean MAC, ``restart_keep``) is kept.
 
 Mean anchor on w: the modes are invariant under (w, v) -> c (w, v) (and so are the priors on
 log-parameters), so mean(w) = w_mean is imposed exactly by rescaling both fields at every
@@ -197,12 +198,16 @@ class SensitivityConfig:
                 "the eigenvalues unmatched (relative rms above restart_eig_rms): fit the "
                 "lowest k observed modes first (coarse to fine from the homogeneous start), "
                 "for each k here in increasing order, then all modes from the last fit (fine "
-                "level only); kept if its eigenvalue misfit is lower. Only for true "
+                "level only); kept if it fits better (restart_keep). Only for true "
                 "modes (no mode_snr): measured modes carry false and missed modes whose "
                 "eigenvalue misfit says little about the fit. () never restarts. "
                 "(4,) chosen on the drum_defects val split (docs/solvers.md)"})
     restart_eig_rms: float = field(default=0.1, metadata={
         "help": "relative rms eigenvalue misfit above which the continuation restart runs"})
+    restart_keep: str = field(default="mac", metadata={
+        "help": "which of the two fits is kept: 'mac' (the higher mean MAC of all observed "
+                "modes with their paired model modes; chosen on the cube_defects and "
+                "drum_defects val splits) or 'eigenvalues' (the lower eigenvalue misfit)"})
     w_mean: float | None = field(default=None, metadata={
         "help": "anchor for mean(w) (default: the problem's prior)"})
 
@@ -221,6 +226,9 @@ class SensitivityConfig:
         self.mode_stages = tuple(int(k) for k in self.mode_stages)
         if not self.restart_eig_rms >= 0:  # NaN fails too
             raise ValueError(f"restart_eig_rms must be >= 0, got {self.restart_eig_rms!r}")
+        if self.restart_keep not in ("mac", "eigenvalues"):
+            raise ValueError(f"restart_keep must be 'mac' or 'eigenvalues', got "
+                             f"{self.restart_keep!r}")
         if not self.model_noise > 0:  # NaN fails too
             raise ValueError(f"model_noise must be > 0, got {self.model_noise!r}")
         if self.robust_points not in ("measured", "always", "never"):
@@ -437,7 +445,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.5.0"
+    version = "2.6.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -710,7 +718,7 @@ class SensitivitySolver:
                 and self._eig_rms(state) > cfg.restart_eig_rms):
             # restart with a continuation by mode count: the lowest modes first (their
             # pairing with the model's is unambiguous even far from the truth), each fit
-            # the start of the next; kept if it matches the eigenvalues better
+            # the start of the next; kept if it fits better (restart_keep)
             kept = (state, history, converged, self.point_weights)
             theta = None
             restart: list[dict] = []
@@ -727,7 +735,7 @@ class SensitivitySolver:
             self._setup(problem)
             st, hist, conv = self._fit(problem, theta, [0], callback, stage=problem.n_modes)
             restart += hist
-            if self._eig_rms(st) < self._eig_rms(state):
+            if self._restart_is_better(st, state):
                 state, converged = st, conv
                 history = history + [dict(r, restart=True) for r in restart]
             else:
@@ -744,6 +752,12 @@ class SensitivitySolver:
             config=asdict(cfg), solver=self.name, version=self.version, converged=converged,
             extra=extra,
         )
+
+    def _restart_is_better(self, restarted: _State, first: _State) -> bool:
+        """Whether the restart's fit beats the first one by ``restart_keep``."""
+        if self.config.restart_keep == "eigenvalues":
+            return self._eig_rms(restarted) < self._eig_rms(first)
+        return float(np.mean(restarted.mac)) > float(np.mean(first.mac))
 
     def _eig_rms(self, state: _State) -> float:
         """Relative rms misfit of the paired eigenvalues."""

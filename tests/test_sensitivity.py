@@ -292,24 +292,30 @@ def test_points_a_video_gets_wrong_in_every_mode_are_down_weighted():
         SensitivityConfig(robust_points="sometimes")
 
 
-def test_continuation_restart_keeps_the_better_eigenvalue_fit():
+def test_continuation_restart_keeps_the_better_fit():
     """A fit that leaves the eigenvalues unmatched restarts from the lowest modes; the result
-    with the lower eigenvalue misfit is kept and the history says which."""
+    with the higher mean MAC (or, by choice, the lower eigenvalue misfit) is kept and the
+    history says which."""
     pb, truth = _own_defect_cube()
     cfg = dict(max_iter=4, level_iters=2, uncertainty=False)
     direct = SensitivitySolver(SensitivityConfig(mode_stages=(), **cfg)).solve(pb)
-    forced = SensitivitySolver(SensitivityConfig(mode_stages=(3,), restart_eig_rms=0.0,
-                                                 **cfg)).solve(pb)
-    restart = [r for r in forced.history if r.get("restart")]
-    assert restart and {r["modes"] for r in restart} == {3, pb.n_modes}
     assert not any(r.get("restart") for r in direct.history)
 
     def misfit(e):
         return np.sqrt(np.mean((e.extra["eigenvalues"] / pb.eigenvalues - 1) ** 2))
 
-    assert misfit(forced) <= misfit(direct) + 1e-12
-    kept = not any(r.get("kept") is False for r in restart)
-    assert np.allclose(forced.w, direct.w) != kept
-    for bad in ({"mode_stages": (0,)}, {"mode_stages": (2.5,)}, {"restart_eig_rms": np.nan}):
+    def mean_mac(e):
+        return float(np.mean(e.extra["mac"]))
+
+    for keep, score in (("mac", lambda e: -mean_mac(e)), ("eigenvalues", misfit)):
+        forced = SensitivitySolver(SensitivityConfig(
+            mode_stages=(3,), restart_eig_rms=0.0, restart_keep=keep, **cfg)).solve(pb)
+        restart = [r for r in forced.history if r.get("restart")]
+        assert restart and {r["modes"] for r in restart} == {3, pb.n_modes}
+        assert score(forced) <= score(direct) + 1e-12
+        kept = not any(r.get("kept") is False for r in restart)
+        assert np.allclose(forced.w, direct.w) != kept
+    for bad in ({"mode_stages": (0,)}, {"mode_stages": (2.5,)}, {"restart_eig_rms": np.nan},
+                {"restart_keep": "cost"}):
         with pytest.raises(ValueError):
             SensitivityConfig(**bad)
