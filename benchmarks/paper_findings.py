@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> None:
     df = pd.read_parquet(path)
     root = path.parent
     ok = df[df.status == "ok"]
-    print(f"{path}: {len(df)} runs, {int((df.status != 'ok').sum())} failed; "
+    print(f"{path}: {len(df)} runs, {int((df.status != 'ok').sum())} not ok (failed or invalid); "
           f"vvtbench {df.vvtbench_version.iloc[0]}, dataset {df.dataset_revision.iloc[0]}")
 
     modes = ok[ok.track == "modes"]
