@@ -101,3 +101,28 @@ def test_line_fit_mode_extraction_resolves_close_modes():
     np.testing.assert_allclose(fitted.amplitudes_px[order] / [np.linalg.norm(s1) * 0.05,
                                                              np.linalg.norm(s2) * 0.01],
                                1.0, rtol=0.02)
+
+
+def test_added_roughness_rejects_only_rough_lines_the_residual_search_added():
+    from vvtbench.modes.peaks import roughness
+
+    rng = np.random.default_rng(5)
+    T, fps, H, W = 2048, 512.0, 24, 24
+    t = np.arange(T) / fps
+    yy, xx = np.mgrid[0:H, 0:W] / H
+    s1 = np.stack([np.sin(np.pi * xx), np.zeros_like(xx)], -1)
+    smooth = np.stack([np.zeros_like(yy), np.cos(np.pi * yy)], -1)
+    rough = smooth + 0.35 * rng.choice([-1.0, 1.0], size=smooth.shape)
+    assert roughness(smooth) < 0.02 and 0.1 < roughness(rough) < 0.3
+    f1, f2 = 40.0 + 0.3 * fps / T, 40.0 + 1.6 * fps / T
+    found = {}
+    for name, s2 in (("smooth", smooth), ("rough", rough)):
+        disp = (0.05 * np.cos(2 * np.pi * f1 * t)[:, None, None, None] * s1
+                + 0.01 * np.cos(2 * np.pi * f2 * t + 1.0)[:, None, None, None] * s2)
+        disp = (disp + 1e-4 * rng.normal(size=disp.shape)).astype(np.float32)
+        for ar in (None, 0.1):
+            ms = modes_from_displacements(disp, fps, fmax=100, line_fit=True, added_roughness=ar)
+            found[name, ar] = (len(ms), [r["reason"] for r in ms.metadata["rejected"]])
+    assert found["smooth", None][0] == found["smooth", 0.1][0] == 2
+    assert found["rough", None][0] == 2
+    assert found["rough", 0.1] == (1, ["weak_incoherent"])

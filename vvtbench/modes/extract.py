@@ -94,6 +94,7 @@ def modes_from_displacements(
     shoulder_bins: int = 6,
     line_fit: bool = False,
     line_radius: int = 4,
+    added_roughness: float | None = None,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -170,6 +171,12 @@ def modes_from_displacements(
         pixel at the ``line_radius`` bins around them (close modes under one peak separate,
         frequency, damping and amplitude come from the fit), and significant lines of the
         residual spectrum with a shape of their own are added (up to ``max_modes`` in all).
+    line_radius : int, default 4
+        Bins on either side of each line in its fit.
+    added_roughness : float, optional
+        With ``line_fit``: a line the residual search added (weak by construction) is
+        dropped when its shape's roughness is above this (reason ``"weak_incoherent"``);
+        default None keeps the ``max_roughness`` test alone.
 
     Returns
     -------
@@ -225,7 +232,8 @@ def modes_from_displacements(
         lines, pk, Z = _fit_lines(disp, pk, Z, np.asarray(freqs, np.float64),
                                   np.asarray(power, np.float64), float(fps), T, band, w,
                                   window, detrend, block_bytes, false_alarm, min_bin,
-                                  floor_half_width_bins, shoulder_mac, max_modes)
+                                  floor_half_width_bins, shoulder_mac, max_modes,
+                                  radius=line_radius)
     rows: dict[str, list] = {k: [] for k in _ROWS}
     shapes = []
     rough = []
@@ -344,6 +352,9 @@ def modes_from_displacements(
                 )
             elif rough[k] > max_roughness:
                 entry.update(reason="incoherent")
+            elif (added_roughness is not None and lines is not None and lines.added[k]
+                  and rough[k] > added_roughness):
+                entry.update(reason="weak_incoherent")
             else:
                 continue
             drop[k] = True
