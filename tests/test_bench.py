@@ -295,3 +295,24 @@ def test_leaderboard(micro, tmp_path):
     assert "<table>" in page and "figures/main_slices.png" in page
     assert (lb / "figures" / "main_slices.png").is_file()
     assert (lb / "figures" / "main_intrinsic_resolution.png").is_file()
+
+
+def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch):
+    import dataclasses
+
+    from vvtbench.bench import build_graph, graph
+
+    smoke = load_suite("smoke")
+    fitted = dataclasses.replace(smoke, extract={**smoke.extract, "line_fit": True})
+
+    def keys(suite):
+        tasks, _ = build_graph(suite, ["homogeneous"])
+        tasks = tasks.values() if isinstance(tasks, dict) else tasks
+        return {(t.stage, t.label, t.key) for t in tasks}
+
+    before = keys(smoke), keys(fitted)
+    monkeypatch.setattr(graph, "LINE_FIT_REVISION", graph.LINE_FIT_REVISION + 1)
+    after = keys(smoke), keys(fitted)
+    assert after[0] == before[0]  # suites without the line fit keep their cache
+    changed = {s for s, _, _ in before[1] ^ after[1]}
+    assert {"extract", "observe"} <= changed and "generate" not in changed

@@ -24,6 +24,16 @@ EXTRACTION_REVISION = 2
 #: revision of the observation of extracted modes (observe keys of extracted tracks only; the
 #: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``)
 OBSERVE_REVISION = 2
+#: revision of the opt-in line fit (``[extract] line_fit = true``; only its keys change).
+#: 2: lines the residual search added are dropped when rough (``added_roughness``)
+LINE_FIT_REVISION = 2
+
+
+def extraction_revision(extract_opts: dict) -> int | list[int]:
+    """The revision part of the extract and observe keys of extracted tracks."""
+    if extract_opts.get("line_fit"):
+        return [EXTRACTION_REVISION, LINE_FIT_REVISION]
+    return EXTRACTION_REVISION
 
 
 def _canon(x):
@@ -196,8 +206,9 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             n_modes = int(var.inference.get("n_modes", 10))
             for obs in track.observations:
                 ext_keys = []
+                ext_rev = extraction_revision(extract_opts)
                 if obs == "extracted":
-                    ext_keys = [add("extract", [extract_opts, EXTRACTION_REVISION], [g],
+                    ext_keys = [add("extract", [extract_opts, ext_rev], [g],
                                     {"options": extract_opts},
                                     name) for g, name in zip(gen_keys, [d["name"] for d in
                                                                         scene_dicts],
@@ -208,7 +219,7 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 obs_payload = {"scene": scene_dicts[0], "inference": inf, "observation": obs,
                                "extract": extract_opts}
                 obs_key = add("observe", [scene_dicts[0], inf, obs,
-                                          {**extract_opts, "revision": EXTRACTION_REVISION,
+                                          {**extract_opts, "revision": ext_rev,
                                            "observe_revision": OBSERVE_REVISION}
                                           if obs == "extracted" else {}],
                               [gen_keys[0], *ext_keys], obs_payload, scene_label)

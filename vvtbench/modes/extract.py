@@ -94,7 +94,7 @@ def modes_from_displacements(
     shoulder_bins: int = 6,
     line_fit: bool = False,
     line_radius: int = 4,
-    added_roughness: float | None = None,
+    added_roughness: float | None = 0.06,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -173,10 +173,11 @@ def modes_from_displacements(
         residual spectrum with a shape of their own are added (up to ``max_modes`` in all).
     line_radius : int, default 4
         Bins on either side of each line in its fit.
-    added_roughness : float, optional
+    added_roughness : float or None, default 0.06
         With ``line_fit``: a line the residual search added (weak by construction) is
         dropped when its shape's roughness is above this (reason ``"weak_incoherent"``);
-        default None keeps the ``max_roughness`` test alone.
+        ``None`` keeps the ``max_roughness`` test alone.  0.06 was chosen on validation
+        videos in no suite (docs/modes.md, "Line fit").
 
     Returns
     -------
