@@ -80,22 +80,32 @@ def test_clean_finds_the_weak_line_under_a_strong_one_with_at_most_one_false_lin
     assert max(n_false) <= 1, n_false
 
 
-def test_line_fit_mode_extraction_resolves_close_modes():
-    rng = np.random.default_rng(2)
-    T, fps, H, W = 2048, 512.0, 24, 24
-    t = np.arange(T) / fps
+_FPS, _T = 512.0, 2048
+_F1, _F2 = 40.0 + 0.3 * _FPS / _T, 40.0 + 1.6 * _FPS / _T  # 1.3 bins apart
+
+
+def _shapes(H=24, W=24):
     yy, xx = np.mgrid[0:H, 0:W] / H
-    s1 = np.stack([np.sin(np.pi * xx), np.zeros_like(xx)], -1)
-    s2 = np.stack([np.zeros_like(yy), np.cos(np.pi * yy)], -1)
-    f1, f2 = 40.0 + 0.3 * fps / T, 40.0 + 1.6 * fps / T  # 1.3 bins apart
-    disp = (0.05 * np.cos(2 * np.pi * f1 * t)[:, None, None, None] * s1
-            + 0.01 * np.cos(2 * np.pi * f2 * t + 1.0)[:, None, None, None] * s2)
-    disp = disp + 1e-4 * rng.normal(size=disp.shape)
-    plain = modes_from_displacements(disp.astype(np.float32), fps, fmax=100)
-    fitted = modes_from_displacements(disp.astype(np.float32), fps, fmax=100, line_fit=True)
+    return (np.stack([np.sin(np.pi * xx), np.zeros_like(xx)], -1),
+            np.stack([np.zeros_like(yy), np.cos(np.pi * yy)], -1))
+
+
+def _two_close_lines(s1, s2, rng):
+    """A strong line of shape ``s1`` and one 5x weaker 1.3 bins above it, shape ``s2``."""
+    t = np.arange(_T) / _FPS
+    disp = (0.05 * np.cos(2 * np.pi * _F1 * t)[:, None, None, None] * s1
+            + 0.01 * np.cos(2 * np.pi * _F2 * t + 1.0)[:, None, None, None] * s2)
+    return (disp + 1e-4 * rng.normal(size=disp.shape)).astype(np.float32)
+
+
+def test_line_fit_mode_extraction_resolves_close_modes():
+    s1, s2 = _shapes()
+    disp = _two_close_lines(s1, s2, np.random.default_rng(2))
+    plain = modes_from_displacements(disp, _FPS, fmax=100)
+    fitted = modes_from_displacements(disp, _FPS, fmax=100, line_fit=True)
     assert len(plain) == 1
     assert len(fitted) == 2
-    np.testing.assert_allclose(np.sort(fitted.frequencies_hz), [f1, f2], rtol=1e-4)
+    np.testing.assert_allclose(np.sort(fitted.frequencies_hz), [_F1, _F2], rtol=1e-4)
     np.testing.assert_allclose(fitted.damping, 0.0, atol=1e-3)
     order = np.argsort(fitted.frequencies_hz)
     np.testing.assert_allclose(fitted.amplitudes_px[order] / [np.linalg.norm(s1) * 0.05,
@@ -107,21 +117,14 @@ def test_added_roughness_rejects_only_rough_lines_the_residual_search_added():
     from vvtbench.modes.peaks import roughness
 
     rng = np.random.default_rng(5)
-    T, fps, H, W = 2048, 512.0, 24, 24
-    t = np.arange(T) / fps
-    yy, xx = np.mgrid[0:H, 0:W] / H
-    s1 = np.stack([np.sin(np.pi * xx), np.zeros_like(xx)], -1)
-    smooth = np.stack([np.zeros_like(yy), np.cos(np.pi * yy)], -1)
+    s1, smooth = _shapes()
     rough = smooth + 0.35 * rng.choice([-1.0, 1.0], size=smooth.shape)
     assert roughness(smooth) < 0.02 and 0.1 < roughness(rough) < 0.3
-    f1, f2 = 40.0 + 0.3 * fps / T, 40.0 + 1.6 * fps / T
     found = {}
     for name, s2 in (("smooth", smooth), ("rough", rough)):
-        disp = (0.05 * np.cos(2 * np.pi * f1 * t)[:, None, None, None] * s1
-                + 0.01 * np.cos(2 * np.pi * f2 * t + 1.0)[:, None, None, None] * s2)
-        disp = (disp + 1e-4 * rng.normal(size=disp.shape)).astype(np.float32)
+        disp = _two_close_lines(s1, s2, rng)
         for ar in (None, 0.1):
-            ms = modes_from_displacements(disp, fps, fmax=100, line_fit=True, added_roughness=ar)
+            ms = modes_from_displacements(disp, _FPS, fmax=100, line_fit=True, added_roughness=ar)
             found[name, ar] = (len(ms), [r["reason"] for r in ms.metadata["rejected"]])
     assert found["smooth", None][0] == found["smooth", 0.1][0] == 2
     assert found["rough", None][0] == 2
