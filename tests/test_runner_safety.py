@@ -326,6 +326,7 @@ def test_tampered_cache_is_recomputed_and_reported(tiny, tmp_path, capsys):
     assert df.nc_w.tolist() == pytest.approx(df0.nc_w.tolist())
     run = json.loads((out / "run.json").read_text())
     assert len(run["recomputed"]) == 3
+    assert run["workers"] == 1 and run["threads_per_task"] is None  # one worker: not limited
     assert not Path("PWNED").exists()
     # the rerun after the repair reuses everything
     df2 = run_suite(str(suite), None, out, progress=False)

@@ -125,7 +125,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         write_json(out_dir / "run.json", {
             "suite": suite.name, "suite_source": suite.source, "solvers": solvers,
             "tracks": [t.name for t in suite.tracks],
-            "vvtbench": __version__, "workers": workers,
+            "vvtbench": __version__, "workers": workers, "threads_per_task": threads,
             "scheduler": scheduler if isinstance(scheduler, str) else (
                 None if scheduler is None else "client"),
             "timeout_s": limits["timeout"], "memory_limit_bytes": memory_bytes,
