@@ -307,8 +307,7 @@ def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch
 
     def keys(suite):
         tasks, _ = build_graph(suite, ["homogeneous"])
-        tasks = tasks.values() if isinstance(tasks, dict) else tasks
-        return {(t.stage, t.label, t.key) for t in tasks}
+        return {(t.stage, t.label, t.key) for t in tasks.values()}
 
     before = keys(smoke), keys(fitted)
     monkeypatch.setattr(graph, "LINE_FIT_REVISION", graph.LINE_FIT_REVISION + 1)

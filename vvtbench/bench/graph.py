@@ -203,10 +203,10 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             if stop < 1:
                 continue
             extract_opts = {k: v for k, v in suite.extract.items()}
+            ext_rev = extraction_revision(extract_opts)
             n_modes = int(var.inference.get("n_modes", 10))
             for obs in track.observations:
                 ext_keys = []
-                ext_rev = extraction_revision(extract_opts)
                 if obs == "extracted":
                     ext_keys = [add("extract", [extract_opts, ext_rev], [g],
                                     {"options": extract_opts},
