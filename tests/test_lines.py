@@ -129,3 +129,12 @@ def test_added_roughness_rejects_only_rough_lines_the_residual_search_added():
     assert found["smooth", None][0] == found["smooth", 0.1][0] == 2
     assert found["rough", None][0] == 2
     assert found["rough", 0.1] == (1, ["weak_incoherent"])
+
+
+@pytest.mark.parametrize("bad", [{"line_radius": 0}, {"line_radius": 2.5},
+                                 {"added_roughness": float("nan")}, {"added_roughness": -0.1}])
+def test_line_fit_options_are_checked(bad):
+    s1, s2 = _shapes(8, 8)
+    disp = _two_close_lines(s1, s2, np.random.default_rng(0))[:256]
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        modes_from_displacements(disp, _FPS, fmax=100, line_fit=True, **bad)

@@ -184,6 +184,11 @@ def modes_from_displacements(
     ModeSet
     """
     band = check_band(fps, fmin, fmax)
+    if isinstance(line_radius, bool) or not isinstance(line_radius, int | np.integer) \
+            or line_radius < 1:
+        raise ValueError(f"line_radius must be an integer >= 1, got {line_radius!r}")
+    if added_roughness is not None and not added_roughness >= 0:  # NaN fails too
+        raise ValueError(f"added_roughness must be >= 0 or None, got {added_roughness!r}")
     freqs, power = motion_power_spectrum(
         disp, fps, weights=weights, detrend=detrend, window=window, block_bytes=block_bytes
     )
