@@ -46,7 +46,13 @@ parameter):
 Mode tracking: at the start observed modes are paired with model modes by projected-mode MAC
 (optimal assignment); afterwards each paired model mode is followed by the 3-D MAC
 (phi_old^T M phi_new)^2 with the previous iteration's modes (``pairing="track"``), or
-re-paired with the observations every iteration (``pairing="observed"``).
+re-paired with the observations every iteration (``pairing="observed"``). Repeated
+eigenvalues (2.7: equal to ``repeat_rtol``, e.g. the square cube's pairs at the homogeneous
+start) have no defined eigenvectors, and the eigensolver returns a rotation that follows its
+rounding (the BLAS thread count changed 5 of 20 pairs and NC w 0.90 -> 0.76 on the paper's top
+cube); before pairing, each such basis phi_C is turned to the principal axes of the observed
+shapes in its projected span, phi_C R with R the eigenvectors of Q_C^T G^T G Q_C (descending),
+which is the same for every rotation phi_C U.
 
 Clusters (2.1): model eigenvalues closer than ``cluster_rtol`` (relative, chained) form a
 cluster C. Inside a near-degenerate cluster the individual modes are not smooth functions of
@@ -160,9 +166,9 @@ class SensitivityConfig:
     gap_rtol: float = field(default=1e-5, metadata={
         "help": "leave out mode pairs with |lam_i - lam_j| < gap_rtol lam_i in dphi"})
     cluster_rtol: float = field(default=1e-2, metadata={
-        "help": "model eigenvalues closer than this (relative) form a cluster: its basis is "
-                "rotated towards the paired observations (Rayleigh quotients as its "
-                "eigenvalues) and its inner couplings are left out of dphi"})
+        "help": "model eigenvalues closer than this (relative, chained) form a cluster: an "
+                "observation paired into it is fitted by the span of the cluster's projected "
+                "modes, and its inner couplings are left out of dphi"})
     robust_scale: float = field(default=0.5, metadata={
         "help": "robust (Cauchy) weights of the observed points, for measured modes (the "
                 "problem carries mode_snr): point j's two rows get u_j = 1 / (1 + E_j / "
@@ -182,6 +188,12 @@ class SensitivityConfig:
                 "pair carries no information, only a wrong pull (FE model-updating practice; "
                 "the best-correlated min(3, k) always stay in; 0 keeps every pair; 0.5 "
                 "chosen on extraction-like val observations, docs/solvers.md)"})
+    repeat_rtol: float = field(default=1e-6, metadata={
+        "help": "model eigenvalues equal to this (relative, chained) are repeated: their "
+                "eigenvectors are an arbitrary rotation (the eigensolver's rounding, e.g. the "
+                "BLAS thread count, picks it), so before pairing the basis is turned to the "
+                "principal axes of the observed shapes in its projected span (a choice that "
+                "does not depend on the rotation the eigensolver returned)"})
     pairing: str = field(default="track", metadata={
         "help": "'track' (3-D MAC with the previous iteration's modes) or 'observed' "
                 "(re-pair by projected MAC every iteration)"})
@@ -236,6 +248,8 @@ class SensitivityConfig:
                              f"{self.robust_points!r}")
         if not self.robust_scale >= 0:  # NaN fails too
             raise ValueError(f"robust_scale must be >= 0, got {self.robust_scale!r}")
+        if not self.repeat_rtol >= 0:  # NaN fails too
+            raise ValueError(f"repeat_rtol must be >= 0, got {self.repeat_rtol!r}")
         if not 0.0 <= self.min_mac <= 1.0:  # NaN fails too
             raise ValueError(f"min_mac must be in [0, 1], got {self.min_mac!r}")
         if self.series_terms < 0 or self.levels < 0:
@@ -445,7 +459,7 @@ class SensitivitySolver:
     uncertainty."""
 
     name = "sensitivity"
-    version = "2.6.0"
+    version = "2.7.0"
     description = ("FE model updating: Levenberg-Marquardt on eigenvalues and full projected "
                    "mode shapes (Nelson derivatives), Laplacian/TV priors, coarse-to-fine, "
                    "per-voxel standard deviations")
@@ -568,6 +582,7 @@ class SensitivitySolver:
         lam_all, vec_all = modes.eigenvalues, modes.vectors
         s.lam, phi = lam_all[:self.n_model], vec_all[:, :self.n_model]
         Q = np.asarray(self.P @ phi)
+        phi, Q = self._align_repeated(s.lam, phi, Q)
         qn = np.maximum(np.sum(Q * Q, axis=0), 1e-300)
         mac_obs = (self.gamma @ Q) ** 2 / qn[None, :]
         if prev is None or cfg.pairing == "observed":
@@ -586,6 +601,28 @@ class SensitivitySolver:
             s.pair[idle] = free[c]
         s.phi, s.Q = phi, Q
         return self._residuals(s, label, active)
+
+    def _align_repeated(self, lam: np.ndarray, phi: np.ndarray, Q: np.ndarray):
+        """Turn the basis of each repeated eigenvalue (``repeat_rtol``) to the principal axes
+        of the observed shapes in its projected span: the eigenvectors R of Q_C^T G^T G Q_C
+        (G the observed shapes), phi_C <- phi_C R. For any orthogonal U, phi_C U gives the
+        same phi_C R (up to signs), so the pairing no longer follows the eigensolver's
+        rounding inside the repeated eigenvalue."""
+        from vvtbench.fem.modal import cluster_frequencies
+
+        groups = [g for g in cluster_frequencies(lam, rtol=self.config.repeat_rtol)
+                  if len(g) > 1]
+        if not groups:
+            return phi, Q
+        phi, Q = phi.copy(), Q.copy()
+        for members in groups:
+            B = self.gamma @ Q[:, members]
+            mu, R = np.linalg.eigh(B.T @ B)
+            R = R[:, ::-1]
+            R *= np.where(R[np.argmax(np.abs(R), axis=0), np.arange(R.shape[1])] < 0, -1, 1)
+            phi[:, members] = phi[:, members] @ R
+            Q[:, members] = Q[:, members] @ R
+        return phi, Q
 
     def _residuals(self, s: _State, label: np.ndarray | None = None,
                    active: np.ndarray | None = None) -> _State:

@@ -319,3 +319,37 @@ def test_continuation_restart_keeps_the_better_fit():
                 {"restart_keep": "cost"}):
         with pytest.raises(ValueError):
             SensitivityConfig(**bad)
+
+
+def test_pairing_does_not_follow_the_rotation_inside_repeated_eigenvalues(monkeypatch):
+    """The homogeneous start of a square cube has repeated eigenvalues; any rotation of their
+    eigenvectors (what the eigensolver's rounding, e.g. the BLAS thread count, picks) must give
+    the same pairing, residuals and cost."""
+    import vvtbench.fem.modal as modal
+    from vvtbench.fem.modal import cluster_frequencies
+
+    pb, _ = _own_defect_cube()
+    solver = SensitivitySolver()
+    solver._setup(pb)
+    m = pb.n_params
+    theta = np.concatenate([np.full(m, np.log(pb.w_mean)), np.full(m, np.log(1270.0))])
+    first = solver._evaluate(theta, None)
+    repeated = [g for g in cluster_frequencies(first.lam, rtol=1e-6) if len(g) > 1]
+    assert repeated
+    exact = modal.eigenmodes
+    rng = np.random.default_rng(3)
+
+    def rotated(*args, **kwargs):
+        modes = exact(*args, **kwargs)
+        vectors = modes.vectors.copy()
+        for members in repeated:
+            U, _ = np.linalg.qr(rng.standard_normal((len(members), len(members))))
+            vectors[:, members] = vectors[:, members] @ U
+        return modal.Modes(modes.eigenvalues, vectors)
+
+    monkeypatch.setattr(modal, "eigenmodes", rotated)
+    for _ in range(3):
+        again = solver._evaluate(theta, None)
+        assert np.array_equal(again.pair, first.pair)
+        assert again.cost == pytest.approx(first.cost, rel=1e-9)
+        assert np.allclose(np.abs(again.r_data), np.abs(first.r_data), atol=1e-9)
