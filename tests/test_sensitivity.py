@@ -238,9 +238,11 @@ def test_compressed_observation_gives_the_same_fit(monkeypatch):
 
 
 def test_modes_are_weighted_by_their_spectral_snr():
-    """Four of twelve observations drowned in noise (three times their energy, as a weak peak
+    """Four of twelve observations drowned in noise (ten times their energy, as a weak peak
     of a video gives) and the problem says so through ``mode_snr``: the noise-weighted fit is
-    closer to the truth than the unweighted one, and an explicit ``mode_weights`` overrides."""
+    closer to the truth than the unweighted one, and an explicit ``mode_weights`` overrides.
+    (Measured, 2.7.0: NC w 0.81 weighted, 0.17 unweighted; at three times the energy 0.90 and
+    0.85 -- since 2.7's rotation-independent start the unweighted fit survives that.)"""
     from dataclasses import replace
 
     pb, truth = _own_defect_cube()
@@ -248,9 +250,9 @@ def test_modes_are_weighted_by_their_spectral_snr():
     bad = np.array([2, 5, 7, 10])
     gamma = pb.gamma / np.linalg.norm(pb.gamma, axis=1, keepdims=True)
     noise = rng.standard_normal((len(bad), gamma.shape[1]))
-    gamma[bad] += np.sqrt(3.0) * noise / np.linalg.norm(noise, axis=1, keepdims=True)
+    gamma[bad] += np.sqrt(10.0) * noise / np.linalg.norm(noise, axis=1, keepdims=True)
     snr = np.full(pb.n_modes, 1e4)
-    snr[bad] = 1.0 / 3.0
+    snr[bad] = 1.0 / 10.0
     noisy = replace(pb, gamma=gamma, mode_snr=snr)
     cfg = SensitivityConfig(min_mac=0.0)
     weighted = SensitivitySolver(cfg).solve(noisy)
