@@ -35,7 +35,8 @@ from vvtbench.bench.stages import load_observation
 TIE = 0.01
 
 
-def _solve_and_observe(cache: Path, estimate_path: str) -> tuple[str, str]:
+def solve_and_observe_keys(cache: Path, estimate_path: str) -> tuple[str, str]:
+    """The cache keys of the solve and observe tasks behind a results row's estimate."""
     evaluate = json.loads((cache.parent / Path(estimate_path).parent / "task.json").read_text())
     solve = next(d for d in evaluate["deps"] if d.startswith("solve/"))
     task = json.loads((cache / solve / "task.json").read_text())
@@ -67,14 +68,14 @@ def main() -> None:
         n_rows += 1
         if not best.nc_w > o.nc_w:
             continue
-        problem, truth = load_observation(cache, _solve_and_observe(cache, o.estimate_path)[1],
+        problem, truth = load_observation(cache, solve_and_observe_keys(cache, o.estimate_path)[1],
                                           truth=True)
         full = full_field_problem(
             replace(problem, eigenvalues=np.asarray(truth.eigenvalues, dtype=float)),
             np.asarray(truth.modes_3d))
         scores = []
         for row in (o, best):
-            f = np.load(cache / _solve_and_observe(cache, row.estimate_path)[0]
+            f = np.load(cache / solve_and_observe_keys(cache, row.estimate_path)[0]
                         / "estimate.npz")
             scores.append(fit_score(full, f["w_params"], f["v_params"]))
         margin = best.nc_w - o.nc_w
