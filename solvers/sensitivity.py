@@ -47,7 +47,7 @@ Mode tracking: at the start observed modes are paired with model modes by projec
 (optimal assignment); afterwards each paired model mode is followed by the 3-D MAC
 (phi_old^T M phi_new)^2 with the previous iteration's modes (``pairing="track"``), or
 re-paired with the observations every iteration (``pairing="observed"``). Repeated
-eigenvalues (2.7: equal to ``repeat_rtol``, e.g. the square cube's pairs at the homogeneous
+eigenvalues (2.7: equal within ``repeat_rtol``, e.g. the square cube's pairs at the homogeneous
 start) have no defined eigenvectors, and the eigensolver returns a rotation that follows its
 rounding (the BLAS thread count changed 5 of 20 pairs and NC w 0.90 -> 0.76 on the paper's top
 cube); before pairing, each such basis phi_C is turned to the principal axes of the observed
@@ -617,7 +617,7 @@ class SensitivitySolver:
         phi, Q = phi.copy(), Q.copy()
         for members in groups:
             B = self.gamma @ Q[:, members]
-            mu, R = np.linalg.eigh(B.T @ B)
+            _, R = np.linalg.eigh(B.T @ B)
             R = R[:, ::-1]
             R *= np.where(R[np.argmax(np.abs(R), axis=0), np.arange(R.shape[1])] < 0, -1, 1)
             phi[:, members] = phi[:, members] @ R
