@@ -164,6 +164,11 @@ CASES: list[tuple[str, list[str], int]] = [
     ("generate scene misspelt", ["generate", "jello_cube_defekt_top", "-o", "{out}"], 2),
     ("run suite misspelt", ["run", "smok", "-o", "{out}"], 2),
     ("run suite not TOML", ["run", "{badtoml}", "-o", "{out}"], 2),
+    ("run --set bad choice", ["run", "smoke", "--set", "oracle.method=bogus", "-o", "{out}"], 2),
+    ("run --set nan", ["run", "smoke", "--set", "sensitivity.repeat_rtol=nan", "-o", "{out}"],
+     2),
+    ("run --set unknown key", ["run", "smoke", "--set", "vvt.nosuch=1", "-o", "{out}"], 2),
+    ("run --set unknown solver", ["run", "smoke", "--set", "nosuch.x=1", "-o", "{out}"], 2),
     ("check-results missing", ["check-results", "{tmp}/none.parquet"], 2),
     ("leaderboard missing", ["leaderboard", "{tmp}/none.parquet", "-o", "{out}"], 2),
 ]

@@ -9,7 +9,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from ..bench import SuiteError, check_results, load_suite, read_results, run_suite
+from ..bench import SuiteError, check_results, load_suite, read_results, run_suite, solver_setup
 
 
 def main_check_results(argv: list[str] | None = None) -> int:
@@ -119,7 +119,9 @@ def main_run(argv: list[str] | None = None) -> int:
         suite = load_suite(args.suite)
         solvers = None if args.solvers is None else [s for s in args.solvers.split(",") if s]
         overrides = _parse_set(args.overrides)
-    except SuiteError as error:
+        for name, values in overrides.items():  # a bad --set is the user's, not error rows
+            solver_setup(name, {**suite.solver_config.get(name, {}), **values})
+    except (SuiteError, PluginError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     out = Path(args.output or f"runs/{suite.name}")
