@@ -49,6 +49,9 @@ class PhaseConfig:
     outlier_fraction: float = field(default=0.01, metadata={
         "help": "fraction of largest per-frame displacements discarded before smoothing"})
     workers: int | None = field(default=None, metadata={"help": "threads (-1 = all CPUs)"})
+    frequency: str = field(default="local", metadata={
+        "help": "phase-to-pixels frequency: 'local' (reference), 'centre' (band centre) or "
+                "'midpoint' (mean of reference and current frame; second-order accurate)"})
 
 
 class PhaseExtractor:
@@ -71,6 +74,7 @@ class PhaseExtractor:
             sigma=c.sigma,
             outlier_fraction=c.outlier_fraction,
             workers=c.workers,
+            frequency=c.frequency,
         )
         return _PhaseStream(pm, c)
 

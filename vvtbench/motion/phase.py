@@ -40,7 +40,7 @@ __all__ = [
     "upsample_periodic",
 ]
 
-Frequency = Literal["local", "centre"]
+Frequency = Literal["local", "centre", "midpoint"]
 
 
 def upsample_periodic(a: NDArray[np.floating], shape: tuple[int, int]) -> NDArray[np.floating]:
@@ -232,6 +232,29 @@ def _min_eig(m: NDArray[np.floating]) -> NDArray[np.floating]:
     return np.maximum(half_tr - disc, 0.0)
 
 
+def _half_frequency_change(
+    c: NDArray[np.complex64], grad: NDArray[np.complex64], g_ref: NDArray[np.float32]
+) -> NDArray[np.float32]:
+    """``(g_cur - g_ref) / 2`` with ``g_cur = Im(conj(c) grad c) / |c|^2``, 0 where undefined.
+
+    ``(2, B, h, w)`` float32; zero where the reference frequency was rejected (``g_ref = 0``)
+    or the current one is not finite.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a2 = c.real * c.real + c.imag * c.imag
+        out = np.empty((2, *c.shape), np.float32)
+        for k in range(2):
+            np.multiply(c.real, grad[k].imag, out=out[k])
+            out[k] -= c.imag * grad[k].real
+            out[k] /= a2
+            out[k] -= g_ref[k]
+            out[k] *= 0.5
+    ok = np.isfinite(out[0]) & np.isfinite(out[1]) & ((g_ref[0] != 0) | (g_ref[1] != 0))
+    out *= ok
+    np.nan_to_num(out, copy=False)
+    return out
+
+
 class PhaseMotion:
     """Phase-based displacement relative to a reference frame.
 
@@ -243,10 +266,17 @@ class PhaseMotion:
         Pyramid scales used (band centre frequencies ``pi / 2**(s + 1)`` rad/px).
     n_orientations : int, default 4
         Pyramid orientations (``>= 2``).
-    frequency : {"local", "centre"}, default "local"
+    frequency : {"local", "centre", "midpoint"}, default "local"
         Spatial frequency used to convert phase to pixels: the local phase gradient of the
         reference band (2-D vector, computed spectrally; pixels where it is implausible for
-        the band get zero weight) or the band centre frequency vector.
+        the band get zero weight) or the band centre frequency vector.  ``"midpoint"`` uses
+        the mean of the reference's and the current frame's local frequencies: a shift ``d``
+        changes the phase by ``-d`` times the mean frequency along the path, so the midpoint
+        (trapezoid) cancels the error of second order in ``d`` that the reference's
+        frequency alone leaves, which appears as harmonics and intermodulation products of
+        the motion.  Two solves per frame: the ``"local"`` estimate ``d0``, then the normal
+        equations again with the phase differences corrected by ``(g_cur - g_ref) . d0 / 2``
+        (normal matrix unchanged).
     sigma : float, default 2.0
         Standard deviation (full-resolution pixels) of the Gaussian window of the
         amplitude-weighted smoothing; ``0`` disables it.
@@ -318,8 +348,10 @@ class PhaseMotion:
         ref = np.asarray(reference_frame)
         if ref.ndim != 2:
             raise ValueError(f"reference_frame must be a 2-D (H, W) image, got shape {ref.shape}")
-        if frequency not in ("local", "centre"):
-            raise ValueError(f"frequency must be 'local' or 'centre', got {frequency!r}")
+        if frequency not in ("local", "centre", "midpoint"):
+            raise ValueError(
+                f"frequency must be 'local', 'centre' or 'midpoint', got {frequency!r}"
+            )
         if sigma < 0:
             raise ValueError(f"sigma must be >= 0, got {sigma}")
         if not 0.0 <= outlier_fraction < 1.0:
@@ -356,6 +388,7 @@ class PhaseMotion:
         self._wgx: list[NDArray[np.float32]] = []  # weight * gx
         self._wgy: list[NDArray[np.float32]] = []  # weight * gy
         self._wgg: list[NDArray[np.float32]] = []  # weight * (gx gx, gx gy, gy gy)
+        self._g: list[NDArray[np.float32]] = []  # midpoint only: reference frequency (2, h, w)
         m = np.zeros((3, *self.grid_shape), np.float32)
         m_s: NDArray[np.float32] | None = None
         for band, c, grad in self.pyramid.iter_bands(ref, gradient=True, workers=self.workers):
@@ -363,7 +396,7 @@ class PhaseMotion:
             a2 = (c.real**2 + c.imag**2).astype(np.float32)
             wc = band.radial_frequency
             ux, uy = band.direction
-            if frequency == "local":
+            if frequency != "centre":
                 with np.errstate(divide="ignore", invalid="ignore"):
                     g = (np.conj(c)[None] * grad).imag / a2
                 along = g[0] * ux + g[1] * uy
@@ -382,6 +415,8 @@ class PhaseMotion:
             if band.orientation == self.pyramid.n_orientations - 1:
                 m += upsample_periodic(m_s, self.grid_shape)
             self._cref.append(np.conj(c).astype(np.complex64))
+            if frequency == "midpoint":
+                self._g.append(g.astype(np.float32))
             self._wgx.append(np.ascontiguousarray(w * g[0], dtype=np.float32))
             self._wgy.append(np.ascontiguousarray(w * g[1], dtype=np.float32))
             self._wgg.append(
@@ -515,7 +550,7 @@ class PhaseMotion:
         ndarray
             ``(2, B, h, w)`` float32 on the working grid :attr:`grid_shape` (unsmoothed).
         """
-        return self._rhs(self._check(frames))[0]
+        return self._rhs(self._check(frames))[0][:2]
 
     def _rhs(
         self, x: NDArray[np.float32]
@@ -531,18 +566,22 @@ class PhaseMotion:
         """
         B = x.shape[0]
         grid = self.grid_shape
-        b = np.zeros((2, B, *grid), np.float32)
+        midpoint = self.frequency == "midpoint"
+        n_ch = 6 if midpoint else 2  # midpoint: b, then K = sum w g dg^T (4 channels)
+        b = np.zeros((n_ch, B, *grid), np.float32)
         b_s = b
         drop_idx: list[NDArray[np.intp]] = []
         drop_val: list[NDArray[np.float32]] = []
         levels: list[NDArray[np.float32]] = []  # per coarser scale: its own b
         tmp: NDArray[np.float32] | None = None
         n_or = self.pyramid.n_orientations
-        for i, (band, c) in enumerate(self.pyramid.iter_bands(x, workers=1)):
+        for i, item in enumerate(self.pyramid.iter_bands(x, gradient=midpoint, workers=1)):
+            band, c = item[0], item[1]
             if band.orientation == 0:
-                b_s = b if band.shape == grid else np.zeros((2, B, *band.shape), np.float32)
+                b_s = b if band.shape == grid else np.zeros((n_ch, B, *band.shape), np.float32)
                 tmp = np.empty(c.shape, np.float32)
                 dphi = np.empty(c.shape, np.float32)
+            dg = _half_frequency_change(c, item[2], self._g[i]) if midpoint else None
             c *= self._cref[i]  # c * conj(c_ref): its angle is the phase difference
             _, slow = phase_difference(c, out=dphi, return_slow=True)
             if slow.size and band.shape == grid:
@@ -550,12 +589,18 @@ class PhaseMotion:
                 wrap = slow[np.abs(flat[slow]) > self.max_phase]
                 if wrap.size:
                     flat[wrap] = 0.0
+                    if dg is not None:
+                        dg.reshape(2, -1)[:, wrap] = 0.0
                     drop_idx.append(wrap)
                     drop_val.append(self._wgg[i].reshape(3, -1)[:, wrap % (grid[0] * grid[1])])
             np.multiply(dphi, self._wgx[i], out=tmp)
             b_s[0] -= tmp
             np.multiply(dphi, self._wgy[i], out=tmp)
             b_s[1] -= tmp
+            if dg is not None:
+                for k, wg in enumerate((self._wgx[i], self._wgy[i])):
+                    b_s[2 + 2 * k] += wg * dg[0]
+                    b_s[3 + 2 * k] += wg * dg[1]
             if band.orientation == n_or - 1 and b_s is not b:
                 levels.append(b_s)
         # coarse to fine: an exact x2 step per level (linear of linear is linear) is cheaper
@@ -624,6 +669,7 @@ class PhaseMotion:
         self, x: NDArray[np.float32], full_resolution: bool = True
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
         b, dropped = self._rhs(x)
+        b, k = b[:2], (b[2:] if b.shape[0] > 2 else None)
         B = b.shape[1]
         h, w = self.grid_shape
         m = self._m[:, None]
@@ -656,6 +702,11 @@ class PhaseMotion:
             ms = m * ~outliers
         bs = self._smooth(b)
         d = solve2x2(ms, bs, self._ridge)
+        if k is not None:  # midpoint: the second-order term of the phase, from d0 = d
+            b -= k[0::2] * d[0]
+            b -= k[1::2] * d[1]
+            b *= ~outliers
+            d = solve2x2(ms, self._smooth(b), self._ridge)
         if full_resolution and self.grid_shape != self.shape:
             d = upsample_periodic(d, self.shape)
         return np.ascontiguousarray(np.moveaxis(d, 0, -1), dtype=np.float32), outliers
