@@ -1,7 +1,8 @@
 """Build configuration that pyproject.toml cannot express: the shipped scenes.
 
 The scene files live in the top-level ``scenes/`` folder of the source checkout; wheels carry
-them as ``vvtbench/scenes`` (see ``vvtbench.scene.SCENES_DIR``). Everything else is in
+them as ``vvtbench/scenes`` (see ``vvtbench.scene.SCENES_DIR``), with the shipped
+tetrahedralizations in ``scenes/meshes``. Everything else is in
 pyproject.toml.
 """
 
@@ -11,6 +12,7 @@ setup(
     packages=find_packages(include=["vvtbench*", "solvers*"])
     + ["vvtbench.scenes", "vvtbench.scenes.suites", "vvtbench.scenes.families"],
     package_dir={"vvtbench.scenes": "scenes"},
-    package_data={"vvtbench.scenes": ["*.toml"], "vvtbench.scenes.suites": ["*.toml"],
+    package_data={"vvtbench.scenes": ["*.toml", "meshes/*.npz"],
+                  "vvtbench.scenes.suites": ["*.toml"],
                   "vvtbench.scenes.families": ["*.toml"], "solvers": ["weights/*.npz"]},
 )

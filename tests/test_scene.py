@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from vvtbench.cli import main
+from vvtbench.families import draw
 from vvtbench.scene import SCENES_DIR, Defect, SceneError, load_scene, parse_scene
 from vvtbench.simulate import (
     build_mesh,
@@ -317,6 +318,31 @@ def test_tetrahedralization_is_cached_so_meshes_repeat(tmp_path, monkeypatch):
     second = tet_mesh(v, f, edge_length_fac=0.15, epsilon=0.02)
     np.testing.assert_array_equal(first.cells, second.cells)
     np.testing.assert_array_equal(first.points, second.points)
+
+
+@pytest.mark.parametrize("scene_of", [lambda: load_scene("bunny_defect"),
+                                      lambda: draw("bunny_defects", "test", 5)],
+                         ids=["paper", "family"])
+def test_shipped_bunny_mesh_is_used_on_every_machine(tmp_path, monkeypatch, scene_of):
+    """pytetwild's output differs from run to run, so the shipped scenes' bunny mesh is
+    shipped (scenes/meshes): an empty cache and no mesher give the same mesh."""
+    import pytetwild
+
+    from vvtbench.fem.mesh import shipped_mesh_dir
+    from vvtbench.simulate import build_mesh
+
+    monkeypatch.setenv("VVTBENCH_CACHE", str(tmp_path / "cache"))
+
+    def no_mesher(*a, **k):
+        raise AssertionError("pytetwild called for a shipped mesh")
+
+    monkeypatch.setattr(pytetwild, "tetrahedralize", no_mesher)
+    mesh = build_mesh(scene_of())
+    (shipped,) = shipped_mesh_dir().glob("tetwild-*.npz")
+    with np.load(shipped) as z:
+        np.testing.assert_array_equal(mesh.points, z["points"])
+        assert mesh.n_elements == len(z["tets"])
+    assert not (tmp_path / "cache").exists()
 
 
 # ---------------------------------------------------------------- validation (issue 13, item 3)

@@ -331,9 +331,12 @@ def tet_mesh(
 ) -> Mesh:
     """Tetrahedralize a closed surface with pytetwild; tet4, or tet10 with ``order`` 2.
 
-    pytetwild's output differs from run to run (even single-threaded), so the result is cached
-    on disk, keyed by the surface and the settings (see :func:`mesh_cache_dir`): the same scene
-    always gets the same mesh on a machine, and a sample stores the mesh it used.
+    pytetwild's output differs from run to run (even single-threaded), so a surface and
+    settings that vvtbench ships a tetrahedralization for (``scenes/meshes/``: the built-in
+    bunny at the settings of the shipped scenes and family) always get that mesh, on every
+    machine and whatever the pytetwild version; any other is cached on disk, keyed by the
+    surface, the settings and the pytetwild version (see :func:`mesh_cache_dir`), so the
+    same scene gets the same mesh on a machine. A sample stores the mesh it used.
 
     Node sets: bottom (nodes within ``bottom_tol`` of the height above the lowest point), all.
     """
@@ -345,10 +348,12 @@ def tet_mesh(
                     coarsen=coarsen)
     digest = hashlib.sha256(vertices.tobytes() + faces.tobytes())
     digest.update(json.dumps(settings, sort_keys=True).encode())
+    shipped = shipped_mesh_dir() / f"tetwild-{digest.hexdigest()[:24]}.npz"
     digest.update(getattr(pytetwild, "__version__", "").encode())
     cache = mesh_cache_dir() / f"tetwild-{digest.hexdigest()[:24]}.npz"
-    if cache.is_file():
-        with np.load(cache) as z:
+    found = next((c for c in (shipped, cache) if c.is_file()), None)
+    if found is not None:
+        with np.load(found) as z:
             pts, tets = z["points"], z["tets"]
     else:
         with _scratch_cwd():  # fTetWild writes __tracked_surface.stl into the working directory
@@ -373,6 +378,14 @@ def _scratch_cwd():
             yield
         finally:
             os.chdir(old)
+
+
+def shipped_mesh_dir() -> Path:
+    """The tetrahedralizations vvtbench ships (``scenes/meshes``), keyed by surface and
+    settings only; see :func:`tet_mesh`."""
+    from ..scene import SCENES_DIR
+
+    return SCENES_DIR / "meshes"
 
 
 def mesh_cache_dir() -> Path:
