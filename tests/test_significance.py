@@ -192,3 +192,39 @@ def test_score_extraction_on_rendered_cube(tmp_path_factory) -> None:
     assert r["recall"] >= 0.5, r
     assert r["mean_mac"] >= 0.85
     assert r["mean_rel_freq_error"] < 0.02
+
+
+# ------------------------------------------------------------------ noise weighting
+def _strip_video(seed: int, amp: float) -> np.ndarray:
+    """16^2 px, 512 frames at 200 fps: a smooth 23.3 Hz mode of ``amp`` px everywhere, white
+    motion noise of 0.002 px, and 0.2 px in a 4-px strip (like an occlusion edge)."""
+    T, H, W, fps = 512, 16, 16, 200.0
+    t = np.arange(T) / fps
+    y, x = np.mgrid[0:H, 0:W] / 15.0
+    shape = np.stack([np.sin(np.pi * x) * np.sin(np.pi * y),
+                      0.5 * np.cos(np.pi * x) * np.sin(np.pi * y)], -1)
+    sd = np.full((H, W), 0.002)
+    sd[:, :4] = 0.2
+    rng = np.random.default_rng(seed)
+    return (amp * np.sin(2 * np.pi * 23.3 * t)[:, None, None, None] * shape[None]
+            + sd[None, :, :, None] * rng.standard_normal((T, H, W, 2)))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_noise_weighting_finds_a_mode_that_noisy_pixels_hide(seed):
+    from vvtbench.modes.extract import modes_from_displacements, noise_weights
+    from vvtbench.modes.spectrum import pixel_noise_power
+
+    d = _strip_video(seed, 0.001)
+    noise = pixel_noise_power(d)
+    assert noise[:, :4].mean() > 1000 * noise[:, 4:].mean()
+    w = noise_weights(np.ones(noise.shape), noise)
+    uniform = modes_from_displacements(d, 200.0, max_modes=10)
+    weighted = modes_from_displacements(d, 200.0, weights=w, max_modes=10)
+    assert len(uniform.frequencies_hz) == 0
+    assert len(weighted.frequencies_hz) == 1
+    assert abs(weighted.frequencies_hz[0] - 23.3) < 0.4
+    empty = _strip_video(seed, 0.0)
+    ws = noise_weights(np.ones(noise.shape), pixel_noise_power(empty))
+    assert len(modes_from_displacements(empty, 200.0, weights=ws, max_modes=10)
+               .frequencies_hz) == 0

@@ -80,8 +80,8 @@ class ExtractOptions(_Strict):
     n_scales: SmallCount | None = Field(None, description="an integer >= 1 (at most 64)")
     n_orientations: SmallCount | None = Field(None, description="an integer >= 1 (at most 64)")
     sigma: NonNegativeNumber | None = Field(None, description="a number >= 0 (pixels)")
-    weighting: Literal["confidence", "none"] | None = Field(
-        None, description="'confidence' or 'none'")
+    weighting: Literal["confidence", "none", "noise"] | None = Field(
+        None, description="'confidence', 'none' or 'noise'")
     average: Count | None = Field(None, description="an integer >= 1 (frames)")
     detrend: Literal["mean", "linear", "none"] | None = Field(
         None, description="'mean', 'linear' or 'none'")

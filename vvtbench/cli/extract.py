@@ -141,7 +141,7 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     help="average N consecutive frames")
     ap.add_argument("--roi", type=_parse_roi, default=None, help="crop y0,y1,x0,x1")
     ap.add_argument("--max-frames", type=positive_int, default=None)
-    ap.add_argument("--weighting", choices=("confidence", "none"), default="confidence")
+    ap.add_argument("--weighting", choices=("confidence", "none", "noise"), default="confidence")
     ap.add_argument(
         "--window", choices=("hann", "none"), default="hann", help="temporal taper of the FFT"
     )

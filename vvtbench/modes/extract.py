@@ -43,10 +43,11 @@ from .spectrum import (
     Window,
     bin_fields,
     motion_power_spectrum,
+    pixel_noise_power,
     window_gain,
 )
 
-__all__ = ["confidence_weights", "extract_modes", "modes_from_displacements"]
+__all__ = ["confidence_weights", "noise_weights", "extract_modes", "modes_from_displacements"]
 
 _log = logging.getLogger(__name__)
 
@@ -61,6 +62,33 @@ def confidence_weights(confidence: ArrayLike, quantile: float = 0.9) -> NDArray[
     if not q > 0:
         return np.ones_like(c)
     return np.minimum(c / q, 1.0)
+
+
+def noise_weights(
+    weights: ArrayLike, noise: ArrayLike, floor_quantile: float = 0.05
+) -> NDArray[np.float64]:
+    """``weights / noise``, scaled to a maximum of 1: inverse-variance pixel weights.
+
+    ``noise`` is each pixel's motion noise power (:func:`spectrum.pixel_noise_power`),
+    floored at its ``floor_quantile`` over the pixels of positive weight so that motionless,
+    noise-free pixels do not take all the weight. Summing per-pixel power with inverse noise
+    weights is the detection statistic for a line seen in every pixel (a whitened sum).
+
+    >>> noise_weights(np.ones((1, 3)), np.array([[1.0, 4.0, 0.0]]), 0.5).round(3).tolist()
+    [[1.0, 0.25, 1.0]]
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    n = np.asarray(noise, dtype=np.float64)
+    if w.shape != n.shape:
+        raise ValueError(f"weights {w.shape} and noise {n.shape} differ in shape")
+    positive = (w > 0) & np.isfinite(n)
+    if not positive.any():
+        return w.copy()
+    floor = float(np.quantile(n[positive], floor_quantile))
+    if not floor > 0:
+        floor = float(n[positive][n[positive] > 0].min()) if (n[positive] > 0).any() else 1.0
+    out = np.where(positive, w / np.maximum(n, floor), 0.0)
+    return out / out.max() if out.max() > 0 else out
 
 
 def modes_from_displacements(
@@ -542,9 +570,12 @@ def extract_modes(
         Crop ``(y0, y1, x0, x1)``.
     max_frames : int, optional
         Read at most this many frames (before averaging).
-    weighting : {"confidence", "none"}, default "confidence"
+    weighting : {"confidence", "none", "noise"}, default "confidence"
         Pixel weights for the spectrum, phase alignment and shake test:
-        :func:`confidence_weights` of the motion confidence, or uniform (paper).
+        :func:`confidence_weights` of the motion confidence, uniform (paper), or the
+        confidence weights divided by each pixel's motion noise power
+        (:func:`noise_weights` of :func:`spectrum.pixel_noise_power`: one more pass over the
+        displacements; opt-in).
     detrend, window, shake_threshold, keep_camera_shake, reject_distortion :
         See :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
@@ -571,8 +602,10 @@ def extract_modes(
         ``metadata`` records the source, parameters and timings; ``fps_source`` is
         ``"argument"`` or ``"container"`` (then also logged at INFO level).
     """
-    if weighting not in ("confidence", "none"):
-        raise ValueError(f"weighting must be 'confidence' or 'none', got {weighting!r}")
+    if weighting not in ("confidence", "none", "noise"):
+        raise ValueError(
+            f"weighting must be 'confidence', 'none' or 'noise', got {weighting!r}"
+        )
     video = open_video(source, roi=roi, max_frames=max_frames)
     fps_source = "argument"
     if fps is None:
@@ -624,8 +657,11 @@ def extract_modes(
         t1 = time.perf_counter()
         conf = pm.grid_confidence
         weights = (
-            confidence_weights(conf) if weighting == "confidence" and conf is not None else None
+            confidence_weights(conf) if weighting != "none" and conf is not None else None
         )
+        if weighting == "noise":
+            noise = pixel_noise_power(store, detrend=detrend, window=window, min_bin=min_bin)
+            weights = noise_weights(np.ones(noise.shape) if weights is None else weights, noise)
         meta = {
             **video.meta,
             "fps_input": float(fps),
