@@ -224,6 +224,11 @@ def test_noise_weighting_finds_a_mode_that_noisy_pixels_hide(seed):
     assert len(uniform.frequencies_hz) == 0
     assert len(weighted.frequencies_hz) == 1
     assert abs(weighted.frequencies_hz[0] - 23.3) < 0.4
+    # spectrum_weights pick the peak; the coherence test then uses ``weights`` (uniform
+    # here), under which the noisy strip makes the field rough
+    split = modes_from_displacements(d, 200.0, spectrum_weights=w, max_modes=10)
+    (rejected,) = split.metadata["rejected"]
+    assert abs(rejected["frequency_hz"] - 23.3) < 0.4 and rejected["reason"] == "incoherent"
     empty = _strip_video(seed, 0.0)
     ws = noise_weights(np.ones(noise.shape), pixel_noise_power(empty))
     assert len(modes_from_displacements(empty, 200.0, weights=ws, max_modes=10)

@@ -123,6 +123,7 @@ def modes_from_displacements(
     line_fit: bool = False,
     line_radius: int = 4,
     added_roughness: float | None = 0.06,
+    spectrum_weights: ArrayLike | None = None,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -135,6 +136,10 @@ def modes_from_displacements(
     weights : array_like, optional
         ``(H, W)`` pixel weights for the power spectrum, the phase alignment and the camera
         shake test (e.g. :func:`confidence_weights`); default uniform.
+    spectrum_weights : array_like, optional
+        Other ``(H, W)`` weights for the power spectrum the peaks are picked from (e.g.
+        :func:`noise_weights`); ``weights`` still serve the shapes and the shake, coherence
+        and distortion tests. Default: ``weights``.
     fmin, fmax, prominence, min_separation_hz, min_power_ratio : optional
         Peak picking, see :func:`peaks.pick_peaks` (``fmax > fps / 2`` raises ValueError).
     max_modes : int, optional
@@ -218,7 +223,8 @@ def modes_from_displacements(
     if added_roughness is not None and not added_roughness >= 0:  # NaN fails too
         raise ValueError(f"added_roughness must be >= 0 or None, got {added_roughness!r}")
     freqs, power = motion_power_spectrum(
-        disp, fps, weights=weights, detrend=detrend, window=window, block_bytes=block_bytes
+        disp, fps, weights=weights if spectrum_weights is None else spectrum_weights,
+        detrend=detrend, window=window, block_bytes=block_bytes
     )
     pk = pick_peaks(
         freqs,
@@ -575,7 +581,8 @@ def extract_modes(
         :func:`confidence_weights` of the motion confidence, uniform (paper), or the
         confidence weights divided by each pixel's motion noise power
         (:func:`noise_weights` of :func:`spectrum.pixel_noise_power`: one more pass over the
-        displacements; opt-in).
+        displacements; opt-in) for the spectrum the peaks are picked from, the confidence
+        weights for the shapes and the tests.
     detrend, window, shake_threshold, keep_camera_shake, reject_distortion :
         See :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
@@ -659,9 +666,11 @@ def extract_modes(
         weights = (
             confidence_weights(conf) if weighting != "none" and conf is not None else None
         )
+        spectrum_weights = None
         if weighting == "noise":
             noise = pixel_noise_power(store, detrend=detrend, window=window, min_bin=min_bin)
-            weights = noise_weights(np.ones(noise.shape) if weights is None else weights, noise)
+            spectrum_weights = noise_weights(
+                np.ones(noise.shape) if weights is None else weights, noise)
         meta = {
             **video.meta,
             "fps_input": float(fps),
@@ -694,6 +703,7 @@ def extract_modes(
             min_bin=min_bin,
             shoulder_prominence=shoulder_prominence,
             line_fit=line_fit,
+            spectrum_weights=spectrum_weights,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
