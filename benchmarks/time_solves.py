@@ -42,8 +42,11 @@ def main() -> None:
     for key in ("scene", "observation"):
         if getattr(args, key):
             rows = rows[rows[key] == getattr(args, key)]
-    print(f"{len(rows)} problems; {os.cpu_count()} cores; BLAS threads: "
-          f"{os.environ.get('OMP_NUM_THREADS', 'default')}")
+    from threadpoolctl import threadpool_info
+
+    blas = sorted({p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"})
+    print(f"{len(rows)} problems; {os.cpu_count()} cores; the process's BLAS threads: {blas} "
+          "(sensitivity pins one during its solve)")
     print("| scene | observation | solver | wall s | CPU s | NC w | load (1 min) |")
     print("|---|---|---|---|---|---|---|")
     for _, row in rows.sort_values(["scene", "observation"]).iterrows():

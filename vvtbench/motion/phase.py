@@ -232,23 +232,27 @@ def _min_eig(m: NDArray[np.floating]) -> NDArray[np.floating]:
     return np.maximum(half_tr - disc, 0.0)
 
 
+def _local_frequency(c: NDArray[np.complex64], grad: NDArray[np.complex64]) -> NDArray:
+    """A band's local spatial frequency ``Im(conj(c) grad c) / |c|^2`` (rad/px), ``(2, ...)``.
+
+    ``grad`` holds the spectral derivatives ``(d/dx, d/dy)`` of the coefficients ``c``;
+    non-finite where ``c = 0``.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (np.conj(c)[None] * grad).imag / (c.real**2 + c.imag**2)
+
+
 def _half_frequency_change(
     c: NDArray[np.complex64], grad: NDArray[np.complex64], g_ref: NDArray[np.float32]
 ) -> NDArray[np.float32]:
-    """``(g_cur - g_ref) / 2`` with ``g_cur = Im(conj(c) grad c) / |c|^2``, 0 where undefined.
+    """``(g_cur - g_ref) / 2`` with ``g_cur`` the current frame's :func:`_local_frequency`.
 
     ``(2, B, h, w)`` float32; zero where the reference frequency was rejected (``g_ref = 0``)
     or the current one is not finite.
     """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a2 = c.real * c.real + c.imag * c.imag
-        out = np.empty((2, *c.shape), np.float32)
-        for k in range(2):
-            np.multiply(c.real, grad[k].imag, out=out[k])
-            out[k] -= c.imag * grad[k].real
-            out[k] /= a2
-            out[k] -= g_ref[k]
-            out[k] *= 0.5
+    out = _local_frequency(c, grad).astype(np.float32, copy=False)
+    out -= g_ref[:, None]
+    out *= 0.5
     ok = np.isfinite(out[0]) & np.isfinite(out[1]) & ((g_ref[0] != 0) | (g_ref[1] != 0))
     out *= ok
     np.nan_to_num(out, copy=False)
@@ -397,8 +401,7 @@ class PhaseMotion:
             wc = band.radial_frequency
             ux, uy = band.direction
             if frequency != "centre":
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    g = (np.conj(c)[None] * grad).imag / a2
+                g = _local_frequency(c, grad)
                 along = g[0] * ux + g[1] * uy
                 ok = (a2 > 0) & (along >= 0.25 * wc) & (np.hypot(g[0], g[1]) <= 4.0 * wc)
                 g = np.where(ok[None], g, 0.0).astype(np.float32)
