@@ -315,3 +315,58 @@ def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch
     assert after[0] == before[0]  # suites without the line fit keep their cache
     changed = {s for s, _, _ in before[1] ^ after[1]}
     assert {"extract", "observe"} <= changed and "generate" not in changed
+
+
+def test_extractors_are_ranked_on_the_same_videos(micro, tmp_path):
+    """An ``extracted:NAME`` source runs another extractor on the cached videos; the default
+    source keeps its cache; the leaderboard ranks the extractors."""
+    from vvtbench.leaderboard import build, extraction_table, extractor_ranking
+
+    suite_file, out, _ = micro
+    two = tmp_path / "two.toml"
+    two.write_text(suite_file.read_text()
+                   .replace('observations = ["true", "extracted"]',
+                            'observations = ["extracted", "extracted:farneback"]')
+                   .replace("[solver.vvt]", "[extract.extractor.farneback]\nwinsize = 11\n\n"
+                            "[solver.vvt]"))
+    df = run_suite(str(two), ["homogeneous"], out, progress=False)
+    assert _computed(df) == {"generate": 0, "extract": 1, "observe": 1, "solve": 1,
+                             "evaluate": 1}
+    assert list(df.observation) == ["extracted", "extracted:farneback"]
+    assert (df.status == "ok").all() and check_results(df) == []
+    assert df.extraction_recall.between(0, 1).all() and df.extraction_recall.notna().all()
+    ranked = extractor_ranking(df, "main")
+    assert set(ranked.observation) == {"extracted", "extracted:farneback"}
+    assert ranked.videos.tolist() == [1, 1] and list(ranked.columns)[:3] == [
+        "observation", "videos", "F1"]
+    table = extraction_table(df, "main")
+    assert table.observation.tolist() == ["extracted", "extracted:farneback"]
+    lb = build(out / "results.parquet", tmp_path / "lb")
+    assert "extractors ranked on the same videos" in (lb / "index.html").read_text()
+    one = extraction_table(df[df.observation == "extracted"], "main")
+    assert "observation" not in one.columns and extractor_ranking(
+        df[df.observation == "extracted"], "main") is None
+
+
+def test_default_extractor_configured_changes_only_extracted_keys():
+    import dataclasses
+
+    from vvtbench.bench import build_graph
+    from vvtbench.bench.graph import extract_options
+
+    smoke = load_suite("smoke")
+    phase = {"spec": "phase", "name": "phase", "version": "x", "config": {}}
+    plain = dataclasses.replace(smoke, extractors={"phase": phase})
+    tuned = dataclasses.replace(smoke, extractors={"phase": {**phase, "config": {"sigma": 3.0}}})
+    assert extract_options(plain, "extracted") == (smoke.extract, smoke.extract)
+    opts, key = extract_options(tuned, "extracted")
+    assert opts["extractor_config"] == {"sigma": 3.0} and key["extractor"] == "phase x"
+    assert extract_options(tuned, "true") == (smoke.extract, smoke.extract)
+
+    def keys(suite):
+        tasks, _ = build_graph(suite, ["homogeneous"])
+        return {(t.stage, t.key) for t in tasks.values()}
+
+    assert keys(plain) == keys(smoke)
+    changed = {s for s, _ in keys(tuned) ^ keys(smoke)}
+    assert changed == {"extract", "observe", "solve", "evaluate"}

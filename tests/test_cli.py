@@ -292,3 +292,21 @@ def test_video_writer_is_atomic(tmp_path):
         w.write(np.zeros((8, 8), np.uint16))
         w.close()
     assert [p.name for p in tmp_path.iterdir()] == ["v.mkv"]
+
+
+def test_solvers_and_extractors_are_listed(capsys):
+    assert cli.main(["extractors", "-v"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("farneback") and "\nphase " in out and "frequency" in out
+    assert cli.main(["solvers"]) == 0
+    names = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
+    assert {"vvt", "homogeneous", "oracle"} <= set(names)
+
+
+def test_extract_names_a_missing_extractor_or_option_in_one_line(sample, capsys, tmp_path):
+    for option, word in ((["--extractor", "nope"], "farneback"),
+                         (["--extractor", "farneback", "--set", "winsz=3"], "winsize"),
+                         (["--set", "frequency=fast"], "midpoint")):
+        assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), *option]) == 2
+        assert word in _one_error_line(capsys)
+        assert not (tmp_path / "o").exists()

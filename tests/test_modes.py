@@ -468,6 +468,17 @@ def test_ffv1_gray16_roundtrip_through_extract(tmp_path) -> None:
     np.testing.assert_array_equal(loaded.frequencies_hz, ms.frequencies_hz)
     np.testing.assert_array_equal(loaded.power, ms.power)
     assert loaded.metadata["motion"]["n_scales"] == 3
+    # another extractor, and extractor options, from the command line (recorded in the set)
+    assert main_extract([str(path), "--fps", "64", "-o", str(tmp_path / "fb"), "--quiet",
+                         "--no-plots", "--extractor", "farneback", "--set", "winsize=9"]) == 0
+    fb = ModeSet.load(tmp_path / "fb")
+    assert fb.metadata["extractor"]["name"] == "farneback"
+    assert fb.metadata["motion"]["winsize"] == 9
+    assert abs(fb.frequencies_hz[nearest(fb, 8.0)] - 8.0) <= fps / T
+    assert main_extract([str(path), "--fps", "64", "-o", str(tmp_path / "mid"), "--quiet",
+                         "--no-plots", "--scales", "2", "--set", "frequency=midpoint"]) == 0
+    motion = ModeSet.load(tmp_path / "mid").metadata["motion"]
+    assert motion["n_scales"] == 2 and motion["frequency"] == "midpoint"
 
 
 def _write_8bit(

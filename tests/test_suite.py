@@ -69,6 +69,31 @@ def test_bad_observation_and_scene_names():
     assert "key 'extract.weighting'" in msg and "'confidence'" in msg
 
 
+def test_extracted_observations_name_an_extractor_checked_at_load(tmp_path):
+    suite = parse_suite(tomllib.loads(
+        BASE + 'observations = ["extracted", "extracted:farneback"]\n'
+        "[extract.extractor.farneback]\nwinsize = '9'\n"), "s.toml")
+    assert suite.tracks[0].observations == ["extracted", "extracted:farneback"]
+    fb = suite.extractors["farneback"]
+    assert fb["name"] == "farneback" and fb["config"] == {"winsize": 9} and fb["version"]
+    msg = error_of('observations = ["extracted:no_such_flow"]')
+    assert "key 'observations[0]'" in msg and "farneback" in msg and "phase" in msg
+    msg = error_of('observations = ["extracted:"]')
+    assert "key 'observations[0]'" in msg and "'extracted:EXTRACTOR'" in msg
+    msg = error_of("[extract.extractor.farneback]\nwinsiz = 9\n")
+    assert "key 'extract.extractor.farneback'" in msg and "winsize" in msg
+    msg = error_of("[extract.extractor.farneback]\nwinsize = 'big'\n")
+    assert "key 'extract.extractor.farneback'" in msg
+    msg = error_of("[extract.extractor.no_such_flow]\nx = 1\n")
+    assert "key 'extract.extractor.no_such_flow'" in msg
+    plugin = tmp_path / "flow.py"  # a file extractor, named relative to the suite file
+    plugin.write_text("from vvtbench.motion.extractors import FarnebackExtractor\n\n\n"
+                      "class Flow(FarnebackExtractor):\n    name = 'flow'\n")
+    suite = parse_suite(tomllib.loads(BASE + 'observations = ["extracted:flow.py:Flow"]\n'),
+                        str(tmp_path / "s.toml"))
+    assert suite.extractors["flow.py:Flow"]["spec"] == f"{plugin}:Flow"
+
+
 def test_values_are_kept_as_written():
     """Validation coerces nothing: the runner hashes and records the file's own values."""
     suite = parse_suite(tomllib.loads(BASE + "[sweep]\ngeometry_scale = [1, 1.5]\n"), "s.toml")

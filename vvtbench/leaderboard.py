@@ -608,6 +608,13 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
             "ranking": [rec for t in ranked for rec in t.to_dict("records")],
             "paired": {m: paired[m][paired[m].track == track].to_dict("records")
                        for m in paired}})
+        ranked_ext = extractor_ranking(df, track)
+        if ranked_ext is not None:
+            md.append(f"### {track} — extractors ranked on the same videos\n\n"
+                      + _md_frame(ranked_ext) + "\n")
+            body.append(f"<h3>{html.escape(track)} — extractors ranked on the same videos</h3>"
+                        + ranked_ext.to_html(index=False, float_format=lambda x: f"{x:.3f}",
+                                             na_rep="–", border=0))
         ext = extraction_table(df, track)
         if ext is not None:
             md.append(f"### {track} — extraction (detected modes against the true ones)\n\n"
@@ -692,36 +699,114 @@ def _md_frame(t) -> str:
     return "\n".join(lines)
 
 
-def extraction_table(df, track: str):
-    """Per scene of ``track``: the extraction's precision, recall over the true modes
-    detectable in the video, recall over every true mode in band, relative frequency error
-    and mean MAC of matched modes (one extraction per scene and variation), then their mean
-    over the scenes with its bootstrap interval; None when the track has no extracted modes."""
-    from .stats import summarize
+_EXTRACTION_NAMES = {"extraction_precision": "precision",
+                     "extraction_recall": "recall (detectable)",
+                     "extraction_recall_all": "recall (all in band)",
+                     "extraction_mean_rel_freq_error": "freq error (rel.)",
+                     "extraction_mean_mac": "mean MAC"}
 
-    cols = [c for c in ("extraction_precision", "extraction_recall", "extraction_recall_all",
-                        "extraction_mean_rel_freq_error", "extraction_mean_mac")
-            if c in df.columns]
+
+def _extractions(df, track: str):
+    """(one row per extracted source, scene and variation with the extraction columns, the
+    columns), or None when the track has no extraction scores."""
+    from .bench.suite import observation_kind
+
+    cols = [c for c in _EXTRACTION_NAMES if c in df.columns]
     if "extraction_recall" not in cols:
         return None
-    d = df[(df.track == track) & (df.observation == "extracted")]
+    d = df[(df.track == track)
+           & df.observation.map(lambda o: observation_kind(str(o)) == "extracted")]
     d = d.dropna(subset=["extraction_recall"])
     if d.empty:
         return None
-    t = d.groupby(["scene", "variation"], sort=False)[cols].first().reset_index()
-    if len(t) > 1:
-        mean = {"scene": f"mean of {len(t)} [{_PCT} CI]", "variation": ""}
-        for c in cols:
-            st = summarize(t[c].astype(float).to_numpy())
-            mean[c] = (f"{st['mean']:.3f} [{st['mean_ci_low']:.2f}, {st['mean_ci_high']:.2f}]"
-                       if np.isfinite(st.get("mean_ci_low", np.nan)) else st["mean"])
-        t = _with_row(t, mean)
-    names = {"extraction_precision": "precision",
-             "extraction_recall": "recall (detectable)",
-             "extraction_recall_all": "recall (all in band)",
-             "extraction_mean_rel_freq_error": "freq error (rel.)",
-             "extraction_mean_mac": "mean MAC"}
-    return t.rename(columns=names)
+    keys = ["observation", "scene", "variation"]
+    return d.groupby(keys, sort=False)[cols].first().reset_index(), cols
+
+
+def _mean_cell(values) -> object:
+    from .stats import summarize
+
+    st = summarize(np.asarray(values, dtype=float))
+    if np.isfinite(st.get("mean_ci_low", np.nan)):
+        return f"{st['mean']:.3f} [{st['mean_ci_low']:.2f}, {st['mean_ci_high']:.2f}]"
+    return st["mean"]
+
+
+def extraction_table(df, track: str):
+    """Per scene of ``track`` and extracted source: the extraction's precision, recall over
+    the true modes detectable in the video, recall over every true mode in band, relative
+    frequency error and mean MAC of matched modes (one extraction per scene and variation),
+    then per source their mean over the scenes with its bootstrap interval; an
+    ``observation`` column only when the track extracts with several extractors. None when
+    the track has no extracted modes."""
+    got = _extractions(df, track)
+    if got is None:
+        return None
+    t, cols = got
+    sources = list(dict.fromkeys(t.observation))
+    parts = []
+    for src in sources:
+        ts = t[t.observation == src]
+        if len(ts) > 1:
+            ts = _with_row(ts, {"observation": src, "scene": f"mean of {len(ts)} [{_PCT} CI]",
+                                "variation": "", **{c: _mean_cell(ts[c]) for c in cols}})
+        parts.append(ts)
+    import pandas as pd
+
+    t = pd.concat([p.astype(object) for p in parts], ignore_index=True)
+    if len(sources) == 1:
+        t = t.drop(columns="observation")
+    return t.rename(columns=_EXTRACTION_NAMES)
+
+
+def f1_score(precision, recall):
+    """Harmonic mean of precision and recall per video: 0 when nothing true was found, NaN
+    where precision is undefined (no detections) and recall is not 0.
+
+    >>> f1_score(np.array([1.0, 0.5, np.nan]), np.array([0.5, 0.0, 0.0]))
+    array([0.66666667, 0.        , 0.        ])
+    """
+    p, r = np.asarray(precision, dtype=float), np.asarray(recall, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = 2 * p * r / (p + r)
+    return np.where(r == 0, 0.0, f)
+
+
+def extractor_ranking(df, track: str):
+    """Extractors of ``track`` ranked on the same videos (None with fewer than two extracted
+    sources): per source the number of videos, the mean F1 of detection (harmonic mean of
+    precision and recall over the detectable modes) and its difference from the best source
+    on the videos both scored (paired, bootstrap interval), then the mean of each extraction
+    metric; sorted by mean F1."""
+    got = _extractions(df, track)
+    if got is None:
+        return None
+    t, cols = got
+    sources = list(dict.fromkeys(t.observation))
+    if len(sources) < 2:
+        return None
+    from .stats import paired_comparison, summarize
+
+    t = t.assign(f1=f1_score(t.extraction_precision, t.extraction_recall))
+    per = {s: t[t.observation == s].set_index(["scene", "variation"]).f1 for s in sources}
+    order = sorted(sources, key=lambda s: -np.nan_to_num(summarize(per[s])["mean"], nan=-1))
+    best = order[0]
+    rows = []
+    for src in order:
+        ts = t[t.observation == src]
+        row = {"observation": src, "videos": len(ts), "F1": _mean_cell(ts.f1)}
+        if src == best:
+            row[f"ΔF1 vs {best}"] = "–"
+        else:
+            a, b = per[src].align(per[best], join="inner")
+            pc = paired_comparison(a.to_numpy(), b.to_numpy())
+            row[f"ΔF1 vs {best}"] = (
+                f"{pc['mean_diff']:+.3f} [{pc['ci_low']:+.2f}, {pc['ci_high']:+.2f}] ({pc['n']})"
+                if np.isfinite(pc["ci_low"]) else pc["mean_diff"])
+        rows.append(row | {_EXTRACTION_NAMES[c]: _mean_cell(ts[c]) for c in cols})
+    import pandas as pd
+
+    return pd.DataFrame(rows).astype(object)
 
 
 def _with_row(t, row: dict):
@@ -731,5 +816,6 @@ def _with_row(t, row: dict):
     return pd.concat([t.astype(object), pd.DataFrame([row])], ignore_index=True)
 
 
-__all__ = ["LeaderboardError", "build", "extraction_table", "prepare_output", "ranking",
+__all__ = ["LeaderboardError", "build", "extraction_table", "extractor_ranking", "f1_score",
+           "prepare_output", "ranking",
            "summary"]

@@ -236,14 +236,18 @@ _BOUNDS = {"ge": (">=", lambda x, b: x >= b), "gt": (">", lambda x, b: x > b),
 
 def _check_values(config, keys: set[str]) -> None:
     """The values given for ``keys`` must be finite and within the bounds the field declares
-    in its metadata (``ge``, ``gt``, ``le``, ``lt``); an integer iteration or count limit
-    (``max_*``, ``n_*``, ``*_iter``) must be >= 1."""
+    in its metadata (``ge``, ``gt``, ``le``, ``lt``) or be one of its ``choices``; an integer
+    iteration or count limit (``max_*``, ``n_*``, ``*_iter``) must be >= 1."""
     import math
 
     for f in dataclasses.fields(config):
         if f.name not in keys:
             continue
         value = getattr(config, f.name)
+        choices = f.metadata.get("choices")
+        if choices is not None and value not in choices:
+            raise PluginError(f"--set {f.name}={value!r}: {type(config).__name__}.{f.name} "
+                              f"must be one of {', '.join(map(repr, choices))}")
         for x in value if isinstance(value, (tuple, list)) else (value,):
             if isinstance(x, bool) or not isinstance(x, (int, float)):
                 continue

@@ -12,7 +12,15 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
-from .suite import Suite, SuiteError, Track, apply_overrides, scene_ref
+from .suite import (
+    Suite,
+    SuiteError,
+    Track,
+    apply_overrides,
+    observation_extractor,
+    observation_kind,
+    scene_ref,
+)
 
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 # Bump when a stage's output format or meaning changes (part of every task key).
@@ -34,6 +42,23 @@ def extraction_revision(extract_opts: dict) -> int | list[int]:
     if extract_opts.get("line_fit"):
         return [EXTRACTION_REVISION, LINE_FIT_REVISION]
     return EXTRACTION_REVISION
+
+
+def extract_options(suite: Suite, observation: str) -> tuple[dict, dict]:
+    """(the ``extract_modes`` options of an observation source, their form in task keys).
+
+    The suite's ``[extract]`` table, plus the extractor an ``"extracted:NAME"`` source names
+    and its ``[extract.extractor.NAME]`` overrides; the default extractor with no overrides
+    adds nothing, so such runs keep their cache. Keys name the extractor by name and version
+    (not by a path, which differs between machines)."""
+    opts = dict(suite.extract)
+    spec = observation_extractor(observation) or "phase"
+    ext = suite.extractors.get(spec)
+    if observation_kind(observation) != "extracted" or ext is None or (
+            ext["name"] == "phase" and not ext["config"]):
+        return opts, opts
+    opts.update(extractor=ext["spec"], extractor_config=ext["config"])
+    return opts, {**opts, "extractor": f"{ext['name']} {ext['version']}"}
 
 
 def _canon(x):
@@ -196,19 +221,20 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             scene_dicts = [_resolve_scene(s, suite.source, var.scene_overrides, seed)
                            for s in group]
             scene_label = "+".join(d["name"] for d in scene_dicts)
-            video = "extracted" in track.observations  # true modes only: no video rendered
+            # true modes only: no video rendered
+            video = any(observation_kind(o) == "extracted" for o in track.observations)
             gen_keys = [add("generate", [d, {"video": video}], [], {"scene": d, "video": video},
                             d["name"]) for d in scene_dicts]
             dataset_revision = content_hash(*gen_keys)
             if stop < 1:
                 continue
-            extract_opts = {k: v for k, v in suite.extract.items()}
-            ext_rev = extraction_revision(extract_opts)
+            ext_rev = extraction_revision(suite.extract)
             n_modes = int(var.inference.get("n_modes", 10))
             for obs in track.observations:
                 ext_keys = []
-                if obs == "extracted":
-                    ext_keys = [add("extract", [extract_opts, ext_rev], [g],
+                extract_opts, extract_key = extract_options(suite, obs)
+                if observation_kind(obs) == "extracted":
+                    ext_keys = [add("extract", [extract_key, ext_rev], [g],
                                     {"options": extract_opts},
                                     name) for g, name in zip(gen_keys, [d["name"] for d in
                                                                         scene_dicts],
@@ -219,9 +245,9 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 obs_payload = {"scene": scene_dicts[0], "inference": inf, "observation": obs,
                                "extract": extract_opts}
                 obs_key = add("observe", [scene_dicts[0], inf, obs,
-                                          {**extract_opts, "revision": ext_rev,
+                                          {**extract_key, "revision": ext_rev,
                                            "observe_revision": OBSERVE_REVISION}
-                                          if obs == "extracted" else {}],
+                                          if ext_keys else {}],
                               [gen_keys[0], *ext_keys], obs_payload, scene_label)
                 if stop < 3:
                     continue

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import uuid
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 from .._version import __version__
 from ..io import jsonable
 from .graph import Run
-from .suite import OBSERVATIONS
+from .suite import OBSERVATION_PATTERN, OBSERVATIONS
 
 METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_star_w",
                   "sigma_star_v", "nc_at_sigma_star_w", "nc_at_sigma_star_v", "mode_mac",
@@ -194,7 +195,7 @@ def read_results(path: str | Path):
     return _read(path)[0]
 
 
-_ALLOWED = {"status": ("ok", "error", "invalid"), "observation": OBSERVATIONS}
+_ALLOWED = {"status": ("ok", "error", "invalid")}
 _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered",
                                        "nc_at_sigma_star_w", "nc_at_sigma_star_v")},
            "sigma_star_w": (0.0, None), "sigma_star_v": (0.0, None), "mode_mac": (0.0, 1.0),
@@ -283,6 +284,11 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
             if val not in allowed:
                 err(f"column {c!r}, row {i}: {val!r} not allowed; allowed values: "
                     f"{', '.join(allowed)}")
+    if "observation" in df.columns:
+        for i, val in df["observation"].items():
+            if not (isinstance(val, str) and re.match(OBSERVATION_PATTERN, val)):
+                err(f"column 'observation', row {i}: {val!r} not allowed; allowed values: "
+                    f"{', '.join(OBSERVATIONS)}, or 'extracted:EXTRACTOR'")
     for c in ("seed", "n_modes"):
         if c not in df.columns:
             continue

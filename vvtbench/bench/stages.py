@@ -17,6 +17,7 @@ from .._version import __version__
 from ..dataset import sha256_file
 from ..io import jsonable, write_json, write_npz, write_text
 from .graph import Task
+from .suite import observation_kind
 
 
 def _stage_generate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
@@ -63,15 +64,16 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     from ..observe import observe
 
     p = task.payload
-    opts = observe_options(p["inference"], p["observation"], p.get("extract") or {})
+    kind = observation_kind(p["observation"])
+    opts = observe_options(p["inference"], kind, p.get("extract") or {})
     sample, *extracted = task.deps
-    if p["observation"] == "extracted":
+    if kind == "extracted":
         opts = opts.replace(modes=tuple(str(cache / k) for k in extracted))
     from ..dataset import open_sample
 
     opened = open_sample(sample_path(cache, sample))  # verified once, read twice
     problem, truth = observe(opened, opts)
-    if p["observation"] == "extracted":
+    if kind == "extracted":
         truth.meta["extraction"] = extraction_scores(opened, opts.modes,
                                                      (p.get("extract") or {}).get("fmax"))
     problem.save(out)

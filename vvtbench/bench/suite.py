@@ -19,6 +19,11 @@ from ..scene import SCENES_DIR
 
 SUITES_DIR = SCENES_DIR / "suites"
 OBSERVATIONS = ("true", "extracted")
+#: an observation source: "true", "extracted" (the default extractor, phase) or
+#: "extracted:EXTRACTOR" (a registered extractor name, ``module:Class`` or ``path.py:Class``)
+OBSERVATION_PATTERN = r"^(true|extracted(:\S+)?)$"
+_OBSERVATION = ("'true', 'extracted' or 'extracted:EXTRACTOR' (a registered extractor name, "
+                "module:Class or path/to/file.py:Class)")
 SCENE_SECTIONS = ("seed", "description", "geometry", "material", "boundary", "damping",
                   "excitation", "simulation", "camera", "render")
 
@@ -38,7 +43,7 @@ Cells = Annotated[int, Field(ge=1, le=256)]
 Frequency = Annotated[float, Field(gt=0, le=1e7, allow_inf_nan=False)]
 SmallCount = Annotated[int, Field(ge=1, le=64)]
 Name = Annotated[str, Field(min_length=1)]
-Observation = Literal["true", "extracted"]
+Observation = Annotated[str, Field(pattern=OBSERVATION_PATTERN)]
 Options = dict[str, Any]  # scene overrides and inference options, checked by _split_options
 
 
@@ -90,6 +95,9 @@ class ExtractOptions(_Strict):
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")
+    extractor: dict[Name, Options] = Field(
+        default_factory=dict, description="tables [extract.extractor.NAME] of motion extractor "
+        "config overrides (key = value); the extractor of an observation 'extracted:NAME'")
 
 
 SceneGroup = Name | Annotated[list[Name], Field(min_length=1)]
@@ -107,7 +115,7 @@ class TrackFile(_Strict):
     seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] | None = Field(
         None, description="a non-empty list of integers >= 0")
     observations: Annotated[list[Observation], Field(min_length=1)] | None = Field(
-        None, description=f"a non-empty list of {', '.join(map(repr, OBSERVATIONS))}")
+        None, description=f"a non-empty list of {_OBSERVATION}")
     defaults: Options = Field(default_factory=dict, description="a table of options")
     variations: list[Options] = Field(default_factory=list,
                                       description="a list of tables of options")
@@ -137,7 +145,7 @@ class SuiteFile(_Strict):
     seeds: Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] = Field(
         [0], description="a non-empty list of integers >= 0")
     observations: Annotated[list[Observation], Field(min_length=1)] = Field(
-        ["true"], description=f"a non-empty list of {', '.join(map(repr, OBSERVATIONS))}")
+        ["true"], description=f"a non-empty list of {_OBSERVATION}")
     defaults: Options = Field(default_factory=dict, description="a table of options")
     extract: ExtractOptions = Field(default_factory=ExtractOptions,
                                     description="a table of extraction options")
@@ -329,6 +337,9 @@ class Suite:
     raw: dict = field(default_factory=dict)
     timeout: float | None = None     # seconds per solve (None: the runner's default)
     memory_gb: float | None = None   # memory limit per solve (None: the runner's default)
+    #: extractor as written -> {"spec" (loadable), "name", "version", "config" (overrides)}, for
+    #: every extractor an observation names or ``[extract.extractor.NAME]`` configures
+    extractors: dict[str, dict] = field(default_factory=dict)
 
     @property
     def scene_names(self) -> list[str]:
@@ -428,6 +439,8 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
     defaults = data.get("defaults", {})
     _split_options(defaults, source, "defaults")  # validate keys early
     extract = dict(data.get("extract", {}))
+    extractors = {name: _check_extractor(name, table, source, f"extract.extractor.{name}")
+                  for name, table in extract.pop("extractor", {}).items()}
     solver_config = data.get("solver", {})
     solvers = data.get("solvers", [])
     seeds = data.get("seeds", [0])
@@ -468,6 +481,11 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
             raise SuiteError(f"{source}: key '{_join(path, 'scenes')}': track {tname!r} has no "
                              f"scenes (allowed: {_SCENES})")
         obs = t.get("observations", observations)
+        for j, o in enumerate(obs):
+            name = observation_extractor(o)
+            if name is not None and name not in extractors:
+                extractors[name] = _check_extractor(
+                    name, {}, source, f"{_join(path, 'observations')}[{j}]")
         tseeds = t.get("seeds", seeds)
         tdefaults = {**defaults, **t.get("defaults", {})}
         if "defaults" in t:
@@ -492,7 +510,46 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
     return Suite(name, tracks, list(solvers), solver_config, extract,
                  data.get("description", ""), source, data,
                  None if timeout is None else float(timeout),
-                 None if memory_gb is None else float(memory_gb))
+                 None if memory_gb is None else float(memory_gb), extractors)
+
+
+def observation_kind(observation: str) -> str:
+    """``"true"`` or ``"extracted"`` (for ``"extracted:NAME"`` too).
+
+    >>> observation_kind("extracted:farneback")
+    'extracted'
+    """
+    return "extracted" if observation.startswith("extracted") else observation
+
+
+def observation_extractor(observation: str) -> str | None:
+    """The extractor an observation names (``"extracted:NAME"`` -> ``NAME``), else None.
+
+    >>> observation_extractor("extracted:path/to/flow.py:Flow"), observation_extractor("true")
+    ('path/to/flow.py:Flow', None)
+    """
+    head, _, name = observation.partition(":")
+    return name if head == "extracted" and name else None
+
+
+def _check_extractor(name: str, table: dict, source: str, key: str) -> dict:
+    """``{"spec", "name", "version", "config"}`` of the extractor ``name`` with the overrides
+    ``table`` (validated now: a missing extractor or a bad option is a one-line error)."""
+    import dataclasses
+
+    from ..extractors import load_extractor
+    from ..plugins import PluginError, config_from_mapping
+
+    file, _, cls_name = name.rpartition(":")
+    spec = f"{scene_ref(file, source)}:{cls_name}" if file.endswith(".py") else name
+    try:
+        cls = load_extractor(spec)
+        config = config_from_mapping(cls.Config, table)
+    except PluginError as error:
+        raise SuiteError(f"{source}: key '{key}': {error}") from None
+    return {"spec": spec, "name": str(cls.name), "version": str(cls.version),
+            "config": {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+                       if f.name in table}}
 
 
 def scene_ref(name: str, source: str) -> str:

@@ -200,6 +200,12 @@ def _verify(argv: list[str]) -> int:
     return main_verify(argv)
 
 
+def _extractors(argv: list[str]) -> int:
+    from .solve import main_extractors
+
+    return main_extractors(argv)
+
+
 def _train(argv: list[str]) -> int:
     from .train import main_train
 
@@ -215,6 +221,7 @@ DELEGATED = {
     "leaderboard": (_leaderboard, "Markdown + static HTML leaderboard from a results table"),
     "export": (_export, "pack generated samples into one zarr/hdf5 dataset with a dataset card"),
     "solvers": (_solvers, "list the installed inverse solvers"),
+    "extractors": (_extractors, "list the installed motion extractors"),
     "solve": (_solve, "run an inverse solver on a scene (see `solve --help`)"),
     "train": (_train, "fit a learned solver on a scene family's train split"),
     "verify": (_verify, "check a sample, a run folder or an exported dataset against its "

@@ -130,6 +130,12 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--max-modes", type=positive_int, default=20)
     ap.add_argument("--min-power-ratio", type=bounded(float, ge=0, le=1), default=1e-6,
                     help="vs the strongest peak in band (0..1)")
+    ap.add_argument("--extractor", default="phase", metavar="NAME",
+                    help="motion extractor: a registered name (`vvtbench extractors`), "
+                    "module:Class or path/to/file.py:Class (default: phase)")
+    ap.add_argument("--set", dest="extractor_set", action="append", default=[],
+                    metavar="KEY=VALUE", help="extractor config override (repeatable; "
+                    "`vvtbench extractors -v` lists the keys)")
     ap.add_argument("--scales", type=bounded(int, ge=1, le=8), default=3)
     ap.add_argument("--orientations", type=bounded(int, ge=1, le=16), default=4)
     ap.add_argument("--sigma", type=nonnegative_float, default=2.0,
@@ -170,6 +176,14 @@ def main_extract(argv: list[str] | None = None) -> int:
         y0, y1, x0, x1 = args.roi
         if not (0 <= y0 < y1 and 0 <= x0 < x1):
             raise ValueError(f"--roi {y0},{y1},{x0},{x1}: need 0 <= y0 < y1 and 0 <= x0 < x1")
+    from ..extractors import load_extractor
+    from ..plugins import parse_overrides
+
+    extractor_cls = load_extractor(args.extractor)
+    extractor_config = parse_overrides(args.extractor_set, extractor_cls.Config)
+    overrides = {item.partition("=")[0].strip() for item in args.extractor_set}
+    if args.extractor == "phase":  # --scales, --sigma ... configure phase unless --set does
+        extractor_config = {k: getattr(extractor_config, k) for k in overrides}
     _check_output(args.out, args.video)
     src = _resolve_source(args.video)
     fps = args.fps if args.fps is not None else _sample_fps(args.video)
@@ -201,6 +215,8 @@ def main_extract(argv: list[str] | None = None) -> int:
             tmpdir=args.tmpdir,
             progress=not args.quiet,
             line_fit=args.line_fit,
+            extractor=extractor_cls if args.extractor != "phase" else "phase",
+            extractor_config=extractor_config,
         )
     except (ValueError, FileNotFoundError) as e:
         from . import explain

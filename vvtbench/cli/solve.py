@@ -25,12 +25,29 @@ def main_solvers(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="vvtbench solvers", description="list inverse solvers")
     p.add_argument("-v", "--verbose", action="store_true", help="also list config options")
     args = p.parse_args(argv)
-    for name, cls in list_solvers().items():
-        print(f"{name:14s} {cls.version:8s} {cls.description}")
-        if args.verbose:
-            for key, default, help_ in describe_config(cls.Config):
-                print(f"    {key:14s} = {default:10s} {help_}")
+    _list(list_solvers(), args.verbose)
     return 0
+
+
+def main_extractors(argv: list[str] | None = None) -> int:
+    """``vvtbench extractors [-v]``: list registered motion extractors (options under -v)."""
+    from ..extractors import list_extractors
+
+    p = argparse.ArgumentParser(prog="vvtbench extractors",
+                                description="list motion extractors (for `extract --extractor` "
+                                "and a suite's 'extracted:NAME' observations)")
+    p.add_argument("-v", "--verbose", action="store_true", help="also list config options")
+    args = p.parse_args(argv)
+    _list(list_extractors(), args.verbose)
+    return 0
+
+
+def _list(classes: dict, verbose: bool) -> None:
+    for name, cls in classes.items():
+        print(f"{name:14s} {cls.version:8s} {cls.description}")
+        if verbose:
+            for key, default, help_ in describe_config(cls.Config):
+                print(f"    {key:18s} = {default:10s} {help_}")
 
 
 def build_solve_parser() -> argparse.ArgumentParser:

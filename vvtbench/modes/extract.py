@@ -14,7 +14,7 @@ import logging
 import math
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -596,8 +596,8 @@ def extract_modes(
         Motion extractor plug-in (:mod:`vvtbench.extractors`): a registered name
         (``"phase"``, ``"farneback"``, ...), ``module:Class`` / ``path.py:Class``, a class or an
         instance.  ``n_scales``, ``n_orientations``, ``sigma``, ``outlier_fraction`` and
-        ``workers`` configure the default phase-based extractor when ``extractor_config`` is
-        not given.
+        ``workers`` configure the phase-based extractor unless ``extractor_config`` (a
+        dataclass, or a mapping whose keys win) sets them.
     extractor_config : dataclass instance or mapping, optional
         The extractor's ``Config`` (or overrides of its defaults).
     line_fit : bool, default False
@@ -642,13 +642,15 @@ def extract_modes(
         raise ValueError("the video has no frames") from None
     from ..extractors import make_extractor
 
-    if extractor_config is None and extractor == "phase":
+    if extractor == "phase" and (extractor_config is None or isinstance(extractor_config,
+                                                                       Mapping)):
         extractor_config = {
             "n_scales": n_scales,
             "n_orientations": n_orientations,
             "sigma": sigma,
             "outlier_fraction": outlier_fraction,
             "workers": workers,
+            **(extractor_config or {}),
         }
     ext = make_extractor(extractor, extractor_config)
     pm = ext.prepare(ref)

@@ -43,13 +43,16 @@ __all__ = ["FarnebackExtractor", "FarnebackMotion", "PhaseExtractor"]
 @dataclass
 class PhaseConfig:
     n_scales: int = field(default=3, metadata={"help": "pyramid scales"})
-    n_orientations: int = field(default=4, metadata={"help": "pyramid orientations (>= 2)"})
+    n_orientations: int = field(default=4, metadata={"help": "pyramid orientations (>= 2)",
+                                                     "ge": 2})
     sigma: float = field(default=2.0, metadata={
-        "help": "Gaussian smoothing of the phase normal equations (px); >= 1.5 decimates"})
+        "ge": 0, "help": "Gaussian smoothing of the phase normal equations (px); >= 1.5 decimates"})
     outlier_fraction: float = field(default=0.01, metadata={
+        "ge": 0, "lt": 1,
         "help": "fraction of largest per-frame displacements discarded before smoothing"})
     workers: int | None = field(default=None, metadata={"help": "threads (-1 = all CPUs)"})
     frequency: str = field(default="local", metadata={
+        "choices": ("local", "centre", "midpoint"),
         "help": "phase-to-pixels frequency: 'local' (reference), 'centre' (band centre) or "
                 "'midpoint' (mean of reference and current frame; second-order accurate)"})
 
@@ -100,13 +103,14 @@ class _PhaseStream:
 
 @dataclass
 class FarnebackConfig:
-    pyr_scale: float = field(default=0.5, metadata={"help": "pyramid scale between levels"})
-    levels: int = field(default=3, metadata={"help": "pyramid levels"})
-    winsize: int = field(default=15, metadata={"help": "averaging window (px)"})
-    iterations: int = field(default=3, metadata={"help": "iterations per level"})
+    pyr_scale: float = field(default=0.5, metadata={"help": "pyramid scale between levels",
+                                                    "gt": 0, "lt": 1})
+    levels: int = field(default=3, metadata={"help": "pyramid levels", "ge": 0})
+    winsize: int = field(default=15, metadata={"help": "averaging window (px)", "ge": 1})
+    iterations: int = field(default=3, metadata={"help": "iterations per level", "ge": 1})
     poly_n: int = field(default=5, metadata={"help": "neighbourhood of the polynomial fit (5/7)"})
     poly_sigma: float = field(default=1.1, metadata={
-        "help": "Gaussian sigma of the polynomial fit (1.1 for poly_n 5, 1.5 for 7)"})
+        "gt": 0, "help": "Gaussian sigma of the polynomial fit (1.1 for poly_n 5, 1.5 for 7)"})
     gaussian: bool = field(default=True, metadata={
         "help": "Gaussian instead of box window (OPTFLOW_FARNEBACK_GAUSSIAN)"})
 
