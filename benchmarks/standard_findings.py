@@ -10,7 +10,8 @@ Prints, per track (instances of the families' test split):
    best ranked solver against the oracle (mean difference [CI], win rate);
 3. the instances where the reference (oracle) is below a ranked solver in NC w, with both values;
 4. extraction on the video tracks: precision, recall over the detectable modes, recall over
-   all modes in band (mean [CI] over the instances);
+   all modes in band (mean [CI] over the instances); with several extractors, their ranking
+   (the leaderboard's) and each solver's paired NC w between them on the same videos;
 5. calibration: the 95 % interval coverage of the solvers that state standard deviations;
 6. runtimes: median and maximum per solver, and the run's wall time from run.json.
 
@@ -98,7 +99,7 @@ def main() -> None:
                 for scene in below:
                     print(f"  {r} below {who[scene]} on {scene}: NC w {w.loc[scene, r]:.3f} vs "
                           f"{others[scene]:.3f}")
-            if obs == "extracted" and "extraction_recall" in ok:
+            if obs.startswith("extracted") and "extraction_recall" in ok:
                 cols = [c for c in ("extraction_precision", "extraction_recall",
                                     "extraction_recall_all") if c in ok]
                 e = ok.groupby("scene")[cols].first()
@@ -113,6 +114,31 @@ def main() -> None:
             rt = ok.groupby("solver").runtime_s.agg(["median", "max"])
             print("  runtime s (median / max): " + ", ".join(
                 f"{k} {r['median']:.1f} / {r['max']:.1f}" for k, r in rt.iterrows()))
+        _extractors(d)
+
+
+def _extractors(d) -> None:
+    """Tracks with several extracted sources: the extractor ranking (the leaderboard's) and,
+    per solver, the paired NC w of each source against the default one on the same videos."""
+    from vvtbench.leaderboard import extractor_ranking
+
+    ranked = extractor_ranking(d, d.track.iloc[0])
+    if ranked is None:
+        return
+    print(f"\n== {d.track.iloc[0]}: extractors ranked on the same videos")
+    for row in ranked.to_dict("records"):
+        print("  " + "; ".join(f"{k} {v}" for k, v in row.items()))
+    ok = d[d.status == "ok"]
+    for solver in sorted(set(ok.solver)):
+        s = ok[ok.solver == solver].pivot_table(index="scene", columns="observation",
+                                                 values="nc_w", aggfunc="first")
+        for other in [c for c in s.columns if c != "extracted"]:
+            if "extracted" in s:
+                p = paired_comparison(s["extracted"], s[other])
+                ci = (f" [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}]"
+                      if np.isfinite(p["ci_low"]) else " (no interval)")
+                print(f"  {solver}: paired NC w extracted - {other}: {p['mean_diff']:+.3f}{ci}"
+                      f" ({p['n']} videos)")
 
 
 if __name__ == "__main__":

@@ -608,20 +608,15 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
             "ranking": [rec for t in ranked for rec in t.to_dict("records")],
             "paired": {m: paired[m][paired[m].track == track].to_dict("records")
                        for m in paired}})
-        ranked_ext = extractor_ranking(df, track)
-        if ranked_ext is not None:
-            md.append(f"### {track} — extractors ranked on the same videos\n\n"
-                      + _md_frame(ranked_ext) + "\n")
-            body.append(f"<h3>{html.escape(track)} — extractors ranked on the same videos</h3>"
-                        + ranked_ext.to_html(index=False, float_format=lambda x: f"{x:.3f}",
-                                             na_rep="–", border=0))
-        ext = extraction_table(df, track)
-        if ext is not None:
-            md.append(f"### {track} — extraction (detected modes against the true ones)\n\n"
-                      + _md_frame(ext) + "\n")
-            body.append(f"<h3>{html.escape(track)} — extraction</h3>"
-                        + ext.to_html(index=False, float_format=lambda x: f"{x:.3f}",
-                                      na_rep="–", border=0))
+        for title, frame in (
+                ("extractors ranked on the same videos", extractor_ranking(df, track)),
+                ("extraction (detected modes against the true ones)",
+                 extraction_table(df, track))):
+            if frame is not None:
+                md.append(f"### {track} — {title}\n\n" + _md_frame(frame) + "\n")
+                body.append(f"<h3>{html.escape(track)} — {html.escape(title)}</h3>"
+                            + frame.to_html(index=False, float_format=lambda x: f"{x:.3f}",
+                                            na_rep="–", border=0))
         for caption, rel in figs[track]:
             md.append(f"**{track}: {caption}**\n\n![{track}: {caption}]({rel})\n")
             body.append(f"<figure><figcaption>{html.escape(track)}: {html.escape(caption)}"
