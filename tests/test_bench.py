@@ -337,8 +337,9 @@ def test_extractors_are_ranked_on_the_same_videos(micro, tmp_path):
     assert df.extraction_recall.between(0, 1).all() and df.extraction_recall.notna().all()
     ranked = extractor_ranking(df, "main")
     assert set(ranked.observation) == {"extracted", "extracted:farneback"}
-    assert ranked.videos.tolist() == [1, 1] and list(ranked.columns)[:3] == [
-        "observation", "videos", "F1"]
+    assert ranked.videos.tolist() == [1, 1] and list(ranked.columns)[:4] == [
+        "observation", "extractor", "videos", "F1"]
+    assert set(ranked.extractor) == {"phase (default)", "farneback"}
     table = extraction_table(df, "main")
     assert table.observation.tolist() == ["extracted", "extracted:farneback"]
     lb = build(out / "results.parquet", tmp_path / "lb")

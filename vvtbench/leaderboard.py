@@ -769,10 +769,10 @@ def f1_score(precision, recall):
 
 def extractor_ranking(df, track: str):
     """Extractors of ``track`` ranked on the same videos (None with fewer than two extracted
-    sources): per source the number of videos, the mean F1 of detection (harmonic mean of
-    precision and recall over the detectable modes) and its difference from the best source
-    on the videos both scored (paired, bootstrap interval), then the mean of each extraction
-    metric; sorted by mean F1."""
+    sources): per source its extractor, the number of videos, the mean F1 of detection
+    (harmonic mean of precision and recall over the detectable modes) and its difference from
+    the best source on the videos both scored (paired, bootstrap interval), then the mean of
+    each extraction metric; sorted by mean F1."""
     got = _extractions(df, track)
     if got is None:
         return None
@@ -780,6 +780,7 @@ def extractor_ranking(df, track: str):
     sources = list(dict.fromkeys(t.observation))
     if len(sources) < 2:
         return None
+    from .bench.suite import observation_extractor
     from .stats import paired_comparison, summarize
 
     t = t.assign(f1=f1_score(t.extraction_precision, t.extraction_recall))
@@ -789,7 +790,9 @@ def extractor_ranking(df, track: str):
     rows = []
     for src in order:
         ts = t[t.observation == src]
-        row = {"observation": src, "videos": len(ts), "F1": _mean_cell(ts.f1)}
+        row = {"observation": src,
+               "extractor": observation_extractor(src) or "phase (default)",
+               "videos": len(ts), "F1": _mean_cell(ts.f1)}
         if src == best:
             row[f"ΔF1 vs {best}"] = "–"
         else:

@@ -539,10 +539,19 @@ def _legend_outside(fig, axes) -> None:
             if lab not in handles:
                 handles[lab] = h
                 labels.append(lab)
-    fig.tight_layout(rect=(0, 0, 0.78, 0.95))
+    width, height = fig.get_size_inches()
+    axes_width = 0.78 * width
+    # the legend's own width (7 pt text, about 0.055 in a character, plus the line sample), so
+    # long labels ("sensitivity, extracted:farneback modes (n=16)") are never cut at the edge
+    legend_width = 0.055 * max((len(k) for k in labels), default=0) + 0.6
+    if axes_width + legend_width > width:
+        width = axes_width + legend_width
+        fig.set_size_inches(width, height)
+    right = axes_width / width
+    fig.tight_layout(rect=(0, 0, right, 0.95))
     if labels:
         fig.legend([handles[k] for k in labels], labels, loc="center left",
-                   bbox_to_anchor=(0.79, 0.5), fontsize=7, frameon=False)
+                   bbox_to_anchor=(right + 0.01, 0.5), fontsize=7, frameon=False)
 
 
 def plot_intrinsic_resolution(path: str | Path, curves: Mapping[tuple[str, str], dict],
