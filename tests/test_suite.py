@@ -76,16 +76,18 @@ def test_extracted_observations_name_an_extractor_checked_at_load(tmp_path):
     assert suite.tracks[0].observations == ["extracted", "extracted:farneback"]
     fb = suite.extractors["farneback"]
     assert fb["name"] == "farneback" and fb["config"] == {"winsize": 9} and fb["version"]
-    msg = error_of('observations = ["extracted:no_such_flow"]')
-    assert "key 'observations[0]'" in msg and "farneback" in msg and "phase" in msg
-    msg = error_of('observations = ["extracted:"]')
-    assert "key 'observations[0]'" in msg and "'extracted:EXTRACTOR'" in msg
-    msg = error_of("[extract.extractor.farneback]\nwinsiz = 9\n")
-    assert "key 'extract.extractor.farneback'" in msg and "winsize" in msg
-    msg = error_of("[extract.extractor.farneback]\nwinsize = 'big'\n")
-    assert "key 'extract.extractor.farneback'" in msg
-    msg = error_of("[extract.extractor.no_such_flow]\nx = 1\n")
-    assert "key 'extract.extractor.no_such_flow'" in msg
+    for text, key, words in (
+            ('observations = ["extracted:no_such_flow"]', "observations[0]",
+             ("farneback", "phase")),
+            ('observations = ["extracted:"]', "observations[0]", ("'extracted:EXTRACTOR'",)),
+            ("[extract.extractor.farneback]\nwinsiz = 9\n", "extract.extractor.farneback",
+             ("winsize",)),
+            ("[extract.extractor.farneback]\nwinsize = 'big'\n", "extract.extractor.farneback",
+             ("int",)),
+            ("[extract.extractor.no_such_flow]\nx = 1\n", "extract.extractor.no_such_flow",
+             ("farneback",))):
+        msg = error_of(text)
+        assert f"key '{key}'" in msg and all(w in msg for w in words), msg
     plugin = tmp_path / "flow.py"  # a file extractor, named relative to the suite file
     plugin.write_text("from vvtbench.motion.extractors import FarnebackExtractor\n\n\n"
                       "class Flow(FarnebackExtractor):\n    name = 'flow'\n")
