@@ -209,3 +209,12 @@ def test_flanks_and_sidelobes_are_no_modes(zeta: float) -> None:
         d, fps = _two_modes(f1, 30.0, 0.0, zeta=zeta, seed=k)
         ms = modes_from_displacements(d, fps)
         assert len(ms) == 1, (f1, ms.frequencies_hz, ms.metadata["shoulders"])
+
+
+def test_doctests():
+    import doctest
+
+    from vvtbench import extraction_scores
+
+    result = doctest.testmod(extraction_scores)
+    assert result.attempted > 0 and result.failed == 0

@@ -129,3 +129,12 @@ def test_family_tracks_draw_their_instances(tmp_path):
     bad["tracks"][0] = {"name": "t", "family": "no_such_family", "count": 2}
     with pytest.raises(SuiteError, match="family"):
         parse_suite(bad, "x.toml")
+
+
+def test_doctests():
+    import doctest
+
+    from vvtbench.bench import suite
+
+    result = doctest.testmod(suite)
+    assert result.attempted > 0 and result.failed == 0

@@ -24,6 +24,7 @@ from scipy.optimize import linear_sum_assignment
 __all__ = [
     "DEFAULT_FLOOR_PX",
     "clusters_by_resolution",
+    "f1_score",
     "score_extraction",
     "score_sample_extraction",
     "subspace_mac",
@@ -278,9 +279,7 @@ def score_extraction(
     } for j, c in enumerate(clusters) if j not in matched_clusters]
     recall_modes = (sum(len(clusters[j]) for j in matched_clusters) / band.size
                     if band.size else float("nan"))
-    f1 = (2 * precision * recall / (precision + recall)
-          if np.isfinite(precision) and np.isfinite(recall) and precision + recall > 0
-          else (0.0 if np.isfinite(precision) and np.isfinite(recall) else float("nan")))
+    f1 = float(f1_score(precision, recall))
     damp_abs, damp_rel = [], []
     for m in matching:
         if m["true_damping"] > 0 and math.isfinite(m["damping"]):
@@ -313,6 +312,20 @@ def score_extraction(
         "unmatched": unmatched,
         "missed": missed,
     }
+
+
+def f1_score(precision: ArrayLike, recall: ArrayLike) -> NDArray[np.float64]:
+    """Harmonic mean ``2PR / (P + R)`` of detection precision and recall, per video: 0 when
+    nothing true was found (recall 0, with or without detections), NaN where recall is
+    undefined (no detectable mode) or precision is undefined and recall is not 0.
+
+    >>> f1_score([1.0, 0.5, np.nan, 1.0], [0.5, 0.0, 0.0, np.nan])
+    array([0.66666667, 0.        , 0.        ,        nan])
+    """
+    p, r = np.asarray(precision, dtype=float), np.asarray(recall, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = 2 * p * r / (p + r)
+    return np.where(r == 0, 0.0, f)
 
 
 def _modal_coordinates_fit(surface_modes: NDArray[np.float64]) -> NDArray[np.float64]:

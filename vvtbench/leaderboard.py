@@ -754,19 +754,6 @@ def extraction_table(df, track: str):
     return t.rename(columns=_EXTRACTION_NAMES)
 
 
-def f1_score(precision, recall):
-    """Harmonic mean of precision and recall per video: 0 when nothing true was found, NaN
-    where precision is undefined (no detections) and recall is not 0.
-
-    >>> f1_score(np.array([1.0, 0.5, np.nan]), np.array([0.5, 0.0, 0.0]))
-    array([0.66666667, 0.        , 0.        ])
-    """
-    p, r = np.asarray(precision, dtype=float), np.asarray(recall, dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f = 2 * p * r / (p + r)
-    return np.where(r == 0, 0.0, f)
-
-
 def extractor_ranking(df, track: str):
     """Extractors of ``track`` ranked on the same videos (None with fewer than two extracted
     sources): per source its extractor, the number of videos, the mean F1 of detection
@@ -781,6 +768,7 @@ def extractor_ranking(df, track: str):
     if len(sources) < 2:
         return None
     from .bench.suite import observation_extractor
+    from .extraction_scores import f1_score
     from .stats import paired_comparison, summarize
 
     t = t.assign(f1=f1_score(t.extraction_precision, t.extraction_recall))
@@ -814,6 +802,6 @@ def _with_row(t, row: dict):
     return pd.concat([t.astype(object), pd.DataFrame([row])], ignore_index=True)
 
 
-__all__ = ["LeaderboardError", "build", "extraction_table", "extractor_ranking", "f1_score",
+__all__ = ["LeaderboardError", "build", "extraction_table", "extractor_ranking",
            "prepare_output", "ranking",
            "summary"]
