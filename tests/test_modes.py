@@ -606,6 +606,23 @@ def test_hann_window_and_distortion_rejection_in_mode_identification() -> None:
     assert not np.any(np.abs(rect.frequencies_hz - 31.0) < 1.0)
 
 
+def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) -> None:
+    import vvtbench.modes.extract as ex
+
+    seen = {}
+    real = ex.modes_from_displacements
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ex, "modes_from_displacements", spy)
+    frames = np.random.default_rng(0).random((32, 32, 32)).astype(np.float32)
+    np.save(tmp_path / "v.npy", frames)
+    extract_modes(tmp_path / "v.npy", 64.0, product_roughness=0.08)
+    assert seen["product_roughness"] == 0.08
+
+
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:
     n = 48
     smooth = pattern(n, "a")

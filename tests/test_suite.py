@@ -54,6 +54,7 @@ def test_numbers_are_finite_and_in_range():
     msg = error_of("[[variations]]\ngeometry_scale = [1.0, -1.0, 1.0]\n")
     assert "key 'variations[0].geometry_scale[1]'" in msg
     assert "key 'extract.shake_threshold'" in error_of("[extract]\nshake_threshold = 1.5\n")
+    assert "key 'extract.product_roughness'" in error_of("[extract]\nproduct_roughness = -0.1\n")
     assert "key 'sweep.n_modes'" in error_of("[sweep]\nn_modes = []\n")
 
 

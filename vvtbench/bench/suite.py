@@ -92,6 +92,8 @@ class ExtractOptions(_Strict):
         None, description="'mean', 'linear' or 'none'")
     shake_threshold: Fraction | None = Field(None, description="a MAC in [0, 1]")
     line_fit: bool | None = Field(None, description="true or false")
+    product_roughness: Fraction | None = Field(
+        None, description="a roughness in [0, 1] (distortion products above it are rejected)")
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")

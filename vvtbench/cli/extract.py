@@ -157,6 +157,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
         action="store_true",
         help="keep peaks that are harmonics / intermodulation products of stronger ones",
     )
+    ap.add_argument("--product-roughness", type=bounded(float, ge=0, le=1), default=0.15,
+                    help="a distortion product (f_i +- f_j, 2 f_i of stronger peaks) rougher "
+                    "than this is rejected (default 0.15; docs/modes.md)")
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
@@ -215,6 +218,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             tmpdir=args.tmpdir,
             progress=not args.quiet,
             line_fit=args.line_fit,
+            product_roughness=args.product_roughness,
             extractor=extractor_cls if args.extractor != "phase" else "phase",
             extractor_config=extractor_config,
         )

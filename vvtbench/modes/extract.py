@@ -544,6 +544,7 @@ def extract_modes(
     shake_threshold: float = 0.9,
     keep_camera_shake: bool = False,
     reject_distortion: bool = True,
+    product_roughness: float = 0.15,
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -583,7 +584,7 @@ def extract_modes(
         (:func:`noise_weights` of :func:`spectrum.pixel_noise_power`: one more pass over the
         displacements; opt-in) for the spectrum the peaks are picked from, the confidence
         weights for the shapes and the tests.
-    detrend, window, shake_threshold, keep_camera_shake, reject_distortion :
+    detrend, window, shake_threshold, keep_camera_shake, reject_distortion, product_roughness :
         See :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
@@ -698,6 +699,7 @@ def extract_modes(
             shake_threshold=shake_threshold,
             keep_camera_shake=keep_camera_shake,
             reject_distortion=reject_distortion,
+            product_roughness=product_roughness,
             confidence=pm.confidence,
             metadata=meta,
             output_shape=tuple(pm.shape),

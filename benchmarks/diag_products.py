@@ -1,0 +1,68 @@
+"""Which false detections are distortion products, and how rough they are (issue 17).
+
+    .venv/bin/python benchmarks/diag_products.py SAMPLE [SAMPLE ...]
+
+For each generated sample (a folder with video and truth, e.g. a `standard_val` run's
+``cache/generate/<key>/sample``): ``extract_modes(max_modes=30, fmax=200,
+reject_distortion=False)``, detections scored against the true modes
+(:func:`vvtbench.extraction_scores.score_sample_extraction`), and every detection tested as a
+second-order product of stronger ones (:func:`vvtbench.modes.peaks.distortion_products`, power
+ratio 0.5, half a bin). Prints one JSON line per detection (frequency, false or true, product
+kind and parents, power ratio, roughness), then how many false and true detections each
+product-roughness threshold would reject.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from vvtbench.dataset import open_sample
+from vvtbench.extraction_scores import score_sample_extraction
+from vvtbench.modes import extract_modes
+from vvtbench.modes.peaks import distortion_products
+
+THRESHOLDS = (0.15, 0.12, 0.10, 0.08, 0.05)
+
+
+def detections(sample_dir: str) -> list[dict]:
+    s = open_sample(sample_dir)
+    ms = extract_modes(s.video_path, s.fps, max_modes=30, fmax=200.0, reject_distortion=False)
+    false = {i for _, i, _ in score_sample_extraction(s, ms, 200.0)["unmatched"]}
+    f = ms.frequencies_hz
+    p = np.asarray(ms.power)[ms.peak_bins]
+    rough = ms.metadata["roughness"]
+    flagged = {d["index"]: d for d in distortion_products(f, p, ms.fps / ms.n_frames,
+                                                          power_ratio=0.5)}
+    out = []
+    for k in range(len(ms)):
+        d = flagged.get(k)
+        out.append({"sample": sample_dir, "frequency_hz": float(f[k]), "false": k in false,
+                    "product": None if d is None else d["kind"],
+                    "parents_hz": None if d is None else [float(f[i]) for i in d["parents"]],
+                    "power_ratio": None if d is None else float(
+                        p[k] / min(p[i] for i in d["parents"])),
+                    "roughness": float(rough[k]) if len(rough) == len(ms) else None})
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("samples", nargs="+")
+    rows = [r for s in ap.parse_args().samples for r in detections(s)]
+    for r in rows:
+        print(json.dumps(r))
+    products = [r for r in rows if r["product"] and r["roughness"] is not None]
+    print(f"{len(rows)} detections, {sum(r['false'] for r in rows)} false, "
+          f"{sum(r['false'] for r in products)} of them products")
+    print("| product roughness threshold | false products rejected | true modes rejected |")
+    print("|---|---|---|")
+    for t in THRESHOLDS:
+        print(f"| {t:.2f} | {sum(r['false'] and r['roughness'] > t for r in products)} | "
+              f"{sum(not r['false'] and r['roughness'] > t for r in products)} |")
+
+
+if __name__ == "__main__":
+    main()
