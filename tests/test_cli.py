@@ -307,7 +307,10 @@ def test_solvers_and_extractors_are_listed(capsys):
 def test_extract_names_a_missing_extractor_or_option_in_one_line(sample, capsys, tmp_path):
     for option, word in ((["--extractor", "nope"], "farneback"),
                          (["--extractor", "farneback", "--set", "winsz=3"], "winsize"),
-                         (["--set", "frequency=fast"], "midpoint")):
+                         (["--set", "frequency=fast"], "midpoint"),
+                         (["--extractor", "farneback", "--set", "poly_n=-3"], "poly_n"),
+                         (["--extractor", "farneback", "--set", "winsize=99999999999999"],
+                          "winsize")):
         assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), *option]) == 2
         assert word in _one_error_line(capsys)
         assert not (tmp_path / "o").exists()

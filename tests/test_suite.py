@@ -62,6 +62,11 @@ def test_bad_observation_and_scene_names():
     msg = error_of('observations = ["true", "video"]')
     assert "key 'observations[1]'" in msg and "'extracted'" in msg
     assert "key 'observations'" in error_of("observations = []")
+    msg = error_of('observations = ["true", "extracted:farneback", "extracted:farneback"]')
+    assert "key 'observations'" in msg and "duplicate" in msg
+    msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\nobservations = ['true', "
+                   "'true']\n")
+    assert "key 'tracks[0].observations'" in msg
     msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\nobservations = ['x']\n")
     assert "key 'tracks[0].observations[0]'" in msg
     msg = error_of("[[tracks]]\nscenes = ['no_such_scene']\n")

@@ -483,6 +483,11 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
             raise SuiteError(f"{source}: key '{_join(path, 'scenes')}': track {tname!r} has no "
                              f"scenes (allowed: {_SCENES})")
         obs = t.get("observations", observations)
+        if len(set(obs)) != len(obs):
+            key = _join(path, "observations") if "observations" in t else "observations"
+            raise SuiteError(f"{source}: key '{key}': duplicate observation sources "
+                             f"{sorted({o for o in obs if obs.count(o) > 1})} (allowed: "
+                             "distinct sources)")
         for j, o in enumerate(obs):
             name = observation_extractor(o)
             if name is not None and name not in extractors:

@@ -105,10 +105,13 @@ class _PhaseStream:
 class FarnebackConfig:
     pyr_scale: float = field(default=0.5, metadata={"help": "pyramid scale between levels",
                                                     "gt": 0, "lt": 1})
-    levels: int = field(default=3, metadata={"help": "pyramid levels", "ge": 0})
-    winsize: int = field(default=15, metadata={"help": "averaging window (px)", "ge": 1})
-    iterations: int = field(default=3, metadata={"help": "iterations per level", "ge": 1})
-    poly_n: int = field(default=5, metadata={"help": "neighbourhood of the polynomial fit (5/7)"})
+    levels: int = field(default=3, metadata={"help": "pyramid levels", "ge": 0, "le": 32})
+    winsize: int = field(default=15, metadata={"help": "averaging window (px)", "ge": 1,
+                                               "le": 100_000})
+    iterations: int = field(default=3, metadata={"help": "iterations per level", "ge": 1,
+                                                 "le": 10_000})
+    poly_n: int = field(default=5, metadata={"help": "neighbourhood of the polynomial fit (5/7)",
+                                             "ge": 3, "le": 15})
     poly_sigma: float = field(default=1.1, metadata={
         "gt": 0, "help": "Gaussian sigma of the polynomial fit (1.1 for poly_n 5, 1.5 for 7)"})
     gaussian: bool = field(default=True, metadata={
