@@ -769,11 +769,11 @@ def extractor_ranking(df, track: str):
         return None
     from .bench.suite import observation_extractor
     from .extraction_scores import f1_score
-    from .stats import paired_comparison, summarize
+    from .stats import paired_comparison
 
     t = t.assign(f1=f1_score(t.extraction_precision, t.extraction_recall))
     per = {s: t[t.observation == s].set_index(["scene", "variation"]).f1 for s in sources}
-    order = sorted(sources, key=lambda s: -np.nan_to_num(summarize(per[s])["mean"], nan=-1))
+    order = sorted(sources, key=lambda s: -np.nan_to_num(np.nanmean(per[s]), nan=-1))
     best = order[0]
     rows = []
     for src in order:

@@ -182,11 +182,11 @@ def main_extract(argv: list[str] | None = None) -> int:
     from ..extractors import load_extractor
     from ..plugins import parse_overrides
 
-    extractor_cls = load_extractor(args.extractor)
-    extractor_config = parse_overrides(args.extractor_set, extractor_cls.Config)
-    overrides = {item.partition("=")[0].strip() for item in args.extractor_set}
-    if args.extractor == "phase":  # --scales, --sigma ... configure phase unless --set does
-        extractor_config = {k: getattr(extractor_config, k) for k in overrides}
+    # checked before any frame is read; passed on as overrides, so that for phase --scales,
+    # --sigma ... still apply where --set is silent
+    checked = parse_overrides(args.extractor_set, load_extractor(args.extractor).Config)
+    extractor_config = {key: getattr(checked, key) for key in
+                        (item.partition("=")[0].strip() for item in args.extractor_set)}
     _check_output(args.out, args.video)
     src = _resolve_source(args.video)
     fps = args.fps if args.fps is not None else _sample_fps(args.video)
@@ -219,7 +219,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             progress=not args.quiet,
             line_fit=args.line_fit,
             product_roughness=args.product_roughness,
-            extractor=extractor_cls if args.extractor != "phase" else "phase",
+            extractor=args.extractor,
             extractor_config=extractor_config,
         )
     except (ValueError, FileNotFoundError) as e:
