@@ -115,7 +115,8 @@ def test_solve_options_are_checked_before_work(option, capsys, tmp_path, monkeyp
 @pytest.mark.parametrize("option", [["--fps", "0"], ["--fmin", "50", "--fmax", "10"],
                                     ["--max-modes", "0"], ["--workers", "0"],
                                     ["--average", "0"], ["--sigma", "nan"],
-                                    ["--product-roughness", "2"]])
+                                    ["--product-roughness", "2"],
+                                    ["--faint-product-ratio", "-0.1"]])
 def test_extract_options(option, sample, capsys, tmp_path):
     assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), *option]) == 2
     _one_error_line(capsys)

@@ -215,6 +215,8 @@ def test_doctests():
     import doctest
 
     from vvtbench import extraction_scores
+    from vvtbench.modes import peaks
 
-    result = doctest.testmod(extraction_scores)
-    assert result.attempted > 0 and result.failed == 0
+    for module in (extraction_scores, peaks):
+        result = doctest.testmod(module)
+        assert result.attempted > 0 and result.failed == 0, module.__name__

@@ -606,6 +606,31 @@ def test_hann_window_and_distortion_rejection_in_mode_identification() -> None:
     assert not np.any(np.abs(rect.frequencies_hz - 31.0) < 1.0)
 
 
+def test_faint_smooth_product_rejected_by_power_ratio_true_mode_kept() -> None:
+    """A smooth product (a small object: as smooth as the modes) passes the roughness test;
+    with ``faint_product_ratio`` it is rejected for being far fainter than its parents, while
+    a true mode at another product frequency, 1/30 of its parent's power, is kept."""
+    fps, T, n = 200.0, 400, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    pc = pb[..., ::-1]
+    d = 0.3 * np.cos(2 * np.pi * 10.25 * t) * pa + 0.2 * np.cos(2 * np.pi * 17.5 * t) * pb
+    d = d + 1e-3 * np.cos(2 * np.pi * 27.75 * t) * pc  # smooth, P ratio ~ 2.5e-5: a product
+    d = d + 0.04 * np.cos(2 * np.pi * 7.25 * t) * pc  # 17.5 - 10.25, P ratio ~ 0.04: a mode
+    kept = modes_from_displacements(d, fps)
+    assert np.sort(kept.frequencies_hz) == pytest.approx([7.25, 10.25, 17.5, 27.75], abs=0.05)
+    ms = modes_from_displacements(d, fps, faint_product_ratio=0.01)
+    assert np.sort(ms.frequencies_hz) == pytest.approx([7.25, 10.25, 17.5], abs=0.05)
+    (rej,) = ms.metadata["rejected"]
+    assert rej["reason"] == "distortion" and rej["kind"] == "sum"
+    assert rej["parents_hz"] == pytest.approx([10.25, 17.5], abs=0.01)
+    assert rej["power_ratio"] < 1e-3 and rej["roughness"] < 0.15
+    assert ms.metadata["faint_product_ratio"] == 0.01
+    assert len(modes_from_displacements(d, fps, faint_product_ratio=0.0)) == 4
+    with pytest.raises(ValueError, match="faint_product_ratio"):
+        modes_from_displacements(d, fps, faint_product_ratio=2.0)
+
+
 def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) -> None:
     import vvtbench.modes.extract as ex
 
@@ -619,8 +644,8 @@ def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) ->
     monkeypatch.setattr(ex, "modes_from_displacements", spy)
     frames = np.random.default_rng(0).random((32, 32, 32)).astype(np.float32)
     np.save(tmp_path / "v.npy", frames)
-    extract_modes(tmp_path / "v.npy", 64.0, product_roughness=0.08)
-    assert seen["product_roughness"] == 0.08
+    extract_modes(tmp_path / "v.npy", 64.0, product_roughness=0.08, faint_product_ratio=0.02)
+    assert seen["product_roughness"] == 0.08 and seen["faint_product_ratio"] == 0.02
 
 
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:

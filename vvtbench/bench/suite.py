@@ -94,6 +94,9 @@ class ExtractOptions(_Strict):
     line_fit: bool | None = Field(None, description="true or false")
     product_roughness: Fraction | None = Field(
         None, description="a roughness in [0, 1] (distortion products above it are rejected)")
+    faint_product_ratio: Fraction | None = Field(
+        None, description="a power ratio in [0, 1] (fainter distortion products are rejected "
+        "whatever their roughness; 0: off)")
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")

@@ -160,6 +160,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--product-roughness", type=bounded(float, ge=0, le=1), default=0.15,
                     help="a distortion product (f_i +- f_j, 2 f_i of stronger peaks) rougher "
                     "than this is rejected (default 0.15; docs/modes.md)")
+    ap.add_argument("--faint-product-ratio", type=bounded(float, ge=0, le=1), default=None,
+                    help="a distortion product with less than this fraction of its weaker "
+                    "parent's power is rejected whatever its roughness (0: off; docs/modes.md)")
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
@@ -219,6 +222,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             progress=not args.quiet,
             line_fit=args.line_fit,
             product_roughness=args.product_roughness,
+            faint_product_ratio=args.faint_product_ratio,
             extractor=args.extractor,
             extractor_config=extractor_config,
         )

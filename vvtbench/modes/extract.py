@@ -109,6 +109,7 @@ def modes_from_displacements(
     reject_distortion: bool = True,
     max_roughness: float = 0.3,
     product_roughness: float = 0.15,
+    faint_product_ratio: float | None = None,
     rough_sigma_px: float = 2.0,
     block_bytes: int = 64 << 20,
     confidence: ArrayLike | None = None,
@@ -168,6 +169,11 @@ def modes_from_displacements(
         ``metadata["rejected"]``.
     max_roughness, product_roughness, rough_sigma_px : float
         See ``reject_distortion``.
+    faint_product_ratio : float or None, default None
+        With ``reject_distortion``: a product of two stronger peaks with less than this
+        fraction of the weaker parent's power is rejected as ``"distortion"`` whatever its
+        roughness (products of a small object or a noisy video are smooth; a true mode at a
+        product frequency is rarely that faint).  ``None`` or 0 turns it off.
     block_bytes : int
         Working memory per pixel block of the FFT.
     confidence : array_like, optional
@@ -222,6 +228,9 @@ def modes_from_displacements(
         raise ValueError(f"line_radius must be an integer >= 1, got {line_radius!r}")
     if added_roughness is not None and not added_roughness >= 0:  # NaN fails too
         raise ValueError(f"added_roughness must be >= 0 or None, got {added_roughness!r}")
+    if faint_product_ratio is not None and not 0 <= faint_product_ratio <= 1:
+        raise ValueError(f"faint_product_ratio must be in [0, 1] or None, "
+                         f"got {faint_product_ratio!r}")
     freqs, power = motion_power_spectrum(
         disp, fps, weights=weights if spectrum_weights is None else spectrum_weights,
         detrend=detrend, window=window, block_bytes=block_bytes
@@ -328,6 +337,7 @@ def modes_from_displacements(
         reject_distortion=reject_distortion,
         max_roughness=max_roughness,
         product_roughness=product_roughness,
+        faint_product_ratio=faint_product_ratio,
         roughness=[float(r) for r in rough],
         weighted=weights is not None,
         min_bin=int(min_bin),
@@ -368,11 +378,15 @@ def modes_from_displacements(
         f = ms.frequencies_hz
         # camera-shake peaks are no parents: their products are translations as well and
         # are caught by the shake test
+        pw = np.asarray(power, np.float64)[ms.peak_bins]
         flagged = {
             d["index"]: d
-            for d in distortion_products(
-                f, power[ms.peak_bins], float(fps) / T, power_ratio=0.5, parents=~shake
-            )
+            for d in distortion_products(f, pw, float(fps) / T, power_ratio=0.5, parents=~shake)
+        }
+        faint_flagged = {} if not faint_product_ratio else {
+            d["index"]: d
+            for d in distortion_products(f, pw, float(fps) / T, power_ratio=faint_product_ratio,
+                                         parents=~shake, inherit=True)
         }
         for k in range(len(ms)):
             if drop[k]:
@@ -383,7 +397,16 @@ def modes_from_displacements(
                 "roughness": float(rough[k]),
             }
             d = flagged.get(k)
-            if d is not None and rough[k] > product_roughness:
+            faint = faint_flagged.get(k)
+            if faint is not None:
+                i, j = faint["parents"]
+                entry.update(
+                    reason="distortion",
+                    kind=faint["kind"],
+                    parents_hz=[float(f[i]), float(f[j])],
+                    power_ratio=faint["power_ratio"],
+                )
+            elif d is not None and rough[k] > product_roughness:
                 i, j = d["parents"]
                 entry.update(
                     reason="distortion",
@@ -545,6 +568,7 @@ def extract_modes(
     keep_camera_shake: bool = False,
     reject_distortion: bool = True,
     product_roughness: float = 0.15,
+    faint_product_ratio: float | None = None,
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -584,7 +608,8 @@ def extract_modes(
         (:func:`noise_weights` of :func:`spectrum.pixel_noise_power`: one more pass over the
         displacements; opt-in) for the spectrum the peaks are picked from, the confidence
         weights for the shapes and the tests.
-    detrend, window, shake_threshold, keep_camera_shake, reject_distortion, product_roughness :
+    detrend, window, shake_threshold, keep_camera_shake, reject_distortion, product_roughness,
+    faint_product_ratio :
         See :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
@@ -700,6 +725,7 @@ def extract_modes(
             keep_camera_shake=keep_camera_shake,
             reject_distortion=reject_distortion,
             product_roughness=product_roughness,
+            faint_product_ratio=faint_product_ratio,
             confidence=pm.confidence,
             metadata=meta,
             output_shape=tuple(pm.shape),

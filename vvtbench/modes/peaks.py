@@ -238,6 +238,7 @@ def distortion_products(
     tolerance_bins: float = 0.5,
     power_ratio: float = 0.1,
     parents: ArrayLike | None = None,
+    inherit: bool = False,
 ) -> list[dict]:
     """Peaks explained as second-order distortion products of stronger peaks.
 
@@ -268,12 +269,26 @@ def distortion_products(
         A product is at most this fraction of the weaker parent's power.
     parents : array_like of bool, optional
         Which peaks may be parents (default all).
+    inherit : bool, default False
+        A flagged peak, as a parent, is compared through the weaker of its own parents'
+        reference powers instead of its power: a product of a product (``2 f_a - f_b``,
+        third order) is then measured against the peaks it comes from, of which it is a far
+        smaller fraction than of the faint product it passes through.
 
     Returns
     -------
     list of dict
         One per flagged peak: ``index``, ``parents`` ``(i, j)``, ``kind`` (``"harmonic"``,
-        ``"sum"`` or ``"difference"``), ``expected_hz``.
+        ``"sum"`` or ``"difference"``), ``expected_hz``, ``power_ratio`` (its power over
+        the parents' weaker reference power).
+
+    Examples
+    --------
+    >>> f, p = [5.0, 7.0, 10.0, 3.0], [100.0, 50.0, 0.05, 0.01]  # 10 = 2 x 5, 3 = 10 - 7
+    >>> [d["index"] for d in distortion_products(f, p, 0.1, power_ratio=0.01)]
+    [2]
+    >>> [d["index"] for d in distortion_products(f, p, 0.1, power_ratio=0.01, inherit=True)]
+    [2, 3]
     """
     f = np.asarray(frequencies, dtype=np.float64)
     p = np.asarray(powers, dtype=np.float64)
@@ -282,13 +297,14 @@ def distortion_products(
     tol = tolerance_bins * bin_hz
     ok = np.ones(f.size, bool) if parents is None else np.asarray(parents, bool)
     order = np.argsort(-p, kind="stable")
+    ref = p.copy()
     out = []
     for r, k in enumerate(order):
         best = None
         stronger = [i for i in order[:r] if ok[i]]
         for a, i in enumerate(stronger):
             for j in stronger[a:]:
-                if p[k] >= power_ratio * min(p[i], p[j]):
+                if p[k] >= power_ratio * min(ref[i], ref[j]):
                     continue
                 cands = [("harmonic" if i == j else "sum", f[i] + f[j])]
                 if i != j:
@@ -298,12 +314,16 @@ def distortion_products(
                     if err <= tol and (best is None or err < best[0]):
                         best = (err, int(i), int(j), kind, float(c))
         if best is not None:
+            base = min(ref[best[1]], ref[best[2]])
+            if inherit:
+                ref[k] = base
             out.append(
                 {
                     "index": int(k),
                     "parents": (best[1], best[2]),
                     "kind": best[3],
                     "expected_hz": best[4],
+                    "power_ratio": float(p[k] / base) if base > 0 else float("inf"),
                 }
             )
     return out
