@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import textwrap
 import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -517,7 +518,8 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
                 ax.set_xscale("log")
             ax.axhline(0, color="k", lw=0.5, alpha=0.4)
             ax.grid(alpha=0.3)
-            ax.set_title(f"{scene}: NC of {field}" if len(scenes) > 1 else f"NC of {field}",
+            sub = f"{scene}: NC of {field}".replace("+", " + ")
+            ax.set_title(textwrap.fill(sub, 50) if len(scenes) > 1 else f"NC of {field}",
                          fontsize=8)
             if i == len(scenes) - 1:
                 ax.set_xlabel(_key_label(key), fontsize=8)
