@@ -631,6 +631,28 @@ def test_faint_smooth_product_rejected_by_power_ratio_true_mode_kept() -> None:
         modes_from_displacements(d, fps, faint_product_ratio=2.0)
 
 
+def test_products_folded_by_sampling_are_recognised() -> None:
+    """A product above Nyquist appears where sampling folds it: at 200 fps the harmonic of
+    a 77.25 Hz mode (154.5 Hz) is seen at 45.5 Hz, the sum 77.25 + 52 Hz at 70.75 Hz.  Both
+    are rejected as products (rough, and faint), a true mode at 30 Hz is kept."""
+    assert distortion_products([77.25, 45.5], [1.0, 1e-4], 0.5) == []
+    (d,) = distortion_products([77.25, 45.5], [1.0, 1e-4], 0.5, fps=200.0)
+    assert d["kind"] == "harmonic" and d["expected_hz"] == pytest.approx(45.5)
+    fps, T, n = 200.0, 400, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    sign = np.where(np.random.default_rng(2).random((n, n, 1)) < 0.5, -1.0, 1.0)
+    d = 0.3 * np.cos(2 * np.pi * 77.25 * t) * pa + 0.2 * np.cos(2 * np.pi * 52.0 * t) * pb
+    d = d + 2e-3 * np.cos(2 * np.pi * 30.0 * t) * pb[..., ::-1]  # a true mode
+    d = d + 5e-4 * np.cos(2 * np.pi * 45.5 * t) * pa * sign  # 2 x 77.25 folded: rough
+    d = d + 4e-4 * np.cos(2 * np.pi * 70.75 * t) * pa[..., ::-1]  # 77.25 + 52 folded: smooth
+    ms = modes_from_displacements(d, fps, faint_product_ratio=0.01)
+    assert np.sort(ms.frequencies_hz) == pytest.approx([30.0, 52.0, 77.25], abs=0.05)
+    rejected = {round(r["frequency_hz"], 1): r for r in ms.metadata["rejected"]}
+    assert set(rejected) == {45.5, 70.8}
+    assert rejected[45.5]["kind"] == "harmonic" and rejected[70.8]["kind"] == "sum"
+
+
 def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) -> None:
     import vvtbench.modes.extract as ex
 

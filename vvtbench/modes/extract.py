@@ -381,12 +381,13 @@ def modes_from_displacements(
         pw = np.asarray(power, np.float64)[ms.peak_bins]
         flagged = {
             d["index"]: d
-            for d in distortion_products(f, pw, float(fps) / T, power_ratio=0.5, parents=~shake)
+            for d in distortion_products(f, pw, float(fps) / T, power_ratio=0.5, parents=~shake,
+                                         fps=float(fps))
         }
         faint_flagged = {} if not faint_product_ratio else {
             d["index"]: d
             for d in distortion_products(f, pw, float(fps) / T, power_ratio=faint_product_ratio,
-                                         parents=~shake, inherit=True)
+                                         parents=~shake, inherit=True, fps=float(fps))
         }
         for k in range(len(ms)):
             if drop[k]:

@@ -239,6 +239,7 @@ def distortion_products(
     power_ratio: float = 0.1,
     parents: ArrayLike | None = None,
     inherit: bool = False,
+    fps: float | None = None,
 ) -> list[dict]:
     """Peaks explained as second-order distortion products of stronger peaks.
 
@@ -274,6 +275,10 @@ def distortion_products(
         reference powers instead of its power: a product of a product (``2 f_a - f_b``,
         third order) is then measured against the peaks it comes from, of which it is a far
         smaller fraction than of the faint product it passes through.
+    fps : float, optional
+        Sampling rate (Hz).  When given, a product above the Nyquist frequency ``fps / 2``
+        is looked for where the sampling folds it: ``c mod fps`` mirrored into
+        ``[0, fps / 2]`` (e.g. ``2 x 772 Hz`` at 2000 fps appears at 456 Hz).
 
     Returns
     -------
@@ -289,6 +294,8 @@ def distortion_products(
     [2]
     >>> [d["index"] for d in distortion_products(f, p, 0.1, power_ratio=0.01, inherit=True)]
     [2, 3]
+    >>> [d["expected_hz"] for d in distortion_products([40.0, 20.0], [1.0, 1e-3], 0.1, fps=100.0)]
+    [20.0]
     """
     f = np.asarray(frequencies, dtype=np.float64)
     p = np.asarray(powers, dtype=np.float64)
@@ -309,6 +316,8 @@ def distortion_products(
                 cands = [("harmonic" if i == j else "sum", f[i] + f[j])]
                 if i != j:
                     cands.append(("difference", abs(f[i] - f[j])))
+                if fps:
+                    cands = [(kind, _folded(c, fps)) for kind, c in cands]
                 for kind, c in cands:
                     err = abs(f[k] - c)
                     if err <= tol and (best is None or err < best[0]):
@@ -327,6 +336,12 @@ def distortion_products(
                 }
             )
     return out
+
+
+def _folded(frequency: float, fps: float) -> float:
+    """Where sampling at ``fps`` shows a sinusoid of ``frequency`` Hz: in ``[0, fps / 2]``."""
+    r = frequency % fps
+    return min(r, fps - r)
 
 
 def roughness(field: ArrayLike, weights: ArrayLike | None = None, sigma: float = 2.0) -> float:
