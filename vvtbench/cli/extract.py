@@ -127,7 +127,8 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     help="peak prominence (decades, >= 0)")
     ap.add_argument("--min-sep", type=positive_float, default=None,
                     help="min peak separation (Hz, > 0)")
-    ap.add_argument("--max-modes", type=positive_int, default=20)
+    ap.add_argument("--max-modes", type=positive_int, default=None,
+                    help="keep at most this many (the most prominent; default: no cap)")
     ap.add_argument("--min-power-ratio", type=bounded(float, ge=0, le=1), default=1e-6,
                     help="vs the strongest peak in band (0..1)")
     ap.add_argument("--extractor", default="phase", metavar="NAME",
@@ -147,7 +148,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     help="average N consecutive frames")
     ap.add_argument("--roi", type=_parse_roi, default=None, help="crop y0,y1,x0,x1")
     ap.add_argument("--max-frames", type=positive_int, default=None)
-    ap.add_argument("--weighting", choices=("confidence", "none", "noise"), default="confidence")
+    ap.add_argument("--weighting", choices=("confidence", "none", "noise"), default="noise",
+                    help="pixel weights of the spectrum the peaks are picked from (default: noise; "
+                    "docs/modes.md)")
     ap.add_argument(
         "--window", choices=("hann", "none"), default="hann", help="temporal taper of the FFT"
     )
@@ -160,9 +163,10 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--product-roughness", type=bounded(float, ge=0, le=1), default=0.15,
                     help="a distortion product (f_i +- f_j, 2 f_i of stronger peaks) rougher "
                     "than this is rejected (default 0.15; docs/modes.md)")
-    ap.add_argument("--faint-product-ratio", type=bounded(float, ge=0, le=1), default=None,
+    ap.add_argument("--faint-product-ratio", type=bounded(float, ge=0, le=1), default=0.01,
                     help="a distortion product with less than this fraction of its weaker "
-                    "parent's power is rejected whatever its roughness (0: off; docs/modes.md)")
+                    "parent's power is rejected whatever its roughness (default 0.01; 0: off; "
+                    "docs/modes.md)")
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
