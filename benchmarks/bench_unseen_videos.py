@@ -1,11 +1,11 @@
 """Extraction on seeded synthetic videos unlike the shipped tests (issue 17, items 1, 2 and 5).
 
 Each seed draws one video: a crop (96-200 px a side, not always square, not a power of two)
-of a band-limited random speckle (Gaussian spectrum, sigma 0.8-2.5 px), warped by 1-4 smooth
+of a band-limited random speckle (Gaussian spectrum, sigma 0.8-2.5 px), warped by 2-6 smooth
 random displacement fields (sums of plane waves, max component 1) times a modal coordinate
-``a_m exp(-2 pi f_m zeta_m t) cos(2 pi f_m t + phi_m)`` (amplitude 0.001-0.05 px log-uniform,
-frequencies anywhere from 6 bins to 0.45 fps at least 4 bins apart, 40 % of the modes damped
-with zeta up to 0.01), exactly (third-order Taylor expansion with the image's exact Fourier
+``a_m exp(-2 pi f_m zeta_m t) cos(2 pi f_m t + phi_m)`` (amplitude 0.001-0.3 px log-uniform,
+the weakest mode set to 0.001 px; frequencies anywhere from 6 bins to 0.45 fps at least 4 bins
+apart; 40 % of the modes damped with zeta up to 0.01), exactly (third-order Taylor expansion with the image's exact Fourier
 derivatives), at 100-2000 fps for 300-1500 frames, with white sensor noise of 0, 0.03 or 0.1 %
 of the intensity range.  Half the videos are written as 16-bit FFV1 ``.mkv`` at their frame
 rate and read back with no ``fps`` (the container's rate), the others passed as arrays.
@@ -63,14 +63,15 @@ def draw(seed: int) -> dict:
     y0, x0 = rng.integers(0, SPECKLE_SIZE - h), rng.integers(0, SPECKLE_SIZE - w)
     ders = {(i, j): np.fft.ifft2(F * (1j * wx) ** i * (1j * wy) ** j).real[y0:y0 + h, x0:x0 + w]
             for i in range(4) for j in range(4 - i)}
-    n_modes = int(rng.integers(1, 5))
+    n_modes = int(rng.integers(2, 7))
     df = fps / n_frames
     freqs: list[float] = []
     while len(freqs) < n_modes:
         f = float(rng.uniform(6 * df, 0.45 * fps))
         if all(abs(f - g) > 4 * df for g in freqs):
             freqs.append(f)
-    amps = np.exp(rng.uniform(np.log(0.001), np.log(0.05), n_modes))
+    amps = np.exp(rng.uniform(np.log(0.001), np.log(0.3), n_modes))
+    amps[np.argmin(amps)] = 0.001
     zetas = np.where(rng.random(n_modes) < 0.4, rng.uniform(0.0, 0.01, n_modes), 0.0)
     fields = np.stack([smooth_field(h, w, rng) for _ in range(n_modes)])
     phases = rng.uniform(0, 2 * np.pi, n_modes)

@@ -110,6 +110,7 @@ def modes_from_displacements(
     max_roughness: float = 0.3,
     product_roughness: float = 0.15,
     faint_product_ratio: float | None = 0.01,
+    product_scaling: str = "weaker",
     rough_sigma_px: float = 2.0,
     block_bytes: int = 64 << 20,
     confidence: ArrayLike | None = None,
@@ -390,7 +391,8 @@ def modes_from_displacements(
         faint_flagged = {} if not faint_product_ratio else {
             d["index"]: d
             for d in distortion_products(f, pw, float(fps) / T, power_ratio=faint_product_ratio,
-                                         parents=~shake, inherit=True, fps=float(fps))
+                                         parents=~shake, inherit=True, fps=float(fps),
+                                         scaling=product_scaling)
         }
         for k in range(len(ms)):
             if drop[k]:

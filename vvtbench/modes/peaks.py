@@ -240,6 +240,7 @@ def distortion_products(
     parents: ArrayLike | None = None,
     inherit: bool = False,
     fps: float | None = None,
+    scaling: str = "weaker",
 ) -> list[dict]:
     """Peaks explained as second-order distortion products of stronger peaks.
 
@@ -275,6 +276,12 @@ def distortion_products(
         reference powers instead of its power: a product of a product (``2 f_a - f_b``,
         third order) is then measured against the peaks it comes from, of which it is a far
         smaller fraction than of the faint product it passes through.
+    scaling : {"weaker", "product"}, default "weaker"
+        The reference power a product is compared with: the weaker parent's, or
+        ``P_i P_j / P_max`` (``P_max`` the strongest parent-eligible peak): a product's
+        amplitude grows with the product of its parents' amplitudes, so two parents well
+        below the strongest peak make a far fainter product than either.  Both agree for the
+        products of the strongest peak.
     fps : float, optional
         Sampling rate (Hz).  When given, a product above the Nyquist frequency ``fps / 2``
         is looked for where the sampling folds it: ``c mod fps`` mirrored into
@@ -303,6 +310,9 @@ def distortion_products(
         raise ValueError("frequencies and powers must be 1-D arrays of the same length")
     tol = tolerance_bins * bin_hz
     ok = np.ones(f.size, bool) if parents is None else np.asarray(parents, bool)
+    if scaling not in ("weaker", "product"):
+        raise ValueError(f"scaling must be 'weaker' or 'product', got {scaling!r}")
+    p_max = float(np.max(p[ok])) if np.any(ok) else 1.0
     order = np.argsort(-p, kind="stable")
     ref = p.copy()
     out = []
@@ -311,7 +321,7 @@ def distortion_products(
         stronger = [i for i in order[:r] if ok[i]]
         for a, i in enumerate(stronger):
             for j in stronger[a:]:
-                if p[k] >= power_ratio * min(ref[i], ref[j]):
+                if p[k] >= power_ratio * _reference(ref[i], ref[j], p_max, scaling):
                     continue
                 cands = [("harmonic" if i == j else "sum", f[i] + f[j])]
                 if i != j:
@@ -323,7 +333,7 @@ def distortion_products(
                     if err <= tol and (best is None or err < best[0]):
                         best = (err, int(i), int(j), kind, float(c))
         if best is not None:
-            base = min(ref[best[1]], ref[best[2]])
+            base = _reference(ref[best[1]], ref[best[2]], p_max, scaling)
             if inherit:
                 ref[k] = base
             out.append(
@@ -336,6 +346,12 @@ def distortion_products(
                 }
             )
     return out
+
+
+def _reference(p_i: float, p_j: float, p_max: float, scaling: str) -> float:
+    if scaling == "product" and p_max > 0:
+        return p_i * p_j / p_max
+    return min(p_i, p_j)
 
 
 def _folded(frequency: float, fps: float) -> float:
