@@ -5,10 +5,11 @@ of a band-limited random speckle (Gaussian spectrum, sigma 0.8-2.5 px), warped b
 random displacement fields (sums of plane waves, max component 1) times a modal coordinate
 ``a_m exp(-2 pi f_m zeta_m t) cos(2 pi f_m t + phi_m)`` (amplitude 0.001-0.3 px log-uniform,
 the weakest mode set to 0.001 px; frequencies anywhere from 6 bins to 0.45 fps at least 4 bins
-apart; 40 % of the modes damped with zeta up to 0.01), exactly (third-order Taylor expansion with the image's exact Fourier
-derivatives), at 100-2000 fps for 300-1500 frames, with white sensor noise of 0, 0.03 or 0.1 %
-of the intensity range.  Half the videos are written as 16-bit FFV1 ``.mkv`` at their frame
-rate and read back with no ``fps`` (the container's rate), the others passed as arrays.
+apart; 40 % of the modes damped with zeta up to 0.01), exactly (third-order Taylor expansion
+with the image's exact Fourier derivatives), at 100-2000 fps for 300-1500 frames, with white
+sensor noise of 0, 0.03 or 0.1 % of the intensity range.  Half the videos are written as 16-bit
+FFV1 ``.mkv`` at their frame rate and read back with no ``fps`` (the container's rate), the
+others passed as arrays.
 
 Scored with :func:`vvtbench.extraction_scores.score_extraction` against the true fields and
 frequencies (a detection matches when its frequency is within the resolution and its MAC with

@@ -636,6 +636,29 @@ def test_faint_smooth_product_rejected_by_power_ratio_true_mode_kept() -> None:
         modes_from_displacements(d, fps, faint_product_ratio=2.0)
 
 
+def test_product_scaling_keeps_a_mode_at_the_sum_of_two_weaker_peaks() -> None:
+    """A product's amplitude grows with the product of its parents' amplitudes.  A true mode
+    at the sum of two 0.03 px peaks, 0.4 % of their power, passes for a faint product when
+    compared with the weaker parent, but not against ``P_i P_j / P_max`` (0.3 px strongest
+    peak); a product of the strongest peak is rejected either way."""
+    fps, T, n = 200.0, 400, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    d = (0.3 * np.cos(2 * np.pi * 10.25 * t) * pa + 0.03 * np.cos(2 * np.pi * 17.5 * t) * pb
+         + 0.03 * np.cos(2 * np.pi * 23.0 * t) * pa[..., ::-1])
+    d = d + 2e-3 * np.cos(2 * np.pi * 40.5 * t) * pb[..., ::-1]  # a mode at 17.5 + 23
+    d = d + 1e-3 * np.cos(2 * np.pi * 27.75 * t) * pa  # 10.25 + 17.5: a product
+    weaker = modes_from_displacements(d, fps, product_scaling="weaker")
+    assert np.sort(weaker.frequencies_hz) == pytest.approx([10.25, 17.5, 23.0], abs=0.05)
+    ms = modes_from_displacements(d, fps)  # the default: "product"
+    assert ms.metadata["product_scaling"] == "product"
+    assert np.sort(ms.frequencies_hz) == pytest.approx([10.25, 17.5, 23.0, 40.5], abs=0.05)
+    (rej,) = ms.metadata["rejected"]
+    assert rej["kind"] == "sum" and rej["parents_hz"] == pytest.approx([10.25, 17.5], abs=0.01)
+    with pytest.raises(ValueError, match="scaling"):
+        distortion_products([1.0, 2.0], [1.0, 0.1], 0.1, scaling="cubic")
+
+
 def test_products_folded_by_sampling_are_recognised() -> None:
     """A product above Nyquist appears where sampling folds it: at 200 fps the harmonic of
     a 77.25 Hz mode (154.5 Hz) is seen at 45.5 Hz, the sum 77.25 + 52 Hz at 70.75 Hz.  Both

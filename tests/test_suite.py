@@ -56,6 +56,7 @@ def test_numbers_are_finite_and_in_range():
     assert "key 'extract.shake_threshold'" in error_of("[extract]\nshake_threshold = 1.5\n")
     assert "key 'extract.product_roughness'" in error_of("[extract]\nproduct_roughness = -0.1\n")
     assert "key 'extract.faint_product_ratio'" in error_of("[extract]\nfaint_product_ratio = 2\n")
+    assert "key 'extract.product_scaling'" in error_of("[extract]\nproduct_scaling = 'cubic'\n")
     assert "key 'sweep.n_modes'" in error_of("[sweep]\nn_modes = []\n")
 
 

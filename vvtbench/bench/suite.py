@@ -97,6 +97,8 @@ class ExtractOptions(_Strict):
     faint_product_ratio: Fraction | None = Field(
         None, description="a power ratio in [0, 1] (fainter distortion products are rejected "
         "whatever their roughness; 0: off)")
+    product_scaling: Literal["product", "weaker"] | None = Field(
+        None, description="'product' or 'weaker' (what a faint product is measured against)")
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")

@@ -167,6 +167,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     help="a distortion product with less than this fraction of its weaker "
                     "parent's power is rejected whatever its roughness (default 0.01; 0: off; "
                     "docs/modes.md)")
+    ap.add_argument("--product-scaling", choices=("product", "weaker"), default="product",
+                    help="a faint product is measured against P_i P_j / P_max (product) or "
+                    "its weaker parent's power (default: product; docs/modes.md)")
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
@@ -227,6 +230,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             line_fit=args.line_fit,
             product_roughness=args.product_roughness,
             faint_product_ratio=args.faint_product_ratio,
+            product_scaling=args.product_scaling,
             extractor=args.extractor,
             extractor_config=extractor_config,
         )

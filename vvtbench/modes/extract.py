@@ -110,7 +110,7 @@ def modes_from_displacements(
     max_roughness: float = 0.3,
     product_roughness: float = 0.15,
     faint_product_ratio: float | None = 0.01,
-    product_scaling: str = "weaker",
+    product_scaling: str = "product",
     rough_sigma_px: float = 2.0,
     block_bytes: int = 64 << 20,
     confidence: ArrayLike | None = None,
@@ -178,6 +178,11 @@ def modes_from_displacements(
         roughness (products of a small object or a noisy video are smooth; a true mode at a
         product frequency is rarely that faint: 0.012-0.95 on validation cubes, products
         0.0004-0.005).  ``None`` or 0 turns it off.
+    product_scaling : {"product", "weaker"}, default "product"
+        The power a faint product is compared with (:func:`peaks.distortion_products`'
+        ``scaling``): ``P_i P_j / P_max``, since a product grows with both parents'
+        amplitudes (a mode at the sum of two peaks well below the strongest is not taken
+        for their product), or the weaker parent's power.
     block_bytes : int
         Working memory per pixel block of the FFT.
     confidence : array_like, optional
@@ -232,6 +237,9 @@ def modes_from_displacements(
         raise ValueError(f"line_radius must be an integer >= 1, got {line_radius!r}")
     if added_roughness is not None and not added_roughness >= 0:  # NaN fails too
         raise ValueError(f"added_roughness must be >= 0 or None, got {added_roughness!r}")
+    if product_scaling not in ("product", "weaker"):
+        raise ValueError(f"product_scaling must be 'product' or 'weaker', got "
+                         f"{product_scaling!r}")
     if faint_product_ratio is not None and not 0 <= faint_product_ratio <= 1:
         raise ValueError(f"faint_product_ratio must be in [0, 1] or None, "
                          f"got {faint_product_ratio!r}")
@@ -342,6 +350,7 @@ def modes_from_displacements(
         max_roughness=max_roughness,
         product_roughness=product_roughness,
         faint_product_ratio=faint_product_ratio,
+        product_scaling=product_scaling,
         roughness=[float(r) for r in rough],
         weighted=weights is not None,
         min_bin=int(min_bin),
@@ -575,6 +584,7 @@ def extract_modes(
     reject_distortion: bool = True,
     product_roughness: float = 0.15,
     faint_product_ratio: float | None = 0.01,
+    product_scaling: str = "product",
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -615,7 +625,7 @@ def extract_modes(
         displacements) for the spectrum the peaks are picked from, the confidence weights for
         the shapes and the tests.
     detrend, window, shake_threshold, keep_camera_shake, reject_distortion, product_roughness,
-    faint_product_ratio :
+    faint_product_ratio, product_scaling :
         See :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
@@ -732,6 +742,7 @@ def extract_modes(
             reject_distortion=reject_distortion,
             product_roughness=product_roughness,
             faint_product_ratio=faint_product_ratio,
+            product_scaling=product_scaling,
             confidence=pm.confidence,
             metadata=meta,
             output_shape=tuple(pm.shape),
