@@ -82,6 +82,7 @@ def test_extracted_observations_name_an_extractor_checked_at_load(tmp_path):
         BASE + 'observations = ["extracted", "extracted:farneback"]\n'
         "[extract.extractor.farneback]\nwinsize = '9'\n"), "s.toml")
     assert suite.tracks[0].observations == ["extracted", "extracted:farneback"]
+    assert suite.name == "s"  # not the extractor of the last observation
     fb = suite.extractors["farneback"]
     assert fb["name"] == "farneback" and fb["config"] == {"winsize": 9} and fb["version"]
     for text, key, words in (
@@ -102,6 +103,12 @@ def test_extracted_observations_name_an_extractor_checked_at_load(tmp_path):
     suite = parse_suite(tomllib.loads(BASE + 'observations = ["extracted:flow.py:Flow"]\n'),
                         str(tmp_path / "s.toml"))
     assert suite.extractors["flow.py:Flow"]["spec"] == f"{plugin}:Flow"
+
+
+@pytest.mark.parametrize("name", ["smoke", "paper", "standard", "standard_val"])
+def test_shipped_suites_keep_their_names(name):
+    """The run folder is runs/<name>: an extracted observation must not rename the suite."""
+    assert load_suite(name).name == name
 
 
 def test_values_are_kept_as_written():

@@ -494,10 +494,10 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
                              f"{sorted({o for o in obs if obs.count(o) > 1})} (allowed: "
                              "distinct sources)")
         for j, o in enumerate(obs):
-            name = observation_extractor(o)
-            if name is not None and name not in extractors:
-                extractors[name] = _check_extractor(
-                    name, {}, source, f"{_join(path, 'observations')}[{j}]")
+            ext_name = observation_extractor(o)
+            if ext_name is not None and ext_name not in extractors:
+                extractors[ext_name] = _check_extractor(
+                    ext_name, {}, source, f"{_join(path, 'observations')}[{j}]")
         tseeds = t.get("seeds", seeds)
         tdefaults = {**defaults, **t.get("defaults", {})}
         if "defaults" in t:
