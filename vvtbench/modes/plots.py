@@ -124,21 +124,25 @@ def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
 
 
 def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Path:
-    """Mode ``i``: ``dx`` and ``dy`` images (shared symmetric colour scale) and a quiver."""
+    """Mode ``i``: ``dx`` and ``dy`` images (shared symmetric colour scale) and a quiver.
+
+    The colour scale ends at the 99.5 % quantile of ``|shape|`` (the colour bar marks clipped
+    values), so that a few pixels at depth or texture seams do not wash out the mode.
+    """
     plt = _plt()
     s = ms.shapes[i]
     H, W = s.shape[:2]
-    vmax = float(np.max(np.abs(s))) or 1.0
+    vmax = float(np.quantile(np.abs(s), 0.995)) or float(np.max(np.abs(s))) or 1.0
     fig, axes = plt.subplots(1, 3, figsize=(12, 4), dpi=100)
     for ax, c, name in ((axes[0], 0, "dx"), (axes[1], 1, "dy")):
         im = ax.imshow(s[..., c], cmap="RdBu_r", vmin=-vmax, vmax=vmax)
         ax.set_title(name)
         ax.axis("off")
-    fig.colorbar(im, ax=axes[:2], shrink=0.8)
+    fig.colorbar(im, ax=axes[:2], shrink=0.8, extend="both")
     step = max(1, int(np.ceil(max(H, W) / max_arrows)))
     yy, xx = np.mgrid[step // 2 : H : step, step // 2 : W : step]
     ax = axes[2]
-    ax.imshow(np.hypot(s[..., 0], s[..., 1]), cmap="gray_r")
+    ax.imshow(np.hypot(s[..., 0], s[..., 1]), cmap="gray_r", vmin=0.0, vmax=vmax * np.sqrt(2))
     ax.quiver(xx, yy, s[yy, xx, 0], s[yy, xx, 1], color="tab:red", angles="xy", pivot="mid")
     ax.set_title("shape (arrows, image y down)")
     ax.axis("off")
