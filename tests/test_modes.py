@@ -659,6 +659,31 @@ def test_product_scaling_keeps_a_mode_at_the_sum_of_two_weaker_peaks() -> None:
         distortion_products([1.0, 2.0], [1.0, 0.1], 0.1, scaling="cubic")
 
 
+def test_noisy_pixels_attenuated_in_the_shapes() -> None:
+    """A strip of unreliable pixels (noise 0.02 px and the mode's motion read 5x too large
+    there, as at a texture seam) dominates a 0.01 px mode's unit-norm shape; attenuating the
+    noisiest 10 % of the pixels by their noise power restores it.  The frequencies are
+    unchanged."""
+    from vvtbench.modes.spectrum import pixel_noise_power
+
+    fps, T, n = 200.0, 400, 32
+    t = np.arange(T)[:, None, None, None] / fps
+    true = pattern(n, "a")
+    d = 0.01 * np.cos(2 * np.pi * 20.25 * t) * true
+    d[:, 10:12] *= 5.0
+    d[:, 10:12] += 0.02 * np.random.default_rng(3).standard_normal((T, 2, n, 2))
+    plain = modes_from_displacements(d, fps)
+    noise = pixel_noise_power(d)
+    fixed = modes_from_displacements(d, fps, shape_noise=noise)
+    assert plain.frequencies_hz == pytest.approx(fixed.frequencies_hz)
+    assert mac(plain.shapes[0], true) < 0.7 and mac(fixed.shapes[0], true) > 0.9
+    att = fixed.metadata["shape_attenuation"]
+    assert att["quantile"] == 0.9 and att["attenuated_fraction"] == pytest.approx(2 / n)
+    assert plain.metadata["shape_attenuation"] is None
+    with pytest.raises(ValueError, match="grid"):
+        modes_from_displacements(d, fps, shape_noise=noise[:-1])
+
+
 def test_products_folded_by_sampling_are_recognised() -> None:
     """A product above Nyquist appears where sampling folds it: at 200 fps the harmonic of
     a 77.25 Hz mode (154.5 Hz) is seen at 45.5 Hz, the sum 77.25 + 52 Hz at 70.75 Hz.  Both
@@ -696,6 +721,9 @@ def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) ->
     np.save(tmp_path / "v.npy", frames)
     extract_modes(tmp_path / "v.npy", 64.0, product_roughness=0.08, faint_product_ratio=0.02)
     assert seen["product_roughness"] == 0.08 and seen["faint_product_ratio"] == 0.02
+    assert seen["shape_noise"] is None and seen["product_scaling"] == "product"
+    extract_modes(tmp_path / "v.npy", 64.0, shape_attenuation=True, product_scaling="weaker")
+    assert seen["shape_noise"].shape == (16, 16) and seen["product_scaling"] == "weaker"
 
 
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:

@@ -105,6 +105,7 @@ def test_clean_video_at_most_one_false_mode(sp128: Speckle, amps) -> None:
     false = [x for x in f if min(abs(x - fa), abs(x - fb)) > df]
     assert len(false) <= 1, f
     assert ms.metadata["noise_floor"]["false_alarm"] == 0.01
+    assert ms.metadata["weighting"] == "noise" and ms.metadata["shape_attenuation"] is None
 
 
 # --------------------------------------------------------------------------- scoring

@@ -99,6 +99,8 @@ class ExtractOptions(_Strict):
         "whatever their roughness; 0: off)")
     product_scaling: Literal["product", "weaker"] | None = Field(
         None, description="'product' or 'weaker' (what a faint product is measured against)")
+    shape_attenuation: bool | None = Field(
+        None, description="true or false (noisiest pixels of the mode shapes attenuated)")
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")

@@ -170,6 +170,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--product-scaling", choices=("product", "weaker"), default="product",
                     help="a faint product is measured against P_i P_j / P_max (product) or "
                     "its weaker parent's power (default: product; docs/modes.md)")
+    ap.add_argument("--shape-attenuation", action="store_true",
+                    help="attenuate the noisiest pixels of the mode shapes (with --weighting "
+                    "noise; opt-in, docs/modes.md)")
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
@@ -231,6 +234,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             product_roughness=args.product_roughness,
             faint_product_ratio=args.faint_product_ratio,
             product_scaling=args.product_scaling,
+            shape_attenuation=args.shape_attenuation,
             extractor=args.extractor,
             extractor_config=extractor_config,
         )

@@ -47,7 +47,8 @@ from .spectrum import (
     window_gain,
 )
 
-__all__ = ["confidence_weights", "noise_weights", "extract_modes", "modes_from_displacements"]
+__all__ = ["confidence_weights", "noise_weights", "noisy_pixel_attenuation", "extract_modes",
+           "modes_from_displacements"]
 
 _log = logging.getLogger(__name__)
 
@@ -91,6 +92,33 @@ def noise_weights(
     return out / out.max() if out.max() > 0 else out
 
 
+def noisy_pixel_attenuation(
+    noise: ArrayLike, weights: ArrayLike | None = None, quantile: float = 0.9,
+    factor: float = 10.0,
+) -> NDArray[np.float64]:
+    """Per-pixel factors ``sqrt(min(1, factor q / N_p))`` for mode shapes, ``q`` the
+    ``quantile`` of the motion noise power ``N_p`` over the pixels of positive weight.
+
+    Pixels at occlusion edges and texture seams measure motion far less reliably than the
+    rest (their noise power is decades above the median on a rendered cube) and their error
+    is largely coherent with the motion, so it sits at the mode's own frequency: left as they
+    are, a weak mode's unit-norm shape can hold most of its energy in 1 % of the pixels.  The
+    pixels more than ``factor`` times noisier than the ``quantile`` are attenuated by the
+    square root of their excess; an evenly textured image keeps every pixel.
+
+    >>> noisy_pixel_attenuation(np.array([1.0, 1.0, 1.0, 5.0, 1000.0]), quantile=0.5).tolist()
+    [1.0, 1.0, 1.0, 1.0, 0.1]
+    """
+    n = np.asarray(noise, dtype=np.float64)
+    if not 0 < quantile <= 1:
+        raise ValueError(f"quantile must be in (0, 1], got {quantile}")
+    sel = n if weights is None else n[np.asarray(weights) > 0]
+    q = float(np.quantile(sel, quantile)) if sel.size else 0.0
+    if not q > 0:
+        return np.ones_like(n)
+    return np.sqrt(np.minimum(1.0, factor * q / np.maximum(n, 1e-300)))
+
+
 def modes_from_displacements(
     disp: DisplacementStore | ArrayLike,
     fps: float,
@@ -126,6 +154,9 @@ def modes_from_displacements(
     line_radius: int = 4,
     added_roughness: float | None = 0.06,
     spectrum_weights: ArrayLike | None = None,
+    shape_noise: ArrayLike | None = None,
+    shape_noise_quantile: float = 0.9,
+    shape_noise_factor: float = 10.0,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -178,6 +209,14 @@ def modes_from_displacements(
         roughness (products of a small object or a noisy video are smooth; a true mode at a
         product frequency is rarely that faint: 0.012-0.95 on validation cubes, products
         0.0004-0.005).  ``None`` or 0 turns it off.
+    shape_noise : array_like, optional
+        ``(h, w)`` motion noise power of each grid pixel (:func:`spectrum.pixel_noise_power`):
+        the mode shapes are multiplied by :func:`noisy_pixel_attenuation` (after the
+        roughness tests), so that the least reliable pixels do not dominate a weak mode's
+        shape.  Default: no attenuation.
+    shape_noise_quantile, shape_noise_factor : float, default 0.9 and 10
+        Pixels more than ``shape_noise_factor`` times noisier than this quantile are
+        attenuated.
     product_scaling : {"product", "weaker"}, default "product"
         The power a faint product is compared with (:func:`peaks.distortion_products`'
         ``scaling``): ``P_i P_j / P_max``, since a product grows with both parents'
@@ -299,9 +338,18 @@ def modes_from_displacements(
     shapes = []
     rough = []
     stride = 1.0 if output_shape is None else output_shape[0] / Z.shape[1]
+    attenuation = None
+    if shape_noise is not None:
+        if np.shape(shape_noise) != tuple(Z.shape[1:3]):
+            raise ValueError(f"shape_noise {np.shape(shape_noise)} must be the displacement "
+                             f"grid {tuple(Z.shape[1:3])}")
+        attenuation = noisy_pixel_attenuation(shape_noise, w, shape_noise_quantile,
+                                              shape_noise_factor)
     for i, k in enumerate(pk.bins):
         real, _, coll = align_phase(Z[i], w)
         rough.append(roughness(real, w, rough_sigma_px / stride))
+        if attenuation is not None:
+            real = real * attenuation[..., None]
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
@@ -351,6 +399,11 @@ def modes_from_displacements(
         product_roughness=product_roughness,
         faint_product_ratio=faint_product_ratio,
         product_scaling=product_scaling,
+        shape_attenuation=None if attenuation is None else {
+            "quantile": float(shape_noise_quantile),
+            "factor": float(shape_noise_factor),
+            "attenuated_fraction": float(np.mean(attenuation < 1.0)),
+        },
         roughness=[float(r) for r in rough],
         weighted=weights is not None,
         min_bin=int(min_bin),
@@ -585,6 +638,7 @@ def extract_modes(
     product_roughness: float = 0.15,
     faint_product_ratio: float | None = 0.01,
     product_scaling: str = "product",
+    shape_attenuation: bool = False,
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -627,6 +681,11 @@ def extract_modes(
     detrend, window, shake_threshold, keep_camera_shake, reject_distortion, product_roughness,
     faint_product_ratio, product_scaling :
         See :func:`modes_from_displacements`.
+    shape_attenuation : bool, default False
+        With ``weighting="noise"``: attenuate the pixels whose motion noise power is more than
+        10 times its 90 % quantile in the mode shapes (:func:`noisy_pixel_attenuation`;
+        docs/modes.md; opt-in: it helps rendered objects with seams and distorts the shapes of
+        evenly textured videos, whose noise tail is numerical).
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
     progress : bool
@@ -743,6 +802,7 @@ def extract_modes(
             product_roughness=product_roughness,
             faint_product_ratio=faint_product_ratio,
             product_scaling=product_scaling,
+            shape_noise=noise if weighting == "noise" and shape_attenuation else None,
             confidence=pm.confidence,
             metadata=meta,
             output_shape=tuple(pm.shape),
