@@ -141,13 +141,34 @@ def run(seed: int, options: dict, tmp: Path) -> dict:
             "mean_mac": s["mean_mac"], "seconds": elapsed}
 
 
+def _at_least(low: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = low - 1
+        if value < low:
+            raise argparse.ArgumentTypeError(f"{text!r}: an integer >= {low}")
+        return value
+    return parse
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=40)
-    ap.add_argument("--start", type=int, default=0)
+    ap.add_argument("--n", type=_at_least(1), default=40)
+    ap.add_argument("--start", type=_at_least(0), default=0)
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=JSON")
     args = ap.parse_args()
-    options = {k: json.loads(v) for k, v in (s.split("=", 1) for s in args.sets)}
+    options = {}
+    for item in args.sets:
+        key, eq, value = item.partition("=")
+        try:
+            options[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            eq = ""
+        if not eq or not key.strip():
+            ap.error(f"--set {item!r}: expected KEY=JSON, e.g. max_modes=20 or "
+                     "'weighting=\"confidence\"'")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.start, args.start + args.n):

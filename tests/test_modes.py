@@ -664,6 +664,7 @@ def test_noisy_pixels_attenuated_in_the_shapes() -> None:
     there, as at a texture seam) dominates a 0.01 px mode's unit-norm shape; attenuating the
     noisiest 10 % of the pixels by their noise power restores it.  The frequencies are
     unchanged."""
+    from vvtbench.modes.extract import noisy_pixel_attenuation
     from vvtbench.modes.spectrum import pixel_noise_power
 
     fps, T, n = 200.0, 400, 32
@@ -682,6 +683,13 @@ def test_noisy_pixels_attenuated_in_the_shapes() -> None:
     assert plain.metadata["shape_attenuation"] is None
     with pytest.raises(ValueError, match="grid"):
         modes_from_displacements(d, fps, shape_noise=noise[:-1])
+    odd = np.array([1.0, 1.0, 1.0, np.nan, np.inf, 1e6])
+    assert noisy_pixel_attenuation(odd, quantile=0.5).tolist() == [1, 1, 1, 0, 0, pytest.approx(
+        np.sqrt(1e-5))]
+    assert noisy_pixel_attenuation(np.full(4, np.nan)).tolist() == [1.0] * 4
+    for bad in (0.0, -1.0, np.inf, np.nan):
+        with pytest.raises(ValueError, match="factor"):
+            noisy_pixel_attenuation(odd, factor=bad)
 
 
 def test_products_folded_by_sampling_are_recognised() -> None:
@@ -724,6 +732,8 @@ def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) ->
     assert seen["shape_noise"] is None and seen["product_scaling"] == "product"
     extract_modes(tmp_path / "v.npy", 64.0, shape_attenuation=True, product_scaling="weaker")
     assert seen["shape_noise"].shape == (16, 16) and seen["product_scaling"] == "weaker"
+    extract_modes(tmp_path / "v.npy", 64.0, shape_attenuation=True, weighting="confidence")
+    assert seen["shape_noise"].shape == (16, 16) and seen["spectrum_weights"] is None
 
 
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:

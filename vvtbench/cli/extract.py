@@ -171,8 +171,8 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     help="a faint product is measured against P_i P_j / P_max (product) or "
                     "its weaker parent's power (default: product; docs/modes.md)")
     ap.add_argument("--shape-attenuation", action="store_true",
-                    help="attenuate the noisiest pixels of the mode shapes (with --weighting "
-                    "noise; opt-in, docs/modes.md)")
+                    help="attenuate the noisiest pixels of the mode shapes (opt-in; "
+                    "docs/modes.md)")
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")

@@ -112,10 +112,14 @@ def noisy_pixel_attenuation(
     n = np.asarray(noise, dtype=np.float64)
     if not 0 < quantile <= 1:
         raise ValueError(f"quantile must be in (0, 1], got {quantile}")
+    if not 0 < factor < np.inf:
+        raise ValueError(f"factor must be a finite number > 0, got {factor}")
     sel = n if weights is None else n[np.asarray(weights) > 0]
+    sel = sel[np.isfinite(sel)]
     q = float(np.quantile(sel, quantile)) if sel.size else 0.0
     if not q > 0:
         return np.ones_like(n)
+    n = np.where(np.isnan(n), np.inf, n)  # an unmeasurable pixel is the least reliable
     return np.sqrt(np.minimum(1.0, factor * q / np.maximum(n, 1e-300)))
 
 
@@ -682,10 +686,11 @@ def extract_modes(
     faint_product_ratio, product_scaling :
         See :func:`modes_from_displacements`.
     shape_attenuation : bool, default False
-        With ``weighting="noise"``: attenuate the pixels whose motion noise power is more than
-        10 times its 90 % quantile in the mode shapes (:func:`noisy_pixel_attenuation`;
-        docs/modes.md; opt-in: it helps rendered objects with seams and distorts the shapes of
-        evenly textured videos, whose noise tail is numerical).
+        Attenuate the pixels whose motion noise power is more than 10 times its 90 % quantile
+        in the mode shapes (:func:`noisy_pixel_attenuation`; the noise pass of
+        ``weighting="noise"``, made for this if needed; docs/modes.md).  Opt-in: it helps
+        rendered objects with seams and distorts the shapes of evenly textured videos, whose
+        noise tail is numerical.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
     progress : bool
@@ -769,9 +774,10 @@ def extract_modes(
         weights = (
             confidence_weights(conf) if weighting != "none" and conf is not None else None
         )
-        spectrum_weights = None
-        if weighting == "noise":
+        spectrum_weights = noise = None
+        if weighting == "noise" or shape_attenuation:
             noise = pixel_noise_power(store, detrend=detrend, window=window, min_bin=min_bin)
+        if weighting == "noise":
             spectrum_weights = noise_weights(
                 np.ones(noise.shape) if weights is None else weights, noise)
         meta = {
@@ -802,7 +808,7 @@ def extract_modes(
             product_roughness=product_roughness,
             faint_product_ratio=faint_product_ratio,
             product_scaling=product_scaling,
-            shape_noise=noise if weighting == "noise" and shape_attenuation else None,
+            shape_noise=noise if shape_attenuation else None,
             confidence=pm.confidence,
             metadata=meta,
             output_shape=tuple(pm.shape),
