@@ -172,8 +172,10 @@ def score_extraction(
         ``n_clusters_in_band``, ``frequency_resolution_hz``, ``band_hz``, ``min_mac``,
         ``missed``: one dict per unmatched cluster (``true`` indices, ``frequencies_hz``,
         ``detectable``, ``amplitude_px``: the largest member amplitude or NaN), and
-        ``matching``: one dict per match (``set``, ``detected``, ``true`` (indices of the
-        cluster), ``nearest_true``, ``frequency_hz``, ``true_frequency_hz``,
+        ``matching``: one dict per match (``set``, ``detected``, ``kind``: ``"mode"`` for a
+        detection matched to one true mode, ``"cluster"`` for one matched to an unresolved
+        cluster (docs/modes.md, "Matching"), ``true`` (indices of the cluster),
+        ``nearest_true``, ``frequency_hz``, ``true_frequency_hz``,
         ``abs_freq_error_hz``, ``damping``, ``true_damping``, ``mac``) and ``unmatched``:
         ``(set, detected index, frequency)`` of the false detections.
     """
@@ -224,44 +226,60 @@ def score_extraction(
         if tm.shape[0] != ft.size:
             raise ValueError(f"{tm.shape[0]} true image modes for {ft.size} frequencies")
         tv, dv, _ = _true_vectors(tm, np.asarray(ms.shapes, np.float64)[det], uv_s)
-        n_c = len(clusters)
-        macs = np.zeros((det.size, n_c))
-        feasible = np.zeros((det.size, n_c), bool)
-        for j, c in enumerate(clusters):
-            lo, hi = ft[c].min() - df, ft[c].max() + df
-            for i in range(det.size):
-                if lo <= fd[det[i]] <= hi:
-                    macs[i, j] = subspace_mac(dv[i], tv[c])
-                    feasible[i, j] = macs[i, j] >= min_mac
-        if n_c:
-            # most matches first, then the largest total MAC
-            cost = np.where(feasible, 2.0 - macs, 1e6)
-            rows, cols = linear_sum_assignment(cost)
-        else:
-            rows, cols = np.zeros(0, int), np.zeros(0, int)
-        hit = set()
-        for i, j in zip(rows, cols, strict=True):
-            if not feasible[i, j]:
-                continue
-            hit.add(int(i))
+        # 1. resolved: one detection per true mode, by its own frequency and shape
+        modes = [int(x) for x in band]
+        cluster_of = {t: j for j, c in enumerate(clusters) for t in c}
+        mac1 = np.zeros((det.size, len(modes)))
+        ok1 = np.zeros_like(mac1, dtype=bool)
+        for k, t in enumerate(modes):
+            for i in np.flatnonzero(np.abs(fd[det] - ft[t]) <= df):
+                mac1[i, k] = subspace_mac(dv[i], tv[[t]])
+                ok1[i, k] = mac1[i, k] >= min_mac
+        rows, cols = _assign(ok1, mac1)
+        resolved = {modes[k] for k in cols}
+        pairs = []
+        for i, k in zip(rows, cols, strict=True):
+            # its shape may mix in the unmatched modes it cannot be told from
+            t = modes[k]
+            near = [x for x in clusters[cluster_of[t]]
+                    if x == t or (x not in resolved and abs(ft[x] - ft[t]) < df)]
+            pairs.append((int(i), cluster_of[t], t, subspace_mac(dv[i], tv[near]), "mode"))
+        # 2. unresolved: a detection left over and a cluster none of whose modes it matched
+        taken = {p[1] for p in pairs}
+        free = [j for j in range(len(clusters)) if j not in taken]
+        rest = [i for i in range(det.size) if i not in {p[0] for p in pairs}]
+        mac2 = np.zeros((len(rest), len(free)))
+        ok2 = np.zeros_like(mac2, dtype=bool)
+        for b, j in enumerate(free):
             c = clusters[j]
+            lo, hi = ft[c].min() - df, ft[c].max() + df
+            for a, i in enumerate(rest):
+                if lo <= fd[det[i]] <= hi:
+                    mac2[a, b] = subspace_mac(dv[i], tv[c])
+                    ok2[a, b] = mac2[a, b] >= min_mac
+        for a, b in zip(*_assign(ok2, mac2), strict=True):
+            c = clusters[free[b]]
+            near = int(c[int(np.argmin(np.abs(ft[c] - fd[det[rest[a]]])))])
+            pairs.append((rest[a], free[b], near, float(mac2[a, b]), "cluster"))
+        zd_all = np.asarray(ms.damping, dtype=np.float64)
+        for i, j, near, mac, kind in pairs:
             d_i = int(det[i])
-            near = int(c[int(np.argmin(np.abs(ft[c] - fd[d_i])))])
-            zd = float(np.asarray(ms.damping, dtype=np.float64)[d_i])
             matched_clusters.add(j)
             matching.append({
                 "set": s_i,
                 "detected": d_i,
-                "true": [int(x) for x in c],
+                "true": [int(x) for x in clusters[j]],
                 "nearest_true": near,
+                "kind": kind,
                 "frequency_hz": float(fd[d_i]),
                 "true_frequency_hz": float(ft[near]),
                 "abs_freq_error_hz": float(abs(fd[d_i] - ft[near])),
                 "rel_freq_error": float(abs(fd[d_i] - ft[near]) / ft[near]),
-                "damping": zd,
+                "damping": float(zd_all[d_i]),
                 "true_damping": float(zt[near]),
-                "mac": float(macs[i, j]),
+                "mac": mac,
             })
+        hit = {p[0] for p in pairs}
         unmatched += [(s_i, int(det[i]), float(fd[det[i]])) for i in range(det.size)
                       if i not in hit]
     n_matched = len(matching)
@@ -312,6 +330,16 @@ def score_extraction(
         "unmatched": unmatched,
         "missed": missed,
     }
+
+
+def _assign(feasible: NDArray[np.bool_], macs: NDArray[np.float64]
+            ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Feasible pairs of the assignment with the most pairs, then the largest total MAC."""
+    if not feasible.any():
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    rows, cols = linear_sum_assignment(np.where(feasible, 2.0 - macs, 1e6))
+    keep = feasible[rows, cols]
+    return rows[keep], cols[keep]
 
 
 def f1_score(precision: ArrayLike, recall: ArrayLike) -> NDArray[np.float64]:

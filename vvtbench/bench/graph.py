@@ -31,8 +31,10 @@ CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the
 #: (noise weights for the peaks, faint products rejected, no cap), products folded at Nyquist
 EXTRACTION_REVISION = 3
 #: revision of the observation of extracted modes (observe keys of extracted tracks only; the
-#: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``)
-OBSERVE_REVISION = 2
+#: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``); 3: the
+#: extraction scored with resolved modes matched one by one (a cluster of true modes closer
+#: than the resolution holds as many detections as it has modes; docs/modes.md, "Matching")
+OBSERVE_REVISION = 3
 #: revision of the opt-in line fit (``[extract] line_fit = true``; only its keys change).
 #: 2: lines the residual search added are dropped when rough (``added_roughness``)
 LINE_FIT_REVISION = 2
