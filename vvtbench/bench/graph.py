@@ -28,8 +28,9 @@ CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the
 #: revision of the mode extraction and of its scoring (part of the extract and observe keys
 #: of extracted tracks only: true-mode tracks keep their cache). 2: shoulder modes, recall
 #: over the modes detectable in the video; 3: library defaults chosen on validation videos
-#: (noise weights for the peaks, faint products rejected, no cap), products folded at Nyquist
-EXTRACTION_REVISION = 3
+#: (noise weights for the peaks, faint products rejected, no cap), products folded at Nyquist;
+#: 4: faint products measured against ``P_i P_j / P_max`` (``product_scaling``)
+EXTRACTION_REVISION = 4
 #: revision of the observation of extracted modes (observe keys of extracted tracks only; the
 #: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``); 3: the
 #: extraction scored with resolved modes matched one by one (a cluster of true modes closer
