@@ -153,3 +153,30 @@ def test_doctests():
 
     result = doctest.testmod(suite)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_track_extraction_options_override_the_suite_and_only_that_track_s_keys():
+    from vvtbench.bench import build_graph
+    from vvtbench.bench.graph import extract_options
+
+    text = ("[extract]\nline_fit = true\nfmax = 100.0\n"
+            "[[tracks]]\nname = 'a'\nscenes = ['jello_cube_homogeneous']\n"
+            "observations = ['extracted']\n"
+            "[[tracks]]\nname = 'b'\nscenes = ['jello_cube_homogeneous']\n"
+            "observations = ['extracted']\n[tracks.extract]\nline_fit = false\n")
+    suite = parse_suite(tomllib.loads(text), "s.toml")
+    a, b = suite.tracks
+    assert a.extract == {} and b.extract == {"line_fit": False}
+    assert extract_options(suite, "extracted", a.extract)[0] == {"line_fit": True, "fmax": 100.0}
+    assert extract_options(suite, "extracted", b.extract)[0] == {"line_fit": False,
+                                                                 "fmax": 100.0}
+    tasks, _ = build_graph(suite, ["homogeneous"])
+    extracts = [t for t in tasks.values() if t.stage == "extract"]
+    assert sorted(t.payload["options"]["line_fit"] for t in extracts) == [False, True]
+    # bad values and a motion extractor table are one-line errors naming the key
+    msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\n[tracks.extract]\n"
+                   "line_fit = 'yes'\n")
+    assert "key 'tracks[0].extract.line_fit'" in msg and "true or false" in msg
+    msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\n"
+                   "[tracks.extract.extractor.phase]\nsigma = 3.0\n")
+    assert "key 'tracks[0].extract.extractor'" in msg and "[extract.extractor.NAME]" in msg

@@ -48,14 +48,16 @@ def extraction_revision(extract_opts: dict) -> int | list[int]:
     return EXTRACTION_REVISION
 
 
-def extract_options(suite: Suite, observation: str) -> tuple[dict, dict]:
+def extract_options(suite: Suite, observation: str,
+                    track_extract: dict | None = None) -> tuple[dict, dict]:
     """(the ``extract_modes`` options of an observation source, their form in task keys).
 
-    The suite's ``[extract]`` table, plus the extractor an ``"extracted:NAME"`` source names
-    and its ``[extract.extractor.NAME]`` overrides; the default extractor with no overrides
-    adds nothing, so such runs keep their cache. Keys name the extractor by name and version
-    (not by a path, which differs between machines)."""
-    opts = dict(suite.extract)
+    The suite's ``[extract]`` table with a track's ``[tracks.extract]`` over it, plus the
+    extractor an ``"extracted:NAME"`` source names and its ``[extract.extractor.NAME]``
+    overrides; the default extractor with no overrides adds nothing, so such runs keep their
+    cache. Keys name the extractor by name and version (not by a path, which differs between
+    machines)."""
+    opts = {**suite.extract, **(track_extract or {})}
     spec = observation_extractor(observation) or "phase"
     ext = suite.extractors.get(spec)
     if observation_kind(observation) != "extracted" or ext is None or (
@@ -232,11 +234,11 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             dataset_revision = content_hash(*gen_keys)
             if stop < 1:
                 continue
-            ext_rev = extraction_revision(suite.extract)
+            ext_rev = extraction_revision({**suite.extract, **track.extract})
             n_modes = int(var.inference.get("n_modes", 10))
             for obs in track.observations:
                 ext_keys = []
-                extract_opts, extract_key = extract_options(suite, obs)
+                extract_opts, extract_key = extract_options(suite, obs, track.extract)
                 if observation_kind(obs) == "extracted":
                     ext_keys = [add("extract", [extract_key, ext_rev], [g],
                                     {"options": extract_opts},

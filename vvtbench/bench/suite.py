@@ -141,6 +141,9 @@ class TrackFile(_Strict):
         None, description="an integer in 1..100000 (instances of the family)")
     start: Annotated[int, Field(ge=0, le=2**32 - 1)] = Field(
         0, description="an integer >= 0 (the first instance index)")
+    extract: ExtractOptions | None = Field(
+        None, description="a table of extraction options over the suite's [extract] (motion "
+        "extractors are configured in the suite's [extract.extractor.NAME] only)")
 
 
 class SuiteFile(_Strict):
@@ -330,6 +333,8 @@ class Track:
     solvers: list[str] | None = None            # restricts the run's solvers to these names
     solver_config: dict[str, dict] = field(default_factory=dict)
     solver_sweep: dict[str, list[tuple[str, dict]]] = field(default_factory=dict)
+    #: ``[tracks.extract]``: extraction options over the suite's ``[extract]``
+    extract: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -512,9 +517,14 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
                  dict(zip(keys, combo, strict=True)))
                 for combo in itertools.product(*(table[k] for k in keys))]
         tsolvers = t.get("solvers")
+        textract = dict(t.get("extract") or {})
+        if "extractor" in textract:
+            raise SuiteError(f"{source}: key '{_join(path, 'extract.extractor')}': motion "
+                             "extractors are configured in the suite's [extract.extractor.NAME] "
+                             "(allowed here: the extraction options of [extract])")
         tracks.append(Track(tname, scenes, _variations(t, source, path, tdefaults),
                             list(tseeds), list(obs), t.get("description", ""), tsolvers,
-                            dict(t.get("solver", {})), ssweep))
+                            dict(t.get("solver", {})), ssweep, textract))
     names = [t.name for t in tracks]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
