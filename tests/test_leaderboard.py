@@ -395,3 +395,26 @@ def test_track_order_comes_from_the_run_not_the_table(tmp_path):
     (tmp_path / "run.json").write_text("[1, 2]")
     assert suite_track_order(tmp_path, ["a", "b"]) == ["a", "b"]
     assert suite_track_order(tmp_path / "x" / "r.csv", ["z", "y"]) == ["z", "y"]
+
+
+def test_sweep_curve_has_a_gap_where_a_run_is_not_valid(tmp_path, monkeypatch):
+    """A swept value whose run was invalid is a gap in the curve, not a line drawn across it."""
+    import matplotlib.axes
+
+    from vvtbench.plots import plot_sweep
+
+    rows = [{"scene": "s", "solver": "vvt", "observation": "true", "status": st,
+             "variation_options": json.dumps({"n_modes": n}), "nc_w": w, "nc_v": w}
+            for n, st, w in [(8, "ok", 0.2), (10, "invalid", np.nan), (12, "ok", 0.4)]]
+    drawn = []
+    plot = matplotlib.axes.Axes.plot
+
+    def spy(self, *args, **kwargs):
+        drawn.append((np.asarray(args[0], float), np.asarray(args[1], float)))
+        return plot(self, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", spy)
+    assert plot_sweep(tmp_path / "f.png", pd.DataFrame(rows), "n_modes",
+                      Styles(["vvt"], ["true"]))
+    x, y = drawn[0]
+    assert x.tolist() == [8, 10, 12] and y[0] == 0.2 and np.isnan(y[1]) and y[2] == 0.4

@@ -491,9 +491,11 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
     over instances (seeds) with a 95 % bootstrap band when a point has several. Only rows with
     status ok are drawn. Returns False when there is nothing to draw."""
     _, plt = _mpl()
-    d = df[df.status == "ok"].copy()
+    d = df.copy()
     d["_x"] = [_option(t, key) for t in d["variation_options"]]
     d = d[np.isfinite(d["_x"])]
+    swept = {scene: np.sort(g["_x"].unique()) for scene, g in d.groupby("scene", sort=False)}
+    d = d[d.status == "ok"]
     if d.empty or d["_x"].nunique() < 2:
         return False
     scenes = list(dict.fromkeys(d["scene"]))
@@ -507,7 +509,8 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
         for j, field in enumerate(fields):
             ax = axes[i, j]
             for (solver, obs), g in ds.groupby(["solver", "observation"], sort=True):
-                x = np.sort(g["_x"].unique())
+                # every swept value of the scene: a value with no valid run is a gap
+                x = swept[scene]
                 vals = [g[g["_x"] == v][f"nc_{field}"].to_numpy(float) for v in x]
                 ls, marker = styles.line(obs)
                 ref = " (reference)" if "reference" in g and g["reference"].astype(bool).any() \
