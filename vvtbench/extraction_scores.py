@@ -212,6 +212,8 @@ def score_extraction(
         if not floor_px >= 0:
             raise ValueError(f"floor_px must be >= 0, got {floor_px}")
         detectable = [bool(np.any(amp[c] >= floor_px)) for c in clusters]
+    modes = [int(x) for x in band]
+    cluster_of = {t: j for j, c in enumerate(clusters) for t in c}
     matched_clusters: set[int] = set()
     matching: list[dict[str, Any]] = []
     unmatched: list[tuple[int, int, float]] = []
@@ -227,8 +229,6 @@ def score_extraction(
             raise ValueError(f"{tm.shape[0]} true image modes for {ft.size} frequencies")
         tv, dv, _ = _true_vectors(tm, np.asarray(ms.shapes, np.float64)[det], uv_s)
         # 1. resolved: one detection per true mode, by its own frequency and shape
-        modes = [int(x) for x in band]
-        cluster_of = {t: j for j, c in enumerate(clusters) for t in c}
         mac1 = np.zeros((det.size, len(modes)))
         ok1 = np.zeros_like(mac1, dtype=bool)
         for k, t in enumerate(modes):
@@ -247,7 +247,7 @@ def score_extraction(
         # 2. unresolved: a detection left over and a cluster none of whose modes it matched
         taken = {p[1] for p in pairs}
         free = [j for j in range(len(clusters)) if j not in taken]
-        rest = [i for i in range(det.size) if i not in {p[0] for p in pairs}]
+        rest = np.setdiff1d(np.arange(det.size), rows).tolist()
         mac2 = np.zeros((len(rest), len(free)))
         ok2 = np.zeros_like(mac2, dtype=bool)
         for b, j in enumerate(free):

@@ -234,11 +234,11 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             dataset_revision = content_hash(*gen_keys)
             if stop < 1:
                 continue
-            ext_rev = extraction_revision({**suite.extract, **track.extract})
             n_modes = int(var.inference.get("n_modes", 10))
             for obs in track.observations:
                 ext_keys = []
                 extract_opts, extract_key = extract_options(suite, obs, track.extract)
+                ext_rev = extraction_revision(extract_opts)
                 if observation_kind(obs) == "extracted":
                     ext_keys = [add("extract", [extract_key, ext_rev], [g],
                                     {"options": extract_opts},
