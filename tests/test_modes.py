@@ -611,6 +611,39 @@ def test_hann_window_and_distortion_rejection_in_mode_identification() -> None:
     assert not np.any(np.abs(rect.frequencies_hz - 31.0) < 1.0)
 
 
+@pytest.mark.parametrize("line_fit", [False, True])
+def test_mode_phases_and_product_phase_residuals_known_answer(line_fit: bool) -> None:
+    """Modes ``cos(2 pi f t + p)`` off-bin: ``metadata.phase_rad`` is ``p`` mod pi; the
+    products of a per-pixel quadratic non-linearity (random sign, as a texture-locked one)
+    are rejected with a phase residual near 0, since their phase is ``p_a +- p_b``."""
+    fps, T, n = 100.0, 600, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    rng = np.random.default_rng(0)
+    c = rng.normal(size=(n, n, 2))
+    modes = {7.31: 0.3, 11.13: 2.0}
+    u = (0.3 * np.cos(2 * np.pi * 7.31 * t + modes[7.31]) * pa
+         + 0.2 * np.cos(2 * np.pi * 11.13 * t + modes[11.13]) * pb)
+    d = u + 0.05 * c * u**2 + 1e-4 * rng.normal(size=u.shape)  # a noise floor
+    every = modes_from_displacements(d, fps, fmax=45.0, line_fit=line_fit,
+                                     reject_distortion=False)
+    phase = np.asarray(every.metadata["phase_rad"])
+    assert phase.shape == (len(every),) and len(every) >= 4
+    for f0, p0 in modes.items():
+        k = nearest(every, f0)
+        assert abs(every.frequencies_hz[k] - f0) < 0.02
+        # the peak picker's phase carries its parabolic frequency's error (pi rad per bin)
+        assert abs((phase[k] - p0 + np.pi / 2) % np.pi - np.pi / 2) < (0.05, 0.002)[line_fit]
+    ms = modes_from_displacements(d, fps, fmax=45.0, line_fit=line_fit)
+    assert np.sort(ms.frequencies_hz) == pytest.approx([7.31, 11.13], abs=0.02)
+    rejected = ms.metadata["rejected"]
+    assert len(rejected) == len(every) - 2
+    assert {r["kind"] for r in rejected} >= {"sum", "difference", "harmonic"}
+    for r in rejected:
+        assert r["reason"] == "distortion"
+        assert abs(r["phase_residual_rad"]) < (0.15, 0.01)[line_fit], r
+
+
 def test_faint_smooth_product_rejected_by_power_ratio_true_mode_kept() -> None:
     """A smooth product (a small object: as smooth as the modes) passes the roughness test;
     with ``faint_product_ratio`` it is rejected for being far fainter than its parents, while

@@ -32,6 +32,7 @@ from .peaks import (
     check_band,
     distortion_products,
     pick_peaks,
+    product_phase_residual,
     refine_frequency,
     roughness,
     translation_mac,
@@ -349,8 +350,9 @@ def modes_from_displacements(
                              f"grid {tuple(Z.shape[1:3])}")
         attenuation = noisy_pixel_attenuation(shape_noise, w, shape_noise_quantile,
                                               shape_noise_factor)
+    phase = []
     for i, k in enumerate(pk.bins):
-        real, _, coll = align_phase(Z[i], w)
+        real, theta, coll = align_phase(Z[i], w)
         rough.append(roughness(real, w, rough_sigma_px / stride))
         if attenuation is not None:
             real = real * attenuation[..., None]
@@ -368,6 +370,9 @@ def modes_from_displacements(
             f_ref = refine_frequency(freqs, power, int(k))
             delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
             amp = 2.0 * norm / gain / scalloping(delta, window)
+            # the symmetric window puts a line delta bins off the bin at phase + pi delta
+            theta -= math.pi * delta
+        phase.append(theta % math.pi)
         rows["frequencies_hz"].append(f_ref)
         rows["damping"].append(zeta)
         rows["damping_half_power"].append(
@@ -409,6 +414,7 @@ def modes_from_displacements(
             "attenuated_fraction": float(np.mean(attenuation < 1.0)),
         },
         roughness=[float(r) for r in rough],
+        phase_rad=[float(p) for p in phase],
         weighted=weights is not None,
         min_bin=int(min_bin),
         shoulder_prominence=shoulder_prominence,
@@ -477,6 +483,7 @@ def modes_from_displacements(
                     kind=faint["kind"],
                     parents_hz=[float(f[i]), float(f[j])],
                     power_ratio=faint["power_ratio"],
+                    phase_residual_rad=product_phase_residual(phase, f, k, i, j, fps=fps),
                 )
             elif d is not None and rough[k] > product_roughness:
                 i, j = d["parents"]
@@ -484,6 +491,7 @@ def modes_from_displacements(
                     reason="distortion",
                     kind=d["kind"],
                     parents_hz=[float(f[i]), float(f[j])],
+                    phase_residual_rad=product_phase_residual(phase, f, k, i, j, fps=fps),
                 )
             elif rough[k] > max_roughness:
                 entry.update(reason="incoherent")

@@ -33,6 +33,7 @@ __all__ = [
     "check_band",
     "distortion_products",
     "pick_peaks",
+    "product_phase_residual",
     "refine_frequency",
     "roughness",
     "translation_mac",
@@ -346,6 +347,36 @@ def distortion_products(
                 }
             )
     return out
+
+
+def product_phase_residual(phases: ArrayLike, frequencies: ArrayLike, k: int, i: int, j: int,
+                           *, fps: float | None = None) -> float:
+    """Phase of peak ``k`` less that of the second-order product of peaks ``i, j`` nearest to
+    it, wrapped to ``[-pi/2, pi/2)``.
+
+    A memoryless non-linearity of the measured motion turns ``cos(w_i t + p_i)`` and
+    ``cos(w_j t + p_j)`` into terms at ``w_i + w_j`` with phase ``p_i + p_j`` and at
+    ``|w_i - w_j|`` with ``+-(p_i - p_j)``, in every pixel, with the sign of the local
+    non-linearity: a product's phase is fixed modulo ``pi`` by its parents', a mode's that
+    happens to sit at the product frequency is not.  ``phases`` are the modes' phases at the
+    record's start (``metadata.phase_rad`` of :func:`.extract.modes_from_displacements`).
+    A product folded at the Nyquist frequency (``fps``) has its phase negated.
+
+    >>> f = [5.0, 7.0, 12.0]                     # 12 = 5 + 7
+    >>> round(product_phase_residual([0.4, 1.1, 1.5 + np.pi], f, 2, 0, 1), 3)
+    0.0
+    >>> round(product_phase_residual([0.4, 1.1, 0.2], f, 2, 0, 1), 3)
+    -1.3
+    """
+    ph = np.asarray(phases, dtype=np.float64)
+    f = np.asarray(frequencies, dtype=np.float64)
+    sign = 1.0 if f[i] >= f[j] else -1.0
+    total, diff = f[i] + f[j], abs(f[i] - f[j])
+    cands = [(total, ph[i] + ph[j])] + ([(diff, sign * (ph[i] - ph[j]))] if i != j else [])
+    c, expected = min(cands, key=lambda ce: abs(f[k] - (_folded(ce[0], fps) if fps else ce[0])))
+    if fps and c % fps > fps / 2:
+        expected = -expected
+    return float((ph[k] - expected + math.pi / 2) % math.pi - math.pi / 2)
 
 
 def _reference(p_i: float, p_j: float, p_max: float, scaling: str) -> float:
