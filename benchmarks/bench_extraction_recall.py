@@ -11,7 +11,9 @@ at each ``--floors`` value, and ``recall_all`` over every cluster in the band.
 The detections are those of the run's cached extract tasks, or, with ``--reextract``, a
 fresh extraction with the current code and the same task options (written to ``--out``), or,
 with ``--modes DIR``, the mode sets saved in ``DIR/<generate task hash>`` (e.g. extracted
-with other options).
+with other options). ``--samples DIR ...`` scores sample folders of any origin (e.g. a
+family's val split from ``vvtbench generate FAMILY --split val``) instead, extracted with a
+suite track's options (``--suite``, ``--track``) and the ``--set`` overrides.
 
 Usage::
 
@@ -19,6 +21,8 @@ Usage::
         [--set line_fit=true --set max_modes=null] \
         [--out /tmp/extract] [--modes DIR] [--floors 0.001 0.003 0.01] \
         [--scenes jello_cube_defect ...]
+    python benchmarks/bench_extraction_recall.py --samples DIR [DIR ...] \
+        --suite paper --track drums [--set line_fit=true]
 
 Prints a Markdown table per sample and the pooled (micro-averaged) scores per group.
 """
@@ -32,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vvtbench.bench.graph import extract_options
+from vvtbench.bench.suite import load_suite
 from vvtbench.dataset import open_sample
 from vvtbench.extraction_scores import score_sample_extraction, true_mode_amplitudes
 from vvtbench.modes import ModeSet, extract_modes
@@ -50,7 +56,12 @@ def _extract_tasks(cache: Path) -> dict[str, list[tuple[Path, dict]]]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("cache", type=Path, help="a run's cache folder (runs/<suite>/cache)")
+    ap.add_argument("cache", type=Path, nargs="?",
+                    help="a run's cache folder (runs/<suite>/cache)")
+    ap.add_argument("--samples", type=Path, nargs="+", default=None,
+                    help="sample folders to extract and score instead of a run's cache")
+    ap.add_argument("--suite", default="paper", help="with --samples: the suite ...")
+    ap.add_argument("--track", default=None, help="... and track whose options to use")
     ap.add_argument("--scenes", nargs="+", default=list(DEFAULT_SCENES),
                     help="scene name prefixes to include")
     ap.add_argument("--floors", nargs="+", type=float, default=[0.001, 0.003, 0.01])
@@ -69,15 +80,27 @@ def main() -> None:
         key, _, val = kv.partition("=")
         overrides[key] = json.loads(val)
 
-    tasks = _extract_tasks(args.cache)
+    if (args.cache is None) == (args.samples is None):
+        ap.error("give a run's cache folder or --samples, not both")
+    if args.samples is not None:
+        suite = load_suite(args.suite)
+        track = next((t for t in suite.tracks if t.name == args.track), None)
+        if args.track is not None and track is None:
+            ap.error(f"--track: no track {args.track!r} in suite {args.suite!r}")
+        options = extract_options(suite, "extracted", track.extract if track else None)[0]
+        samples = [(d / "truth.json", [(d, options)]) for d in args.samples]
+        args.reextract, args.scenes = True, [""]
+    else:
+        tasks = _extract_tasks(args.cache)
+        samples = [(gen, tasks.get(f"generate/{gen.parent.parent.name}", [])) for gen in
+                   sorted((args.cache / "generate").glob("*/sample/truth.json"))]
     rows = []
-    for gen in sorted((args.cache / "generate").glob("*/sample/truth.json")):
-        key = f"generate/{gen.parent.parent.name}"
+    for gen, extracts in samples:
         s = open_sample(gen.parent)
         name = s.info["scene"]
         if not s.has_video or not any(name.startswith(p) for p in args.scenes):
             continue
-        for folder, options in tasks.get(key, []):
+        for folder, options in extracts:
             t0 = time.perf_counter()
             if args.modes is not None:
                 if not (args.modes / gen.parent.parent.name).exists():

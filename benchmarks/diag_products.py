@@ -8,9 +8,10 @@ For each generated sample (a folder with video and truth, e.g. a `standard_val` 
 reject_distortion=False)``, detections scored against the true modes
 (:func:`vvtbench.extraction_scores.score_sample_extraction`), and every detection tested as a
 second-order product of stronger ones (:func:`vvtbench.modes.peaks.distortion_products`, power
-ratio 0.5, half a bin). Prints one JSON line per detection (frequency, false or true, product
-kind and parents, power ratio, roughness, phase residual), then how many false and true
-detections each product-roughness threshold would reject, and how many have a phase within
+ratio 0.5, half a bin). Prints one JSON line per detection in the scored band (frequency,
+false or true, product kind and parents, power ratio, roughness, phase residual), then how
+many false and true detections each product-roughness threshold would reject, and how many
+have a phase within
 0.1, 0.2 and 0.4 rad of their product's (:func:`vvtbench.modes.peaks.product_phase_residual`;
 a phase unrelated to the product's is that close with probability 0.06, 0.13 and 0.25).
 ``--line-fit``: the paper suite's extraction (line fit, up to 2000 modes) instead.
@@ -36,7 +37,9 @@ def detections(sample_dir: str, line_fit: bool = False) -> list[dict]:
     s = open_sample(sample_dir)
     ms = extract_modes(s.video_path, s.fps, max_modes=2000 if line_fit else 30, fmax=200.0,
                        reject_distortion=False, line_fit=line_fit)
-    false = {i for _, i, _ in score_sample_extraction(s, ms, 200.0)["unmatched"]}
+    sc = score_sample_extraction(s, ms, 200.0)
+    false = {i for _, i, _ in sc["unmatched"]}
+    lo, hi = sc["band_hz"]
     f = ms.frequencies_hz
     p = np.asarray(ms.power)[ms.peak_bins]
     rough = ms.metadata["roughness"]
@@ -46,6 +49,8 @@ def detections(sample_dir: str, line_fit: bool = False) -> list[dict]:
     out = []
     for k in range(len(ms)):
         d = flagged.get(k)
+        if not lo <= f[k] <= hi:  # above the highest true mode nothing is scored
+            continue
         out.append({"sample": sample_dir, "frequency_hz": float(f[k]), "false": k in false,
                     "product": None if d is None else d["kind"],
                     "parents_hz": None if d is None else [float(f[i]) for i in d["parents"]],
