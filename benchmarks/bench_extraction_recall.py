@@ -81,7 +81,7 @@ def main() -> None:
         overrides[key] = json.loads(val)
 
     if (args.cache is None) == (args.samples is None):
-        ap.error("give a run's cache folder or --samples, not both")
+        ap.error("give either a run's cache folder or --samples")
     if args.samples is not None:
         suite = load_suite(args.suite)
         track = next((t for t in suite.tracks if t.name == args.track), None)

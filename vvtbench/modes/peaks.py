@@ -357,8 +357,9 @@ def product_phase_residual(phases: ArrayLike, frequencies: ArrayLike, k: int, i:
     A memoryless non-linearity of the measured motion turns ``cos(w_i t + p_i)`` and
     ``cos(w_j t + p_j)`` into terms at ``w_i + w_j`` with phase ``p_i + p_j`` and at
     ``|w_i - w_j|`` with ``+-(p_i - p_j)``, in every pixel, with the sign of the local
-    non-linearity: a product's phase is fixed modulo ``pi`` by its parents', a mode's that
-    happens to sit at the product frequency is not.  ``phases`` are the modes' phases at the
+    non-linearity: a product's phase is fixed modulo ``pi`` by its parents', while a mode at
+    the product frequency has the phase its excitation gave it (the same as the product's
+    after a pluck, which starts every mode at 0: docs/modes.md).  ``phases`` are the phases at the
     record's start (``metadata.phase_rad`` of :func:`.extract.modes_from_displacements`).
     A product folded at the Nyquist frequency (``fps``) has its phase negated.
 
