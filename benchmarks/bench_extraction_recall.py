@@ -87,9 +87,11 @@ def main() -> None:
         track = next((t for t in suite.tracks if t.name == args.track), None)
         if args.track is not None and track is None:
             ap.error(f"--track: no track {args.track!r} in suite {args.suite!r}")
+        missing = [str(d) for d in args.samples if not (d / "truth.json").is_file()]
+        if missing:
+            ap.error(f"--samples: no sample (truth.json) in {', '.join(missing)}")
         options = extract_options(suite, "extracted", track.extract if track else None)[0]
         samples = [(d / "truth.json", [(d, options)]) for d in args.samples]
-        args.reextract, args.scenes = True, [""]
     else:
         tasks = _extract_tasks(args.cache)
         samples = [(gen, tasks.get(f"generate/{gen.parent.parent.name}", [])) for gen in
@@ -98,7 +100,8 @@ def main() -> None:
     for gen, extracts in samples:
         s = open_sample(gen.parent)
         name = s.info["scene"]
-        if not s.has_video or not any(name.startswith(p) for p in args.scenes):
+        if not s.has_video or (args.samples is None
+                               and not any(name.startswith(p) for p in args.scenes)):
             continue
         for folder, options in extracts:
             t0 = time.perf_counter()
@@ -106,7 +109,7 @@ def main() -> None:
                 if not (args.modes / gen.parent.parent.name).exists():
                     continue
                 ms = ModeSet.load(args.modes / gen.parent.parent.name)
-            elif args.reextract:
+            elif args.reextract or args.samples is not None:
                 options = {**options, **overrides}
                 ms = extract_modes(s.video_path, s.fps, workers=args.workers, **options)
                 ms.save(args.out / folder.name)

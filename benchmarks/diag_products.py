@@ -11,9 +11,9 @@ second-order product of stronger ones (:func:`vvtbench.modes.peaks.distortion_pr
 ratio 0.5, half a bin). Prints one JSON line per detection in the scored band (frequency,
 false or true, product kind and parents, power ratio, roughness, phase residual), then how
 many false and true detections each product-roughness threshold would reject, and how many
-have a phase within
-0.1, 0.2 and 0.4 rad of their product's (:func:`vvtbench.modes.peaks.product_phase_residual`;
-a phase unrelated to the product's is that close with probability 0.06, 0.13 and 0.25).
+have a phase within 0.1, 0.2 and 0.4 rad of their product's
+(:func:`vvtbench.modes.peaks.product_phase_residual`; a phase unrelated to the product's is
+that close with probability 0.06, 0.13 and 0.25).
 ``--line-fit``: the paper suite's extraction (line fit, up to 2000 modes) instead.
 """
 
@@ -58,7 +58,8 @@ def detections(sample_dir: str, line_fit: bool = False) -> list[dict]:
                         p[k] / min(p[i] for i in d["parents"])),
                     "roughness": float(rough[k]) if len(rough) == len(ms) else None,
                     "phase_residual_rad": None if d is None or phase is None else
-                    product_phase_residual(phase, f, k, *d["parents"], fps=ms.fps)})
+                    product_phase_residual(phase, f, k, *d["parents"], d["kind"],
+                                           fps=ms.fps)})
     return out
 
 
@@ -82,9 +83,9 @@ def main() -> None:
     phased = [r for r in products if r["phase_residual_rad"] is not None]
     print("| phase residual within | false products | true modes at a product frequency |")
     print("|---|---|---|")
+    n_false = sum(r["false"] for r in phased)
     for tol in PHASE_TOLERANCES:
         close = [r for r in phased if abs(r["phase_residual_rad"]) <= tol]
-        n_false = sum(r["false"] for r in phased)
         c_false = sum(r["false"] for r in close)
         print(f"| {tol} rad | {c_false} of {n_false} | {len(close) - c_false} of "
               f"{len(phased) - n_false} |")

@@ -483,7 +483,8 @@ def modes_from_displacements(
                     kind=faint["kind"],
                     parents_hz=[float(f[i]), float(f[j])],
                     power_ratio=faint["power_ratio"],
-                    phase_residual_rad=product_phase_residual(phase, f, k, i, j, fps=fps),
+                    phase_residual_rad=product_phase_residual(phase, f, k, i, j, faint["kind"],
+                                                              fps=fps),
                 )
             elif d is not None and rough[k] > product_roughness:
                 i, j = d["parents"]
@@ -491,7 +492,8 @@ def modes_from_displacements(
                     reason="distortion",
                     kind=d["kind"],
                     parents_hz=[float(f[i]), float(f[j])],
-                    phase_residual_rad=product_phase_residual(phase, f, k, i, j, fps=fps),
+                    phase_residual_rad=product_phase_residual(phase, f, k, i, j, d["kind"],
+                                                              fps=fps),
                 )
             elif rough[k] > max_roughness:
                 entry.update(reason="incoherent")

@@ -350,9 +350,9 @@ def distortion_products(
 
 
 def product_phase_residual(phases: ArrayLike, frequencies: ArrayLike, k: int, i: int, j: int,
-                           *, fps: float | None = None) -> float:
-    """Phase of peak ``k`` less that of the second-order product of peaks ``i, j`` nearest to
-    it, wrapped to ``[-pi/2, pi/2)``.
+                           kind: str, *, fps: float | None = None) -> float:
+    """Phase of peak ``k`` less that of the ``kind`` product of peaks ``i, j`` (as
+    :func:`distortion_products` names it), wrapped to ``[-pi/2, pi/2)``.
 
     A memoryless non-linearity of the measured motion turns ``cos(w_i t + p_i)`` and
     ``cos(w_j t + p_j)`` into terms at ``w_i + w_j`` with phase ``p_i + p_j`` and at
@@ -364,17 +364,18 @@ def product_phase_residual(phases: ArrayLike, frequencies: ArrayLike, k: int, i:
     A product folded at the Nyquist frequency (``fps``) has its phase negated.
 
     >>> f = [5.0, 7.0, 12.0]                     # 12 = 5 + 7
-    >>> round(product_phase_residual([0.4, 1.1, 1.5 + np.pi], f, 2, 0, 1), 3)
+    >>> round(product_phase_residual([0.4, 1.1, 1.5 + np.pi], f, 2, 0, 1, "sum"), 3)
     0.0
-    >>> round(product_phase_residual([0.4, 1.1, 0.2], f, 2, 0, 1), 3)
+    >>> round(product_phase_residual([0.4, 1.1, 0.2], f, 2, 0, 1, "sum"), 3)
     -1.3
     """
     ph = np.asarray(phases, dtype=np.float64)
     f = np.asarray(frequencies, dtype=np.float64)
-    sign = 1.0 if f[i] >= f[j] else -1.0
-    total, diff = f[i] + f[j], abs(f[i] - f[j])
-    cands = [(total, ph[i] + ph[j])] + ([(diff, sign * (ph[i] - ph[j]))] if i != j else [])
-    c, expected = min(cands, key=lambda ce: abs(f[k] - (_folded(ce[0], fps) if fps else ce[0])))
+    if kind == "difference":
+        hi, lo = (i, j) if f[i] >= f[j] else (j, i)
+        c, expected = f[hi] - f[lo], ph[hi] - ph[lo]
+    else:
+        c, expected = f[i] + f[j], ph[i] + ph[j]
     if fps and c % fps > fps / 2:
         expected = -expected
     return float((ph[k] - expected + math.pi / 2) % math.pi - math.pi / 2)
