@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from vvtbench.bench.graph import extract_options
-from vvtbench.bench.suite import load_suite
+from vvtbench.bench.suite import SuiteError, load_suite
 from vvtbench.dataset import open_sample
 from vvtbench.extraction_scores import score_sample_extraction, true_mode_amplitudes
 from vvtbench.modes import ModeSet, extract_modes
@@ -78,12 +78,18 @@ def main() -> None:
     overrides = {}
     for kv in args.set:
         key, _, val = kv.partition("=")
-        overrides[key] = json.loads(val)
+        try:
+            overrides[key] = json.loads(val)
+        except json.JSONDecodeError:
+            ap.error(f"--set {kv}: the value must be JSON (e.g. true, 0.01, null, \"noise\")")
 
     if (args.cache is None) == (args.samples is None):
         ap.error("give either a run's cache folder or --samples")
     if args.samples is not None:
-        suite = load_suite(args.suite)
+        try:
+            suite = load_suite(args.suite)
+        except SuiteError as e:
+            ap.error(f"--suite: {e}")
         track = next((t for t in suite.tracks if t.name == args.track), None)
         if args.track is not None and track is None:
             ap.error(f"--track: no track {args.track!r} in suite {args.suite!r}")
