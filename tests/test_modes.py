@@ -725,6 +725,55 @@ def test_noisy_pixels_attenuated_in_the_shapes() -> None:
             noisy_pixel_attenuation(odd, factor=bad)
 
 
+def test_shape_tests_on_reliable_pixels_keep_a_weak_mode_and_drop_an_edge_line() -> None:
+    """A strip of unreliable pixels (broadband motion noise 0.05 px, as at an occlusion edge)
+    carries a rough 0.015 px field at a weak smooth mode's frequency, which makes that mode
+    rough on all pixels, and a line of its own.  Judged on all pixels (the default) the weak
+    mode is rejected as incoherent; with ``roughness_weighting="spectrum"`` (noise weights:
+    the strip left out) it is kept, and ``min_reliable_fraction`` drops the strip's line as
+    ``"unreliable"`` (energy per unit noise weight ~0 against ~1 for the modes)."""
+    from vvtbench.modes.extract import noise_weights
+    from vvtbench.modes.spectrum import pixel_noise_power
+
+    fps, T, n = 100.0, 1024, 32
+    t = np.arange(T)[:, None, None, None] / fps
+    rng = np.random.default_rng(3)
+    strip = np.zeros((n, n, 1))
+    strip[:, :4] = 1.0
+    rough_field = strip * rng.choice([-1.0, 1.0], size=(n, n, 2))
+    d = 0.05 * np.cos(2 * np.pi * 10.25 * t) * pattern(n, "a")
+    d = d + np.cos(2 * np.pi * 23.5 * t) * (0.005 * pattern(n, "b") + 0.015 * rough_field)
+    d = d + 0.05 * np.cos(2 * np.pi * 37.75 * t) * strip
+    d = d + rng.normal(0.0, 1e-4, d.shape) + 0.05 * strip * rng.normal(0.0, 1.0, d.shape)
+    ones = np.ones((n, n))
+    sw = noise_weights(ones, pixel_noise_power(d))
+    assert sw[:, :4].max() < 1e-3 < sw[:, 4:].min()
+
+    plain = modes_from_displacements(d, fps, weights=ones, spectrum_weights=sw)
+    assert np.sort(plain.frequencies_hz) == pytest.approx([10.25, 37.75], abs=0.05)
+    (weak,) = [r for r in plain.metadata["rejected"] if abs(r["frequency_hz"] - 23.5) < 0.1]
+    assert weak["reason"] == "incoherent" and weak["roughness"] > 0.3
+
+    ms = modes_from_displacements(d, fps, weights=ones, spectrum_weights=sw,
+                                  roughness_weighting="spectrum", min_reliable_fraction=0.1)
+    assert np.sort(ms.frequencies_hz) == pytest.approx([10.25, 23.5], abs=0.05)
+    (edge,) = ms.metadata["rejected"]
+    assert edge["reason"] == "unreliable" and edge["frequency_hz"] == pytest.approx(37.75, abs=0.05)
+    assert edge["reliable_fraction"] < 0.01
+    fr = np.asarray(ms.metadata["reliable_fraction"])
+    assert fr.size == 3 and np.sum(fr > 0.2) == 2  # the modes; the weak one 0.28
+    assert ms.metadata["roughness_weighting"] == "spectrum"
+    assert ms.metadata["min_reliable_fraction"] == 0.1
+    # without spectrum weights there is nothing to tell reliable pixels by: no change
+    same = modes_from_displacements(d, fps, weights=ones, roughness_weighting="spectrum",
+                                    min_reliable_fraction=0.1)
+    assert np.all(np.asarray(same.metadata["reliable_fraction"]) == 1.0)
+    with pytest.raises(ValueError, match="roughness_weighting"):
+        modes_from_displacements(d, fps, roughness_weighting="noise")
+    with pytest.raises(ValueError, match="min_reliable_fraction"):
+        modes_from_displacements(d, fps, min_reliable_fraction=float("nan"))
+
+
 def test_products_folded_by_sampling_are_recognised() -> None:
     """A product above Nyquist appears where sampling folds it: at 200 fps the harmonic of
     a 77.25 Hz mode (154.5 Hz) is seen at 45.5 Hz, the sum 77.25 + 52 Hz at 70.75 Hz.  Both

@@ -57,6 +57,10 @@ def test_numbers_are_finite_and_in_range():
     assert "key 'extract.product_roughness'" in error_of("[extract]\nproduct_roughness = -0.1\n")
     assert "key 'extract.faint_product_ratio'" in error_of("[extract]\nfaint_product_ratio = 2\n")
     assert "key 'extract.product_scaling'" in error_of("[extract]\nproduct_scaling = 'cubic'\n")
+    msg = error_of("[extract]\nroughness_weighting = 'noise'\n")
+    assert "key 'extract.roughness_weighting'" in msg and "'spectrum'" in msg
+    msg = error_of("[extract]\nmin_reliable_fraction = -1\n")
+    assert "key 'extract.min_reliable_fraction'" in msg and ">= 0" in msg
     assert "key 'sweep.n_modes'" in error_of("[sweep]\nn_modes = []\n")
 
 

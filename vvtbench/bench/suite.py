@@ -101,6 +101,11 @@ class ExtractOptions(_Strict):
         None, description="'product' or 'weaker' (what a faint product is measured against)")
     shape_attenuation: bool | None = Field(
         None, description="true or false (noisiest pixels of the mode shapes attenuated)")
+    roughness_weighting: Literal["shape", "spectrum"] | None = Field(
+        None, description="'shape' or 'spectrum' (pixel weights of the roughness tests)")
+    min_reliable_fraction: NonNegativeNumber | None = Field(
+        None, description="a number >= 0 (peaks with less of their energy on the reliable "
+        "pixels are rejected)")
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")

@@ -176,6 +176,14 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
+    ap.add_argument("--roughness-weighting", choices=("shape", "spectrum"), default="shape",
+                    help="pixel weights of the roughness tests: the shapes' (confidence) or the "
+                    "spectrum's (noise weights: occlusion edges and seams left out; default: "
+                    "shape; docs/modes.md, 'Reliable pixels')")
+    ap.add_argument("--min-reliable-fraction", type=nonnegative_float, default=None,
+                    help="reject a peak whose energy on the reliable pixels (noise weights) is "
+                    "below this fraction of its energy on all pixels (default: off; "
+                    "docs/modes.md, 'Reliable pixels')")
     ap.add_argument("--memory-budget-mb", type=positive_float, default=1024.0)
     ap.add_argument("--tmpdir", default=None, help="where displacements spill to disk")
     ap.add_argument("--no-plots", action="store_true")
@@ -235,6 +243,8 @@ def main_extract(argv: list[str] | None = None) -> int:
             faint_product_ratio=args.faint_product_ratio,
             product_scaling=args.product_scaling,
             shape_attenuation=args.shape_attenuation,
+            roughness_weighting=args.roughness_weighting,
+            min_reliable_fraction=args.min_reliable_fraction,
             extractor=args.extractor,
             extractor_config=extractor_config,
         )

@@ -34,6 +34,7 @@ from .peaks import (
     pick_peaks,
     product_phase_residual,
     refine_frequency,
+    reliable_fraction,
     roughness,
     translation_mac,
 )
@@ -162,6 +163,8 @@ def modes_from_displacements(
     shape_noise: ArrayLike | None = None,
     shape_noise_quantile: float = 0.9,
     shape_noise_factor: float = 10.0,
+    roughness_weighting: str = "shape",
+    min_reliable_fraction: float | None = None,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -270,12 +273,31 @@ def modes_from_displacements(
         dropped when its shape's roughness is above this (reason ``"weak_incoherent"``);
         ``None`` keeps the ``max_roughness`` test alone.  0.06 was chosen on validation
         videos in no suite (docs/modes.md, "Line fit").
+    roughness_weighting : {"shape", "spectrum"}, default "shape"
+        Pixel weights of the roughness tests (``max_roughness``, ``product_roughness``,
+        ``added_roughness``): ``weights`` (the shapes'), or ``spectrum_weights`` (e.g.
+        :func:`noise_weights`, which leave out the pixels at occlusion edges and texture
+        seams whose motion carries the video's distortion products, so a weak mode is judged
+        on the faces it moves; docs/modes.md, "Reliable pixels").  Same without
+        ``spectrum_weights``.
+    min_reliable_fraction : float or None, default None
+        Drop a peak (reason ``"unreliable"``) whose shape's mean energy per unit
+        ``spectrum_weights`` is below this fraction of its mean energy per unit ``weights``
+        (:func:`reliable_fraction`, stored for every analysed peak in
+        ``metadata["reliable_fraction"]``): a line that lives on the unreliable pixels
+        (occlusion edges, seams) is not the motion of the object.  ``None`` turns it off.
 
     Returns
     -------
     ModeSet
     """
     band = check_band(fps, fmin, fmax)
+    if roughness_weighting not in ("shape", "spectrum"):
+        raise ValueError(f"roughness_weighting must be 'shape' or 'spectrum', got "
+                         f"{roughness_weighting!r}")
+    if min_reliable_fraction is not None and not min_reliable_fraction >= 0:
+        raise ValueError(f"min_reliable_fraction must be >= 0 or None, got "
+                         f"{min_reliable_fraction!r}")
     if isinstance(line_radius, bool) or not isinstance(line_radius, int | np.integer) \
             or line_radius < 1:
         raise ValueError(f"line_radius must be an integer >= 1, got {line_radius!r}")
@@ -351,9 +373,13 @@ def modes_from_displacements(
         attenuation = noisy_pixel_attenuation(shape_noise, w, shape_noise_quantile,
                                               shape_noise_factor)
     phase = []
+    reliable = []
+    sw = w if spectrum_weights is None else np.asarray(spectrum_weights, dtype=np.float64)
+    rw = sw if roughness_weighting == "spectrum" else w
     for i, k in enumerate(pk.bins):
         real, theta, coll = align_phase(Z[i], w)
-        rough.append(roughness(real, w, rough_sigma_px / stride))
+        rough.append(roughness(real, rw, rough_sigma_px / stride))
+        reliable.append(reliable_fraction(real, w, sw))
         if attenuation is not None:
             real = real * attenuation[..., None]
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
@@ -414,6 +440,9 @@ def modes_from_displacements(
             "attenuated_fraction": float(np.mean(attenuation < 1.0)),
         },
         roughness=[float(r) for r in rough],
+        roughness_weighting=roughness_weighting,
+        min_reliable_fraction=min_reliable_fraction,
+        reliable_fraction=[float(q) for q in reliable],
         phase_rad=[float(p) for p in phase],
         weighted=weights is not None,
         min_bin=int(min_bin),
@@ -495,6 +524,8 @@ def modes_from_displacements(
                     phase_residual_rad=product_phase_residual(phase, f, k, i, j, d["kind"],
                                                               fps=fps),
                 )
+            elif min_reliable_fraction is not None and reliable[k] < min_reliable_fraction:
+                entry.update(reason="unreliable", reliable_fraction=float(reliable[k]))
             elif rough[k] > max_roughness:
                 entry.update(reason="incoherent")
             elif (added_roughness is not None and lines is not None and lines.added[k]
@@ -662,6 +693,8 @@ def extract_modes(
     extractor: Any = "phase",
     extractor_config: Any = None,
     line_fit: bool = False,
+    roughness_weighting: str = "shape",
+    min_reliable_fraction: float | None = None,
 ) -> ModeSet:
     """Extract image-space modes from a video end to end.
 
@@ -718,6 +751,9 @@ def extract_modes(
         The extractor's ``Config`` (or overrides of its defaults).
     line_fit : bool, default False
         Multi-channel line fit and residual search, see :func:`modes_from_displacements`.
+    roughness_weighting, min_reliable_fraction :
+        Shape tests on the reliable pixels, see :func:`modes_from_displacements` (they use the
+        noise weights of ``weighting="noise"``; with other weightings they change nothing).
 
     Returns
     -------
@@ -827,6 +863,8 @@ def extract_modes(
             shoulder_prominence=shoulder_prominence,
             line_fit=line_fit,
             spectrum_weights=spectrum_weights,
+            roughness_weighting=roughness_weighting,
+            min_reliable_fraction=min_reliable_fraction,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
