@@ -816,6 +816,10 @@ def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) ->
     assert seen["shape_noise"].shape == (16, 16) and seen["product_scaling"] == "weaker"
     extract_modes(tmp_path / "v.npy", 64.0, shape_attenuation=True, weighting="confidence")
     assert seen["shape_noise"].shape == (16, 16) and seen["spectrum_weights"] is None
+    assert seen["roughness_weighting"] == "shape" and seen["min_reliable_fraction"] is None
+    extract_modes(tmp_path / "v.npy", 64.0, roughness_weighting="spectrum",
+                  min_reliable_fraction=0.1)
+    assert seen["roughness_weighting"] == "spectrum" and seen["min_reliable_fraction"] == 0.1
 
 
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:
