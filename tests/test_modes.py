@@ -714,6 +714,16 @@ def test_noisy_pixels_attenuated_in_the_shapes() -> None:
     att = fixed.metadata["shape_attenuation"]
     assert att["quantile"] == 0.9 and att["attenuated_fraction"] == pytest.approx(2 / n)
     assert plain.metadata["shape_attenuation"] is None
+    assert att["mode"] == "attenuate"
+    # filled in from the neighbours instead: as clean, and the strip reads the true motion
+    filled = modes_from_displacements(d, fps, shape_noise=noise, shape_fill=True)
+    assert filled.metadata["shape_attenuation"]["mode"] == "fill"
+    shape = filled.shapes[0] * np.sign(np.sum(filled.shapes[0] * true))
+    scale = np.sum(shape * true) / np.sum(true * true)
+    assert mac(shape, true) > 0.99
+    strip = np.abs(true[:, 10:12]) > 0.3
+    ratio = shape[:, 10:12][strip] / (scale * true[:, 10:12][strip])
+    assert np.median(ratio) == pytest.approx(1.0, abs=0.1)
     with pytest.raises(ValueError, match="grid"):
         modes_from_displacements(d, fps, shape_noise=noise[:-1])
     odd = np.array([1.0, 1.0, 1.0, np.nan, np.inf, 1e6])

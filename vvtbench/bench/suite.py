@@ -101,6 +101,9 @@ class ExtractOptions(_Strict):
         None, description="'product' or 'weaker' (what a faint product is measured against)")
     shape_attenuation: bool | None = Field(
         None, description="true or false (noisiest pixels of the mode shapes attenuated)")
+    shape_fill: bool | None = Field(
+        None, description="true or false (noisiest pixels of the mode shapes filled in from "
+        "their neighbours)")
     roughness_weighting: Literal["shape", "spectrum"] | None = Field(
         None, description="'shape' or 'spectrum' (pixel weights of the roughness tests)")
     min_reliable_fraction: NonNegativeNumber | None = Field(

@@ -176,6 +176,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
+    ap.add_argument("--shape-fill", action="store_true",
+                    help="fill the noisiest pixels of the mode shapes in from their reliable "
+                    "neighbours (opt-in; docs/modes.md, 'Reliable pixels')")
     ap.add_argument("--roughness-weighting", choices=("shape", "spectrum"), default="shape",
                     help="pixel weights of the roughness tests: the shapes' (confidence) or the "
                     "spectrum's (noise weights: occlusion edges and seams left out; default: "
@@ -243,6 +246,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             faint_product_ratio=args.faint_product_ratio,
             product_scaling=args.product_scaling,
             shape_attenuation=args.shape_attenuation,
+            shape_fill=args.shape_fill,
             roughness_weighting=args.roughness_weighting,
             min_reliable_fraction=args.min_reliable_fraction,
             extractor=args.extractor,

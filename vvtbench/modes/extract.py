@@ -49,7 +49,8 @@ from .spectrum import (
     window_gain,
 )
 
-__all__ = ["confidence_weights", "noise_weights", "noisy_pixel_attenuation", "extract_modes",
+__all__ = ["confidence_weights", "noise_weights", "noisy_pixel_attenuation",
+           "fill_unreliable_pixels", "extract_modes",
            "modes_from_displacements"]
 
 _log = logging.getLogger(__name__)
@@ -125,6 +126,39 @@ def noisy_pixel_attenuation(
     return np.sqrt(np.minimum(1.0, factor * q / np.maximum(n, 1e-300)))
 
 
+def fill_unreliable_pixels(
+    field: ArrayLike, reliability: ArrayLike, weights: ArrayLike | None = None,
+    sigma: float = 2.0,
+) -> NDArray[np.float64]:
+    """Unreliable pixels of a ``(H, W, C)`` field filled in from their reliable neighbours.
+
+    ``r a + (1 - r) G(w r a) / G(w r)``: each pixel keeps the fraction ``r`` (``reliability``,
+    in ``[0, 1]``, e.g. the square of :func:`noisy_pixel_attenuation`) of its own value and
+    takes the rest from the Gaussian (``sigma`` pixels) average of its neighbours weighted by
+    ``w r``.  Unlike an attenuation it does not pull a seam or edge pixel towards zero, which
+    would bias what is read there (an object's vertices sit on its edges); a pixel with no
+    reliable neighbour keeps ``r a``.
+
+    >>> a = np.ones((5, 5, 1)); a[2, 2] = 50.0            # one unreliable pixel, read 50x
+    >>> r = np.ones((5, 5)); r[2, 2] = 0.0
+    >>> float(fill_unreliable_pixels(a, r, sigma=1.0)[2, 2, 0])
+    1.0
+    """
+    from scipy.ndimage import gaussian_filter
+
+    a = np.asarray(field, dtype=np.float64)
+    r = np.clip(np.asarray(reliability, dtype=np.float64), 0.0, 1.0)
+    w = (np.ones(r.shape) if weights is None else np.asarray(weights, dtype=np.float64)) * r
+    den = gaussian_filter(w, sigma, mode="reflect")
+    ok = den > 1e-12 * max(float(den.max()), 1e-300)
+    out = np.empty_like(a)
+    for c in range(a.shape[-1]):
+        num = gaussian_filter(w * a[..., c], sigma, mode="reflect")
+        fill = np.divide(num, den, out=np.zeros_like(num), where=ok)
+        out[..., c] = r * a[..., c] + (1.0 - r) * fill
+    return out
+
+
 def modes_from_displacements(
     disp: DisplacementStore | ArrayLike,
     fps: float,
@@ -163,6 +197,7 @@ def modes_from_displacements(
     shape_noise: ArrayLike | None = None,
     shape_noise_quantile: float = 0.9,
     shape_noise_factor: float = 10.0,
+    shape_fill: bool = False,
     roughness_weighting: str = "shape",
     min_reliable_fraction: float | None = None,
 ) -> ModeSet:
@@ -225,6 +260,11 @@ def modes_from_displacements(
     shape_noise_quantile, shape_noise_factor : float, default 0.9 and 10
         Pixels more than ``shape_noise_factor`` times noisier than this quantile are
         attenuated.
+    shape_fill : bool, default False
+        With ``shape_noise``: instead of attenuating the noisy pixels, fill them in from their
+        reliable neighbours (:func:`fill_unreliable_pixels` with the attenuation's square as
+        reliability, ``rough_sigma_px`` full-resolution pixels): the shape is cleaned without
+        pulling the edge pixels towards zero (docs/modes.md, "Reliable pixels").
     product_scaling : {"product", "weaker"}, default "product"
         The power a faint product is compared with (:func:`peaks.distortion_products`'
         ``scaling``): ``P_i P_j / P_max``, since a product grows with both parents'
@@ -380,7 +420,9 @@ def modes_from_displacements(
         real, theta, coll = align_phase(Z[i], w)
         rough.append(roughness(real, rw, rough_sigma_px / stride))
         reliable.append(reliable_fraction(real, w, sw))
-        if attenuation is not None:
+        if attenuation is not None and shape_fill:
+            real = fill_unreliable_pixels(real, attenuation**2, w, rough_sigma_px / stride)
+        elif attenuation is not None:
             real = real * attenuation[..., None]
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
@@ -435,6 +477,7 @@ def modes_from_displacements(
         faint_product_ratio=faint_product_ratio,
         product_scaling=product_scaling,
         shape_attenuation=None if attenuation is None else {
+            "mode": "fill" if shape_fill else "attenuate",
             "quantile": float(shape_noise_quantile),
             "factor": float(shape_noise_factor),
             "attenuated_fraction": float(np.mean(attenuation < 1.0)),
@@ -684,6 +727,7 @@ def extract_modes(
     faint_product_ratio: float | None = 0.01,
     product_scaling: str = "product",
     shape_attenuation: bool = False,
+    shape_fill: bool = False,
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -734,6 +778,11 @@ def extract_modes(
         ``weighting="noise"``, made for this if needed; docs/modes.md).  Opt-in: it helps
         rendered objects with seams and distorts the shapes of evenly textured videos, whose
         noise tail is numerical.
+    shape_fill : bool, default False
+        Fill those pixels in from their reliable neighbours instead of attenuating them
+        (:func:`fill_unreliable_pixels`; whatever ``shape_attenuation``): the weak modes'
+        shapes are cleaned as much, and the pixels on an object's edges, where its vertices
+        are observed, are not pulled towards zero.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
     progress : bool
@@ -821,7 +870,7 @@ def extract_modes(
             confidence_weights(conf) if weighting != "none" and conf is not None else None
         )
         spectrum_weights = noise = None
-        if weighting == "noise" or shape_attenuation:
+        if weighting == "noise" or shape_attenuation or shape_fill:
             noise = pixel_noise_power(store, detrend=detrend, window=window, min_bin=min_bin)
         if weighting == "noise":
             spectrum_weights = noise_weights(
@@ -854,7 +903,8 @@ def extract_modes(
             product_roughness=product_roughness,
             faint_product_ratio=faint_product_ratio,
             product_scaling=product_scaling,
-            shape_noise=noise if shape_attenuation else None,
+            shape_noise=noise if shape_attenuation or shape_fill else None,
+            shape_fill=bool(shape_fill),
             confidence=pm.confidence,
             metadata=meta,
             output_shape=tuple(pm.shape),
