@@ -276,6 +276,8 @@ def main_extract(argv: list[str] | None = None) -> int:
             why = f"MAC {r['shake_mac']:.2f}"
         elif r["reason"] == "distortion":
             why = f"{r['kind']} of {r['parents_hz'][0]:.3f} and {r['parents_hz'][1]:.3f} Hz"
+        elif r["reason"] == "unreliable":
+            why = f"reliable fraction {r['reliable_fraction']:.3f}"
         else:
             why = f"roughness {r['roughness']:.2f}"
         print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} ({why})")
