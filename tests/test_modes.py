@@ -741,7 +741,8 @@ def test_shape_tests_on_reliable_pixels_keep_a_weak_mode_and_drop_an_edge_line()
     rough on all pixels, and a line of its own.  Judged on all pixels (the default) the weak
     mode is rejected as incoherent; with ``roughness_weighting="spectrum"`` (noise weights:
     the strip left out) it is kept, and ``min_reliable_fraction`` drops the strip's line as
-    ``"unreliable"`` (energy per unit noise weight ~0 against ~1 for the modes)."""
+    ``"unreliable"``: its energy per unit noise weight is ~0 (0.3-0.9 for the modes) and it
+    is rough on all pixels; a line smooth on all pixels would be kept however it lies."""
     from vvtbench.modes.extract import noise_weights
     from vvtbench.modes.spectrum import pixel_noise_power
 
@@ -769,7 +770,11 @@ def test_shape_tests_on_reliable_pixels_keep_a_weak_mode_and_drop_an_edge_line()
     assert np.sort(ms.frequencies_hz) == pytest.approx([10.25, 23.5], abs=0.05)
     (edge,) = ms.metadata["rejected"]
     assert edge["reason"] == "unreliable" and edge["frequency_hz"] == pytest.approx(37.75, abs=0.05)
-    assert edge["reliable_fraction"] < 0.01
+    assert edge["reliable_fraction"] < 0.01 and edge["roughness_shape"] > 0.06
+    gate = modes_from_displacements(d, fps, weights=ones, spectrum_weights=sw,
+                                    roughness_weighting="spectrum", min_reliable_fraction=0.1,
+                                    unreliable_roughness=1.0)
+    assert all(r["reason"] != "unreliable" for r in gate.metadata["rejected"])
     fr = np.asarray(ms.metadata["reliable_fraction"])
     assert fr.size == 3 and np.sum(fr > 0.2) == 2  # the modes; the weak one 0.28
     assert ms.metadata["roughness_weighting"] == "spectrum"
@@ -782,6 +787,8 @@ def test_shape_tests_on_reliable_pixels_keep_a_weak_mode_and_drop_an_edge_line()
         modes_from_displacements(d, fps, roughness_weighting="noise")
     with pytest.raises(ValueError, match="min_reliable_fraction"):
         modes_from_displacements(d, fps, min_reliable_fraction=float("nan"))
+    with pytest.raises(ValueError, match="unreliable_roughness"):
+        modes_from_displacements(d, fps, unreliable_roughness=-1.0)
 
 
 def test_products_folded_by_sampling_are_recognised() -> None:

@@ -200,6 +200,7 @@ def modes_from_displacements(
     shape_fill: bool = False,
     roughness_weighting: str = "shape",
     min_reliable_fraction: float | None = None,
+    unreliable_roughness: float = 0.06,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -325,7 +326,13 @@ def modes_from_displacements(
         ``spectrum_weights`` is below this fraction of its mean energy per unit ``weights``
         (:func:`reliable_fraction`, stored for every analysed peak in
         ``metadata["reliable_fraction"]``): a line that lives on the unreliable pixels
-        (occlusion edges, seams) is not the motion of the object.  ``None`` turns it off.
+        (occlusion edges, seams) is not the motion of the object, provided it is also rough
+        under ``weights`` (:func:`peaks.roughness` above ``unreliable_roughness``, stored in
+        ``metadata["roughness_shape"]``): a smooth line is coherent wherever it lives (e.g. a
+        mode of a face seen at a grazing angle, whose pixels are all noisier).  ``None`` turns
+        it off.
+    unreliable_roughness : float, default 0.06
+        See ``min_reliable_fraction``.
 
     Returns
     -------
@@ -338,6 +345,8 @@ def modes_from_displacements(
     if min_reliable_fraction is not None and not min_reliable_fraction >= 0:
         raise ValueError(f"min_reliable_fraction must be >= 0 or None, got "
                          f"{min_reliable_fraction!r}")
+    if not unreliable_roughness >= 0:
+        raise ValueError(f"unreliable_roughness must be >= 0, got {unreliable_roughness!r}")
     if isinstance(line_radius, bool) or not isinstance(line_radius, int | np.integer) \
             or line_radius < 1:
         raise ValueError(f"line_radius must be an integer >= 1, got {line_radius!r}")
@@ -414,11 +423,13 @@ def modes_from_displacements(
                                               shape_noise_factor)
     phase = []
     reliable = []
+    rough_shape = []
     sw = w if spectrum_weights is None else np.asarray(spectrum_weights, dtype=np.float64)
     rw = sw if roughness_weighting == "spectrum" else w
     for i, k in enumerate(pk.bins):
         real, theta, coll = align_phase(Z[i], w)
         rough.append(roughness(real, rw, rough_sigma_px / stride))
+        rough_shape.append(rough[-1] if rw is w else roughness(real, w, rough_sigma_px / stride))
         reliable.append(reliable_fraction(real, w, sw))
         if attenuation is not None and shape_fill:
             real = fill_unreliable_pixels(real, attenuation**2, w, rough_sigma_px / stride)
@@ -486,6 +497,8 @@ def modes_from_displacements(
         roughness_weighting=roughness_weighting,
         min_reliable_fraction=min_reliable_fraction,
         reliable_fraction=[float(q) for q in reliable],
+        roughness_shape=[float(r) for r in rough_shape],
+        unreliable_roughness=unreliable_roughness,
         phase_rad=[float(p) for p in phase],
         weighted=weights is not None,
         min_bin=int(min_bin),
@@ -567,8 +580,10 @@ def modes_from_displacements(
                     phase_residual_rad=product_phase_residual(phase, f, k, i, j, d["kind"],
                                                               fps=fps),
                 )
-            elif min_reliable_fraction is not None and reliable[k] < min_reliable_fraction:
-                entry.update(reason="unreliable", reliable_fraction=float(reliable[k]))
+            elif (min_reliable_fraction is not None and reliable[k] < min_reliable_fraction
+                  and rough_shape[k] > unreliable_roughness):
+                entry.update(reason="unreliable", reliable_fraction=float(reliable[k]),
+                             roughness_shape=float(rough_shape[k]))
             elif rough[k] > max_roughness:
                 entry.update(reason="incoherent")
             elif (added_roughness is not None and lines is not None and lines.added[k]
