@@ -837,6 +837,9 @@ def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) ->
     extract_modes(tmp_path / "v.npy", 64.0, roughness_weighting="spectrum",
                   min_reliable_fraction=0.1)
     assert seen["roughness_weighting"] == "spectrum" and seen["min_reliable_fraction"] == 0.1
+    assert seen["shape_fill"] is False
+    extract_modes(tmp_path / "v.npy", 64.0, shape_fill=True)
+    assert seen["shape_fill"] is True and seen["shape_noise"].shape == (16, 16)
 
 
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:
