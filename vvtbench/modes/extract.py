@@ -37,6 +37,7 @@ from .peaks import (
     reliable_fraction,
     roughness,
     translation_mac,
+    weighted_smooth,
 )
 from .significance import noise_floor
 from .spectrum import (
@@ -144,19 +145,10 @@ def fill_unreliable_pixels(
     >>> float(fill_unreliable_pixels(a, r, sigma=1.0)[2, 2, 0])
     1.0
     """
-    from scipy.ndimage import gaussian_filter
-
     a = np.asarray(field, dtype=np.float64)
     r = np.clip(np.asarray(reliability, dtype=np.float64), 0.0, 1.0)
     w = (np.ones(r.shape) if weights is None else np.asarray(weights, dtype=np.float64)) * r
-    den = gaussian_filter(w, sigma, mode="reflect")
-    ok = den > 1e-12 * max(float(den.max()), 1e-300)
-    out = np.empty_like(a)
-    for c in range(a.shape[-1]):
-        num = gaussian_filter(w * a[..., c], sigma, mode="reflect")
-        fill = np.divide(num, den, out=np.zeros_like(num), where=ok)
-        out[..., c] = r * a[..., c] + (1.0 - r) * fill
-    return out
+    return r[..., None] * a + (1.0 - r[..., None]) * weighted_smooth(a, w, sigma)
 
 
 def modes_from_displacements(
@@ -430,7 +422,7 @@ def modes_from_displacements(
         real, theta, coll = align_phase(Z[i], w)
         rough.append(roughness(real, rw, rough_sigma_px / stride))
         rough_shape.append(rough[-1] if rw is w else roughness(real, w, rough_sigma_px / stride))
-        reliable.append(reliable_fraction(real, w, sw))
+        reliable.append(1.0 if sw is w else reliable_fraction(real, w, sw))
         if attenuation is not None and shape_fill:
             real = fill_unreliable_pixels(real, attenuation**2, w, rough_sigma_px / stride)
         elif attenuation is not None:

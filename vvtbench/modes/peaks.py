@@ -38,6 +38,7 @@ __all__ = [
     "reliable_fraction",
     "roughness",
     "translation_mac",
+    "weighted_smooth",
 ]
 
 
@@ -416,18 +417,34 @@ def roughness(field: ArrayLike, weights: ArrayLike | None = None, sigma: float =
     -------
     float
     """
+    a = np.asarray(field, dtype=np.float64)
+    w = np.ones(a.shape[:2]) if weights is None else np.asarray(weights, dtype=np.float64)
+    num = float(np.sum(w[..., None] * (a - weighted_smooth(a, w, sigma)) ** 2))
+    den = float(np.sum(w[..., None] * a**2))
+    return num / den if den > 0 else 0.0
+
+
+def weighted_smooth(field: ArrayLike, weights: ArrayLike, sigma: float) -> NDArray[np.float64]:
+    """``G(w a) / G(w)`` per channel of a ``(H, W, C)`` field: the Gaussian (``sigma`` pixels,
+    reflecting borders) average of each pixel's neighbourhood weighted by ``w``; 0 where the
+    neighbourhood has no weight.
+
+    >>> a = np.zeros((3, 3, 1)); a[1, 1] = 9.0
+    >>> w = np.ones((3, 3)); w[1, 1] = 0.0            # the centre does not count
+    >>> float(weighted_smooth(a, w, 1.0)[1, 1, 0])
+    0.0
+    """
     from scipy.ndimage import gaussian_filter
 
     a = np.asarray(field, dtype=np.float64)
-    w = np.ones(a.shape[:2]) if weights is None else np.asarray(weights, dtype=np.float64)
-    ws = gaussian_filter(w, sigma, mode="reflect")
-    num = 0.0
+    w = np.asarray(weights, dtype=np.float64)
+    den = gaussian_filter(w, sigma, mode="reflect")
+    ok = den > 1e-12 * max(float(den.max()), 1e-300)
+    out = np.empty_like(a)
     for c in range(a.shape[-1]):
-        sm = gaussian_filter(a[..., c] * w, sigma, mode="reflect")
-        sm = np.divide(sm, ws, out=np.zeros_like(sm), where=ws > 1e-12 * ws.max())
-        num += float(np.sum(w * (a[..., c] - sm) ** 2))
-    den = float(np.sum(w[..., None] * a**2))
-    return num / den if den > 0 else 0.0
+        num = gaussian_filter(a[..., c] * w, sigma, mode="reflect")
+        out[..., c] = np.divide(num, den, out=np.zeros_like(num), where=ok)
+    return out
 
 
 def reliable_fraction(field: ArrayLike, weights: ArrayLike | None,
