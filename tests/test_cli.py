@@ -119,9 +119,7 @@ def test_solve_options_are_checked_before_work(option, capsys, tmp_path, monkeyp
                                     ["--faint-product-ratio", "-0.1"],
                                     ["--product-scaling", "cubic"],
                                     ["--roughness-weighting", "noise"],
-                                    ["--min-reliable-fraction", "-0.1"],
-                                    ["--shape-smoothing", "65"],
-                                    ["--shape-smoothing", "nan"]])
+                                    ["--min-reliable-fraction", "-0.1"]])
 def test_extract_options(option, sample, capsys, tmp_path):
     assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), *option]) == 2
     _one_error_line(capsys)

@@ -840,40 +840,6 @@ def test_extract_modes_passes_the_product_roughness_on(monkeypatch, tmp_path) ->
     assert seen["shape_fill"] is False
     extract_modes(tmp_path / "v.npy", 64.0, shape_fill=True)
     assert seen["shape_fill"] is True and seen["shape_noise"].shape == (16, 16)
-    assert seen["shape_smoothing_px"] is None
-    extract_modes(tmp_path / "v.npy", 64.0, shape_smoothing_px=3.0)
-    assert seen["shape_smoothing_px"] == 3.0
-
-
-def test_shape_smoothing_cleans_a_mode_sharing_its_bin_with_a_rough_product() -> None:
-    """A 0.01 px mode and a texture-locked field (signs random from pixel to pixel, 30 % of
-    the line's energy) in one bin: the shape tests keep the line (roughness 0.27), its
-    shape's MAC with the mode is 0.71; a 2 px weighted smoothing lifts it to 0.99 and leaves
-    the frequency, the amplitude and the roughness (the tests see the unsmoothed shape)
-    unchanged."""
-    fps, T, n = 200.0, 400, 48
-    t = np.arange(T)[:, None, None, None] / fps
-    true = pattern(n, "b")
-    sign = np.where(np.random.default_rng(5).random((n, n, 1)) < 0.5, -1.0, 1.0)
-    d = (0.3 * np.cos(2 * np.pi * 10.25 * t) * pattern(n, "a")
-         + np.cos(2 * np.pi * 31.25 * t) * (0.01 * true + 0.008 * sign * pattern(n, "a")))
-    plain = modes_from_displacements(d, fps)
-    smooth = modes_from_displacements(d, fps, shape_smoothing_px=2.0)
-    k = int(np.argmin(np.abs(plain.frequencies_hz - 31.25)))
-    assert plain.frequencies_hz == pytest.approx(smooth.frequencies_hz)
-    assert plain.amplitudes_px == pytest.approx(smooth.amplitudes_px, rel=1e-9)
-    assert plain.metadata["roughness"] == smooth.metadata["roughness"]
-    assert len(plain) == 2 and 0.2 < plain.metadata["roughness"][k] < 0.3
-    assert mac(plain.shapes[k], true) < 0.75 and mac(smooth.shapes[k], true) > 0.98
-    assert mac(smooth.shapes[1 - k], pattern(n, "a")) > 0.999   # a smooth mode is unchanged
-    assert np.linalg.norm(smooth.shapes[k]) == pytest.approx(1.0, rel=1e-5)
-    assert smooth.metadata["shape_smoothing_px"] == 2.0
-    assert plain.metadata["shape_smoothing_px"] is None
-    same = modes_from_displacements(d, fps, shape_smoothing_px=0.0)
-    assert np.array_equal(same.shapes, plain.shapes)
-    for bad in (-1.0, float("nan"), float("inf"), 65.0):
-        with pytest.raises(ValueError, match="shape_smoothing_px"):
-            modes_from_displacements(d, fps, shape_smoothing_px=bad)
 
 
 def test_roughness_separates_smooth_modes_from_incoherent_fields() -> None:

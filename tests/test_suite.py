@@ -61,9 +61,6 @@ def test_numbers_are_finite_and_in_range():
     assert "key 'extract.roughness_weighting'" in msg and "'spectrum'" in msg
     msg = error_of("[extract]\nmin_reliable_fraction = -1\n")
     assert "key 'extract.min_reliable_fraction'" in msg and ">= 0" in msg
-    msg = error_of("[extract]\nshape_smoothing_px = 100\n")
-    assert "key 'extract.shape_smoothing_px'" in msg and "[0, 64]" in msg
-    assert "key 'extract.shape_smoothing_px'" in error_of("[extract]\nshape_smoothing_px = inf\n")
     assert "key 'sweep.n_modes'" in error_of("[sweep]\nn_modes = []\n")
 
 

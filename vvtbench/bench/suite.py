@@ -104,9 +104,6 @@ class ExtractOptions(_Strict):
     shape_fill: bool | None = Field(
         None, description="true or false (noisiest pixels of the mode shapes filled in from "
         "their neighbours)")
-    shape_smoothing_px: Annotated[float, Field(ge=0, le=64, allow_inf_nan=False)] | None = Field(
-        None, description="a number in [0, 64] (full-resolution pixels: the kept mode shapes "
-        "are smoothed with a weighted Gaussian of this standard deviation; 0: off)")
     roughness_weighting: Literal["shape", "spectrum"] | None = Field(
         None, description="'shape' or 'spectrum' (pixel weights of the roughness tests)")
     min_reliable_fraction: NonNegativeNumber | None = Field(

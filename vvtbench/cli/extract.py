@@ -179,11 +179,6 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--shape-fill", action="store_true",
                     help="fill the noisiest pixels of the mode shapes in from their reliable "
                     "neighbours (opt-in; docs/modes.md, 'Reliable pixels')")
-    ap.add_argument("--shape-smoothing", type=bounded(float, ge=0, le=64), default=None,
-                    metavar="PX",
-                    help="smooth the kept mode shapes with a confidence-weighted Gaussian of "
-                    "this standard deviation (full-resolution pixels; default: off; "
-                    "docs/modes.md, 'Shape smoothing')")
     ap.add_argument("--roughness-weighting", choices=("shape", "spectrum"), default="shape",
                     help="pixel weights of the roughness tests: the shapes' (confidence) or the "
                     "spectrum's (noise weights: occlusion edges and seams left out; default: "
@@ -252,7 +247,6 @@ def main_extract(argv: list[str] | None = None) -> int:
             product_scaling=args.product_scaling,
             shape_attenuation=args.shape_attenuation,
             shape_fill=args.shape_fill,
-            shape_smoothing_px=args.shape_smoothing,
             roughness_weighting=args.roughness_weighting,
             min_reliable_fraction=args.min_reliable_fraction,
             extractor=args.extractor,

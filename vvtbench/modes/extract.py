@@ -55,7 +55,6 @@ __all__ = ["confidence_weights", "noise_weights", "noisy_pixel_attenuation",
            "modes_from_displacements"]
 
 _log = logging.getLogger(__name__)
-MAX_SMOOTHING_PX = 64.0  # shape_smoothing_px's bound (full-resolution pixels)
 
 
 def confidence_weights(confidence: ArrayLike, quantile: float = 0.9) -> NDArray[np.float64]:
@@ -194,7 +193,6 @@ def modes_from_displacements(
     roughness_weighting: str = "shape",
     min_reliable_fraction: float | None = None,
     unreliable_roughness: float = 0.06,
-    shape_smoothing_px: float | None = None,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -327,13 +325,6 @@ def modes_from_displacements(
         it off.
     unreliable_roughness : float, default 0.06
         See ``min_reliable_fraction``.
-    shape_smoothing_px : float or None, default None
-        Smooth each kept shape with a ``weights``-weighted Gaussian of this standard deviation
-        (full-resolution pixels, at most 64; :func:`peaks.weighted_smooth`, so pixels off the
-        object pull nothing towards zero) after the shape tests, which see the unsmoothed
-        shapes.  A mode is smooth on that scale, the texture-locked distortion
-        products that share a weak mode's bin are not (docs/modes.md, "Shape smoothing").
-        ``amplitudes_px`` are those of the unsmoothed shapes.  ``None`` or 0: off.
 
     Returns
     -------
@@ -348,9 +339,6 @@ def modes_from_displacements(
                          f"{min_reliable_fraction!r}")
     if not unreliable_roughness >= 0:
         raise ValueError(f"unreliable_roughness must be >= 0, got {unreliable_roughness!r}")
-    if shape_smoothing_px is not None and not 0 <= shape_smoothing_px <= MAX_SMOOTHING_PX:
-        raise ValueError(f"shape_smoothing_px must be in [0, {MAX_SMOOTHING_PX:g}] (pixels) or "
-                         f"None, got {shape_smoothing_px!r}")
     if isinstance(line_radius, bool) or not isinstance(line_radius, int | np.integer) \
             or line_radius < 1:
         raise ValueError(f"line_radius must be an integer >= 1, got {line_radius!r}")
@@ -439,28 +427,20 @@ def modes_from_displacements(
             real = fill_unreliable_pixels(real, attenuation**2, w, rough_sigma_px / stride)
         elif attenuation is not None:
             real = real * attenuation[..., None]
-        kept_energy = 1.0
-        if shape_smoothing_px:
-            before = float(np.linalg.norm(real))
-            real = weighted_smooth(real, np.ones(real.shape[:2]) if w is None else w,
-                                   shape_smoothing_px / stride)
-            after = float(np.linalg.norm(real))
-            kept_energy = after / before if before > 0 and after > 0 else 1.0
         if output_shape is not None and tuple(real.shape[:2]) != tuple(output_shape):
             real = np.moveaxis(upsample_periodic(np.moveaxis(real, -1, 0), output_shape), 0, -1)
         norm = float(np.linalg.norm(real))
-        amp_norm = norm / kept_energy
         if lines is not None:
             # the fitted line: exact frequency and damping; the amplitude of the undamped
             # sinusoid with the same spectral line (|A| = a / 2 at the record's start)
             f_ref = float(lines.kappa[i]) * float(fps) / T
             zeta = float(lines.half_width[i] / lines.kappa[i])
-            amp = 2.0 * amp_norm * float(peak_gain(lines.half_width[i], T, window)[0]) / gain
+            amp = 2.0 * norm * float(peak_gain(lines.half_width[i], T, window)[0]) / gain
         else:
             zeta, _, _ = damping_lorentzian(freqs, power, int(k), window=window, n_frames=T)
             f_ref = refine_frequency(freqs, power, int(k))
             delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
-            amp = 2.0 * amp_norm / gain / scalloping(delta, window)
+            amp = 2.0 * norm / gain / scalloping(delta, window)
             # the symmetric window puts a line delta bins off the bin at phase + pi delta
             theta -= math.pi * delta
         phase.append(theta % math.pi)
@@ -511,7 +491,6 @@ def modes_from_displacements(
         reliable_fraction=[float(q) for q in reliable],
         roughness_shape=[float(r) for r in rough_shape],
         unreliable_roughness=unreliable_roughness,
-        shape_smoothing_px=shape_smoothing_px,
         phase_rad=[float(p) for p in phase],
         weighted=weights is not None,
         min_bin=int(min_bin),
@@ -756,7 +735,6 @@ def extract_modes(
     product_scaling: str = "product",
     shape_attenuation: bool = False,
     shape_fill: bool = False,
-    shape_smoothing_px: float | None = None,
     memory_budget: int = DEFAULT_BUDGET,
     tmpdir: str | None = None,
     progress: bool = False,
@@ -812,9 +790,6 @@ def extract_modes(
         (:func:`fill_unreliable_pixels`; whatever ``shape_attenuation``): the weak modes'
         shapes are cleaned as much, and the pixels on an object's edges, where its vertices
         are observed, are not pulled towards zero.
-    shape_smoothing_px : float, optional
-        Weighted Gaussian smoothing of the kept shapes (full-resolution pixels), see
-        :func:`modes_from_displacements`.
     memory_budget : int, default 1 GiB
         Displacement bytes kept in RAM before spilling to a temporary file in ``tmpdir``.
     progress : bool
@@ -947,7 +922,6 @@ def extract_modes(
             spectrum_weights=spectrum_weights,
             roughness_weighting=roughness_weighting,
             min_reliable_fraction=min_reliable_fraction,
-            shape_smoothing_px=shape_smoothing_px,
         )
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
