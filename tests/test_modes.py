@@ -692,6 +692,40 @@ def test_product_scaling_keeps_a_mode_at_the_sum_of_two_weaker_peaks() -> None:
         distortion_products([1.0, 2.0], [1.0, 0.1], 0.1, scaling="cubic")
 
 
+def test_summary_gives_each_mode_its_entries_of_the_candidate_lists(tmp_path) -> None:
+    """``metadata["roughness"]`` and its kin list every analysed peak, rejected ones too; each
+    kept mode's own entries are in its ``summary()`` (and so in ``modes.json``), through
+    subsets, saving and loading, and not after merging (no such map)."""
+    from vvtbench.modes import merge_modesets
+
+    fps, T, n = 200.0, 400, 24
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    d = (0.3 * np.cos(2 * np.pi * 10.25 * t) * pa + 0.03 * np.cos(2 * np.pi * 17.5 * t) * pb
+         + 1e-3 * np.cos(2 * np.pi * 27.75 * t) * pa)   # a product of the two
+    ms = modes_from_displacements(d, fps)
+    assert np.sort(ms.frequencies_hz) == pytest.approx([10.25, 17.5], abs=0.05)
+    (rej,) = ms.metadata["rejected"]
+    meta, idx = ms.metadata, ms.analysed_index()
+    assert len(meta["roughness"]) == 3 and len(set(idx)) == 2
+    (other,) = set(range(3)) - set(idx)      # the rejected candidate
+    assert meta["roughness"][other] == rej["roughness"]
+    summary = ms.summary()
+    for k, entry in enumerate(summary):
+        for name in ("roughness", "roughness_shape", "reliable_fraction", "phase_rad"):
+            assert entry[name] == meta[name][idx[k]]
+    assert rej["frequency_hz"] == pytest.approx(27.75, abs=0.05)
+    sub = ms.select([1, 0])
+    assert sub.analysed_index() == [idx[1], idx[0]]
+    assert sub.summary()[0]["roughness"] == summary[1]["roughness"]
+    loaded = ModeSet.load(ms.save(tmp_path / "m"))
+    assert loaded.summary() == summary
+    assert json.loads((tmp_path / "m" / "modes.json").read_text())["modes"][0]["roughness"] == \
+        summary[0]["roughness"]
+    merged = merge_modesets([ms, ms])
+    assert merged.analysed_index() is None and "roughness" not in merged.summary()[0]
+
+
 def test_noisy_pixels_attenuated_in_the_shapes() -> None:
     """A strip of unreliable pixels (noise 0.02 px and the mode's motion read 5x too large
     there, as at a texture seam) dominates a 0.01 px mode's unit-norm shape; attenuating the

@@ -270,6 +270,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             f"  #{row['index']:2d} {row['frequencies_hz']:10.4f} Hz  zeta "
             + (f"{z:.4f}" if z is not None and resolved[i] else "  -   ")
             + f"  peak {peak[i]:.3g} px  prominence {row['prominences']:.2f}"
+            + (f"  roughness {row['roughness']:.2f}" if row.get("roughness") is not None else "")
         )
     for r in ms.metadata.get("rejected", []):
         if r["reason"] == "camera_shake":

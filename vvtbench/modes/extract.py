@@ -500,6 +500,7 @@ def modes_from_displacements(
         shoulders=shoulders,
         noise_floor=None if pk.noise is None else pk.noise.summary(),
         floor_ratio=None if pk.floor_ratio is None else [float(r) for r in pk.floor_ratio],
+        analysed_index=list(range(len(pk.bins))),
         line_fit=None if lines is None else {
             "added_hz": [float(k) * float(fps) / T for k in lines.kappa[lines.added]],
             "candidates": lines.log,

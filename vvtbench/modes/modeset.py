@@ -7,6 +7,7 @@ and ``modes.json`` (scalars, per-mode summary and metadata).
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -16,7 +17,7 @@ from numpy.typing import NDArray
 
 from .merging import merge_modes
 
-__all__ = ["FORMAT_VERSION", "ModeSet", "merge_modesets"]
+__all__ = ["CANDIDATE_LISTS", "FORMAT_VERSION", "ModeSet", "merge_modesets"]
 
 FORMAT_VERSION = 1
 
@@ -31,6 +32,9 @@ _PER_MODE = (
     "shake_mac",
     "camera_shake",
 )
+
+# metadata lists with one entry per analysed peak (kept and rejected), in the order analysed
+CANDIDATE_LISTS = ("roughness", "roughness_shape", "reliable_fraction", "phase_rad")
 
 
 @dataclass
@@ -181,22 +185,44 @@ class ModeSet:
         return 2.0 * np.pi * self.frequencies_hz
 
     def select(self, index: Any) -> ModeSet:
-        """Subset of modes (boolean mask or indices); spectrum and metadata are kept."""
+        """Subset of modes (boolean mask or indices); spectrum and metadata are kept
+        (``metadata["analysed_index"]``, when it maps the modes to the per-candidate lists,
+        is subset with them)."""
         idx = np.arange(len(self))[index]
         kw = {f.name: getattr(self, f.name) for f in fields(self)}
         for name in (*_PER_MODE, "shapes"):
             kw[name] = kw[name][idx]
         kw["metadata"] = dict(self.metadata)
+        analysed = self.analysed_index()
+        if analysed is not None:
+            kw["metadata"]["analysed_index"] = [analysed[i] for i in np.atleast_1d(idx)]
         return ModeSet(**kw)
 
+    def analysed_index(self) -> list[int] | None:
+        """Each mode's position in the per-candidate metadata lists (``roughness``,
+        ``phase_rad``, ... of every analysed peak, kept and rejected), or None when the
+        metadata has no such map for these modes (e.g. after merging)."""
+        a = self.metadata.get("analysed_index")
+        if not isinstance(a, list) or len(a) != len(self):
+            return None
+        return [int(i) for i in a]
+
     def summary(self) -> list[dict[str, Any]]:
-        """Per-mode scalars as a list of dicts (JSON-ready)."""
+        """Per-mode scalars as a list of dicts (JSON-ready), with each mode's entry of the
+        per-candidate metadata lists (:data:`CANDIDATE_LISTS`) when the modes are mapped to
+        them (:meth:`analysed_index`)."""
+        analysed = self.analysed_index()
         out = []
         for i in range(len(self)):
             d: dict[str, Any] = {"index": i}
             for name in _PER_MODE:
                 v = getattr(self, name)[i].item()
                 d[name] = None if isinstance(v, float) and not np.isfinite(v) else v
+            for name in CANDIDATE_LISTS if analysed is not None else ():
+                values = self.metadata.get(name)
+                if isinstance(values, list) and analysed[i] < len(values):
+                    v = values[analysed[i]]
+                    d[name] = None if isinstance(v, float) and not math.isfinite(v) else v
             out.append(d)
         return out
 
