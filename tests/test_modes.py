@@ -724,6 +724,9 @@ def test_summary_gives_each_mode_its_entries_of_the_candidate_lists(tmp_path) ->
         summary[0]["roughness"]
     merged = merge_modesets([ms, ms])
     assert merged.analysed_index() is None and "roughness" not in merged.summary()[0]
+    for odd in ([0, -1], [0, "1"], [0, 1.5], [0, 99]):   # an edited file: no map, no error
+        ms.metadata["analysed_index"] = odd
+        assert "roughness" not in ms.summary()[1]
 
 
 def test_noisy_pixels_attenuated_in_the_shapes() -> None:

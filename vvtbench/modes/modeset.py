@@ -203,7 +203,9 @@ class ModeSet:
         ``phase_rad``, ... of every analysed peak, kept and rejected), or None when the
         metadata has no such map for these modes (e.g. after merging)."""
         a = self.metadata.get("analysed_index")
-        if not isinstance(a, list) or len(a) != len(self):
+        if not isinstance(a, list) or len(a) != len(self) or not all(
+                isinstance(i, int | np.integer) and not isinstance(i, bool) and i >= 0
+                for i in a):
             return None
         return [int(i) for i in a]
 
