@@ -7,7 +7,6 @@ and ``modes.json`` (scalars, per-mode summary and metadata).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -218,13 +217,11 @@ class ModeSet:
         for i in range(len(self)):
             d: dict[str, Any] = {"index": i}
             for name in _PER_MODE:
-                v = getattr(self, name)[i].item()
-                d[name] = None if isinstance(v, float) and not np.isfinite(v) else v
+                d[name] = _finite_or_none(getattr(self, name)[i].item())
             for name in CANDIDATE_LISTS if analysed is not None else ():
                 values = self.metadata.get(name)
                 if isinstance(values, list) and analysed[i] < len(values):
-                    v = values[analysed[i]]
-                    d[name] = None if isinstance(v, float) and not math.isfinite(v) else v
+                    d[name] = _finite_or_none(values[analysed[i]])
             out.append(d)
         return out
 
@@ -282,6 +279,11 @@ class ModeSet:
             n_frames=n_frames,
             metadata=doc.get("metadata", {}),
         )
+
+
+def _finite_or_none(v: Any) -> Any:
+    """A per-mode JSON value: NaN and infinities become ``None`` (``null``)."""
+    return None if isinstance(v, float) and not np.isfinite(v) else v
 
 
 def _json_default(o: Any) -> Any:
