@@ -245,6 +245,31 @@ def test_camera_shake_flagged_and_excluded() -> None:
     assert not allm.camera_shake[1 - i] and allm.shake_mac[1 - i] < 0.5
 
 
+
+def test_harmonics_of_camera_shake_are_no_modes() -> None:
+    """A rigid sub-pixel translation measured with a texture-dependent error: the error's
+    harmonics are smooth but not translations, so the shake test passes them; they are
+    products of the shake and are rejected as such (a pure-shake video has no modes)."""
+    from scipy.ndimage import gaussian_filter
+
+    fps, T, n = 100.0, 512, 32
+    t = np.arange(T) / fps
+    rng = np.random.default_rng(1)
+    err = gaussian_filter(rng.standard_normal((n, n, 2)), (6, 6, 0), mode="wrap")
+    err *= 0.005 / np.sqrt(np.mean(err**2))            # 0.005 px rms: 1.7 % of the motion
+    shake = 0.3 * np.cos(2 * np.pi * 7.0 * t)
+    d = shake[:, None, None, None] * np.array([1.0, 0.0])
+    d = d + (np.cos(2 * np.pi * 14.0 * t))[:, None, None, None] * err
+    d = d + 1e-4 * rng.standard_normal((T, n, n, 2))
+    ms = modes_from_displacements(d, fps, keep_camera_shake=True, reject_distortion=False)
+    i = nearest(ms, 14.0)
+    assert not ms.camera_shake[i] and roughness(ms.shapes[i]) < 0.1   # passes both tests
+    ms = modes_from_displacements(d, fps)
+    assert len(ms) == 0
+    why = {round(r["frequency_hz"]): r for r in ms.metadata["rejected"]}
+    assert why[7]["reason"] == "camera_shake"
+    assert why[14]["reason"] == "distortion" and why[14]["kind"] == "harmonic"
+
 def modeset(freqs, shapes, *, damping=None, damping_half_power=None, fps: float = 100.0,
             n_frames: int = 200, metadata: dict | None = None) -> ModeSet:
     """A hand-made ModeSet of ``freqs`` and ``shapes`` (damping NaN unless given; the peak

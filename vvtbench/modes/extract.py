@@ -530,19 +530,17 @@ def modes_from_displacements(
     drop = shake.copy() if not keep_camera_shake else np.zeros(len(ms), bool)
     if reject_distortion and len(ms):
         f = ms.frequencies_hz
-        # camera-shake peaks are no parents: their products are translations as well and
-        # are caught by the shake test
+        # camera-shake peaks are parents too: the extractor's error of a translation depends
+        # on the texture, so its harmonics are not translations and pass the shake test
         pw = np.asarray(power, np.float64)[ms.peak_bins]
         flagged = {
             d["index"]: d
-            for d in distortion_products(f, pw, float(fps) / T, power_ratio=0.5, parents=~shake,
-                                         fps=float(fps))
+            for d in distortion_products(f, pw, float(fps) / T, power_ratio=0.5, fps=float(fps))
         }
         faint_flagged = {} if not faint_product_ratio else {
             d["index"]: d
             for d in distortion_products(f, pw, float(fps) / T, power_ratio=faint_product_ratio,
-                                         parents=~shake, inherit=True, fps=float(fps),
-                                         scaling=product_scaling)
+                                         inherit=True, fps=float(fps), scaling=product_scaling)
         }
         for k in range(len(ms)):
             if drop[k]:
