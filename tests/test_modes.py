@@ -589,6 +589,11 @@ def test_fmin_at_or_above_nyquist_names_nyquist(tmp_path, capsys) -> None:
     out = str(tmp_path / "out")
     assert main_extract([str(tmp_path / "v.npy"), "--fps", "10", "-o", out, "--fmin", "6"]) == 2
     assert "Nyquist frequency fps/2 = 5 Hz" in capsys.readouterr().err
+    np.save(tmp_path / "short.npy", np.zeros((4, 32, 32), np.float32))
+    assert main_extract([str(tmp_path / "short.npy"), "--fps", "10", "-o", out, "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()   # too short: one line naming the file
+    assert err == [f"error: {tmp_path / 'short.npy'}: need at least 8 frames, got 4"]
+    assert not (tmp_path / "out").exists()
 
 
 # ---------------------------------------------------------------------------- leakage, distortion

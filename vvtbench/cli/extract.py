@@ -255,7 +255,8 @@ def main_extract(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as e:
         from . import explain
 
-        print(f"error: {explain(e)}", file=sys.stderr)
+        msg = explain(e)
+        print(f"error: {msg if str(src) in msg else f'{src}: {msg}'}", file=sys.stderr)
         return 2
     ms.save(args.out)
     if not args.no_plots:
