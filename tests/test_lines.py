@@ -98,6 +98,21 @@ def _two_close_lines(s1, s2, rng):
     return (disp + 1e-4 * rng.normal(size=disp.shape)).astype(np.float32)
 
 
+
+@pytest.mark.parametrize("h", [2.0, 6.0])
+def test_a_line_wider_than_its_group_keeps_its_damping(h):
+    """A heavily damped line (half width up to 2 x the fit radius) is fitted exactly: the
+    width bound must not be what the fit returns (a 3-bin bound read zeta 0.025 for 0.05)."""
+    rng = np.random.default_rng(4)
+    T, P = 3000, 64
+    x, _ = _signal(T, [(120.0, h, 1.0)], P, rng, 1e-5)
+    Z = np.fft.rfft(_hann(T)[:, None] * x, axis=0)
+    power = np.sum(np.abs(Z) ** 2, axis=1)
+    lines = clean_lines(Z[60:181], 60, power, [120.0], T, band=(70, 170))
+    i = int(np.argmin(np.abs(lines.kappa - 120.0)))
+    assert lines.half_width[i] == pytest.approx(h, rel=5e-3)
+    assert lines.kappa[i] == pytest.approx(120.0, abs=0.01)
+
 def test_line_fit_mode_extraction_resolves_close_modes():
     s1, s2 = _shapes()
     disp = _two_close_lines(s1, s2, np.random.default_rng(2))

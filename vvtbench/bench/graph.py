@@ -38,8 +38,9 @@ EXTRACTION_REVISION = 5
 #: than the resolution holds as many detections as it has modes; docs/modes.md, "Matching")
 OBSERVE_REVISION = 3
 #: revision of the opt-in line fit (``[extract] line_fit = true``; only its keys change).
-#: 2: lines the residual search added are dropped when rough (``added_roughness``)
-LINE_FIT_REVISION = 2
+#: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
+#: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)
+LINE_FIT_REVISION = 3
 
 
 def extraction_revision(extract_opts: dict) -> int | list[int]:

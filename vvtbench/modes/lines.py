@@ -128,7 +128,7 @@ def peak_gain(half_width: ArrayLike, n_frames: int, window: str = "hann") -> NDA
 
 def fit_group(G: ArrayLike, bins: ArrayLike, kappa0: ArrayLike, n_frames: int, *,
               half_width0: ArrayLike | None = None, window: str = "hann",
-              max_shift: float = 1.0, max_half_width: float = 3.0) -> LineFit:
+              max_shift: float = 1.0, max_half_width: float = 8.0) -> LineFit:
     """Fit ``M`` lines to a group of bins by variable projection on their Gram matrix.
 
     Parameters
@@ -144,6 +144,10 @@ def fit_group(G: ArrayLike, bins: ArrayLike, kappa0: ArrayLike, n_frames: int, *
         Record length.
     half_width0 : array_like, optional
         ``(M,)`` starting half widths (bins), default 0.05; bounded by ``[0, max_half_width]``.
+    max_half_width : float, default 8
+        Widest line (bins).  The kernel is exact at any width, so a line wider than the group
+        is fitted too: a mode of half width 8 bins within 0.2 % in 9 bins (``clean_lines``
+        passes ``2 radius``).  A bound at the fit's edge would return it, not the damping.
     window : {"hann", "none"}
         Taper used for ``Z``.
 
@@ -360,6 +364,7 @@ def _clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Arra
             kp[np.ix_(idx, bins - first_bin)] = np.linalg.pinv(K[bins - first_bin])
         return kf, kp
 
+    widest = 2.0 * radius
     kappa = np.sort(np.asarray(kappa0, np.float64))
     hw = np.full(kappa.size, 0.05)
     added = np.zeros(kappa.size, bool)
@@ -370,7 +375,8 @@ def _clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Arra
         if KF.shape[0] != kappa.size:  # lines were added: the model of the previous fits
             KF, KP = model(kappa, hw, groups)
         fits = [(idx, fit_group(gram(bins, idx), bins, kappa[idx], n_frames,
-                                half_width0=hw[idx], window=window)) for idx, bins in groups]
+                                half_width0=hw[idx], window=window, max_half_width=widest))
+                for idx, bins in groups]
         for idx, f in fits:
             kappa[idx], hw[idx] = f.kappa, f.half_width
         KF, KP = model(kappa, hw, groups)
@@ -407,9 +413,10 @@ def _clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Arra
             hi_w = min(last, int(math.ceil(k_try.max())) + radius)
             bins = np.arange(lo_w, hi_w + 1)
             Gw = gram(bins, near)
-            with_ = fit_group(Gw, bins, k_try, n_frames, half_width0=h_try, window=window)
+            with_ = fit_group(Gw, bins, k_try, n_frames, half_width0=h_try, window=window,
+                              max_half_width=widest)
             rss0 = (fit_group(Gw, bins, kappa[near], n_frames, half_width0=hw[near],
-                              window=window).rss
+                              window=window, max_half_width=widest).rss
                     if near.size else float(np.real(np.trace(Gw))))
             j = k_try.size - 1
             kn = with_.kappa[j]
