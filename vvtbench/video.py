@@ -29,6 +29,8 @@ when it agrees with the stream's printed average rate, and the printed average r
 (``2k`` = 2000) otherwise (Matroska's 1 ms time base caps the former at 1000 FPS).  Videos
 written by :class:`VideoWriter` carry the capture rate as the stream tag ``CAPTURE_FPS``
 (an exact ``N`` or ``N/D``), which takes precedence over the container's nominal rate.
+A bare stream (``.h264``, ...) or an image sequence has no time stamps: the 25 fps ffmpeg
+reports for it is its demuxer's default, so its rate is unknown (None).
 """
 
 from __future__ import annotations
@@ -104,6 +106,14 @@ def rate_fraction(fps: float | Fraction | str) -> Fraction:
     return Fraction(float(fps)).limit_denominator(1_001_000)
 
 
+#: ffmpeg demuxers of bare streams and image sequences: no time stamps, so the rate they
+#: report is their ``-framerate`` default (25), not the video's
+_NO_TIMING_DEMUXERS = frozenset({
+    "h264", "hevc", "vvc", "mjpeg", "m4v", "h261", "h263", "cavsvideo", "avs2", "avs3",
+    "dirac", "vc1", "mpegvideo", "obu", "rawvideo", "image2", "image2pipe",
+})
+
+
 def _printed_rate(text: str) -> float | None:
     """ffmpeg's ``print_fps`` text (``"29.97"``, ``"1200"``, ``"2k"``) as a number."""
     m = re.fullmatch(r"([0-9]+(?:\.[0-9]+)?)(k?)", text.strip())
@@ -139,7 +149,8 @@ class VideoInfo:
     width, height : frame size (px).
     pix_fmt : the stream's pixel format (e.g. ``"gray16le"``, ``"yuv420p"``).
     codec : codec name (e.g. ``"ffv1"``, ``"h264"``).
-    container_rate : exact frame rate of the container's time stamps, or None.
+    container_rate : exact frame rate of the container's time stamps, or None (also for a
+        bare stream or an image sequence, whose rate ffmpeg only assumes).
     capture_rate : the ``CAPTURE_FPS`` stream tag (videos written by vvtbench), or None.
     duration : container duration (s), or None.
     """
@@ -242,8 +253,10 @@ def probe_video(path: str | Path) -> VideoInfo:
         duration = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
     if not width:
         raise VideoError(f"{path}: ffmpeg reports no frame size for the video stream")
-    return VideoInfo(path, width, height, pix_fmt, codec, _exact_rate(printed, graph), capture,
-                     duration)
+    m = re.search(r"Input #\d+, ([\w,]+), from ", err)
+    guessed = m is not None and bool(set(m.group(1).split(",")) & _NO_TIMING_DEMUXERS)
+    return VideoInfo(path, width, height, pix_fmt, codec,
+                     None if guessed else _exact_rate(printed, graph), capture, duration)
 
 
 def count_frames(path: str | Path) -> int:
