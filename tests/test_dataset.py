@@ -641,7 +641,6 @@ def test_frame_rate_is_read_exactly_from_the_container(rate, tmp_path):
     assert probe_video(tagged).container_rate == 30
 
 
-
 def test_a_bare_stream_has_no_frame_rate(tmp_path):
     """A raw H.264 stream has no time stamps: ffmpeg's 25 fps is its demuxer's default, so
     the rate is unknown (extract then asks for --fps) rather than silently 25."""
@@ -657,6 +656,7 @@ def test_a_bare_stream_has_no_frame_rate(tmp_path):
     assert probe_video(mp4).container_rate == 2000
     info = probe_video(raw)
     assert info.container_rate is None and info.frame_rate is None and info.codec == "h264"
+
 
 def test_high_rate_frame_count_from_the_container_is_not_called_truncated(tmp_path):
     """At 2000 fps the container duration (printed to 10 ms) misses a frame or so: a paper

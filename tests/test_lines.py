@@ -98,7 +98,6 @@ def _two_close_lines(s1, s2, rng):
     return (disp + 1e-4 * rng.normal(size=disp.shape)).astype(np.float32)
 
 
-
 @pytest.mark.parametrize("h", [2.0, 6.0])
 def test_a_line_wider_than_its_group_keeps_its_damping(h):
     """A heavily damped line (half width up to 2 x the fit radius) is fitted exactly: the
@@ -112,6 +111,7 @@ def test_a_line_wider_than_its_group_keeps_its_damping(h):
     i = int(np.argmin(np.abs(lines.kappa - 120.0)))
     assert lines.half_width[i] == pytest.approx(h, rel=5e-3)
     assert lines.kappa[i] == pytest.approx(120.0, abs=0.01)
+
 
 def test_line_fit_mode_extraction_resolves_close_modes():
     s1, s2 = _shapes()

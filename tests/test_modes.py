@@ -245,7 +245,6 @@ def test_camera_shake_flagged_and_excluded() -> None:
     assert not allm.camera_shake[1 - i] and allm.shake_mac[1 - i] < 0.5
 
 
-
 def test_harmonics_of_camera_shake_are_no_modes() -> None:
     """A rigid sub-pixel translation measured with a texture-dependent error: the error's
     harmonics are smooth but not translations, so the shake test passes them; they are
@@ -269,6 +268,7 @@ def test_harmonics_of_camera_shake_are_no_modes() -> None:
     why = {round(r["frequency_hz"]): r for r in ms.metadata["rejected"]}
     assert why[7]["reason"] == "camera_shake"
     assert why[14]["reason"] == "distortion" and why[14]["kind"] == "harmonic"
+
 
 def modeset(freqs, shapes, *, damping=None, damping_half_power=None, fps: float = 100.0,
             n_frames: int = 200, metadata: dict | None = None) -> ModeSet:
