@@ -270,6 +270,26 @@ def test_harmonics_of_camera_shake_are_no_modes() -> None:
     assert why[14]["reason"] == "distortion" and why[14]["kind"] == "harmonic"
 
 
+@pytest.mark.parametrize("line_fit", [False, True])
+def test_initial_displacement_undoes_the_decay(line_fit) -> None:
+    """A free decay (0.02 px, zeta 0.03, 41 Hz, 3 s) shows as a 6e-5 px undamped line; its
+    displacement at the record's start is read back, and an undamped mode's is its peak."""
+    fps, T, n = 1000.0, 3000, 16
+    t = np.arange(T)[:, None, None, None] / fps
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    pa, pb = pa / np.abs(pa).max(), pb / np.abs(pb).max()
+    z, f = 0.03, 41.0
+    d = (0.02 * np.exp(-z * 2 * np.pi * f * t) * np.cos(2 * np.pi * f * np.sqrt(1 - z * z) * t)
+         * pa + 0.01 * np.cos(2 * np.pi * 17.0 * t) * pb)
+    ms = modes_from_displacements(d, fps, line_fit=line_fit)
+    i, j = nearest(ms, f), nearest(ms, 17.0)
+    assert ms.damping_resolved()[i] and ms.damping[i] == pytest.approx(z, rel=0.02)
+    assert ms.peak_displacement_px[i] < 1e-4
+    assert ms.initial_displacement_px[i] == pytest.approx(0.02, rel=0.03)
+    assert ms.initial_displacement_px[j] == ms.peak_displacement_px[j]
+    assert ms.peak_displacement_px[j] == pytest.approx(0.01, rel=0.02)
+
+
 def modeset(freqs, shapes, *, damping=None, damping_half_power=None, fps: float = 100.0,
             n_frames: int = 200, metadata: dict | None = None) -> ModeSet:
     """A hand-made ModeSet of ``freqs`` and ``shapes`` (damping NaN unless given; the peak

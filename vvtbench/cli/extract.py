@@ -265,12 +265,15 @@ def main_extract(argv: list[str] | None = None) -> int:
         plot_modes(ms, args.out)
     print(f"{len(ms)} modes, T = {ms.n_frames} frames at {ms.fps:g} fps -> {args.out}")
     peak, resolved = ms.peak_displacement_px, ms.damping_resolved()
+    start = ms.initial_displacement_px
     for i, row in enumerate(ms.summary()):
         z = row["damping"]
         print(
             f"  #{row['index']:2d} {row['frequencies_hz']:10.4f} Hz  zeta "
             + (f"{z:.4f}" if z is not None and resolved[i] else "  -   ")
-            + f"  peak {peak[i]:.3g} px  prominence {row['prominences']:.2f}"
+            + f"  peak {peak[i]:.3g} px"
+            + (f" (at the start {start[i]:.3g} px)" if start[i] > 1.05 * peak[i] else "")
+            + f"  prominence {row['prominences']:.2f}"
             + (f"  roughness {row['roughness']:.2f}" if row.get("roughness") is not None else "")
         )
     for r in ms.metadata.get("rejected", []):

@@ -148,9 +148,11 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     ax.axis("off")
     zeta = (f", zeta = {ms.damping[i]:.4f}" if ms.damping_resolved()[i]
             else ", zeta not resolved")
+    peak, start = ms.peak_displacement_px[i], ms.initial_displacement_px[i]
     fig.suptitle(
-        f"mode #{i}: {ms.frequencies_hz[i]:.3f} Hz{zeta}, "
-        f"peak displacement {ms.peak_displacement_px[i]:.3g} px (unit-norm shape shown)"
+        f"mode #{i}: {ms.frequencies_hz[i]:.3f} Hz{zeta}, peak displacement {peak:.3g} px"
+        + (f" ({start:.3g} px at the start)" if start > 1.05 * peak else "")
+        + " (unit-norm shape shown)"
         + ("  [camera shake]" if ms.camera_shake[i] else "")
     )
     out = Path(path)
