@@ -33,7 +33,7 @@ def cases(draw):
     return f_true, truth, f_det, shapes
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=150, deadline=None, derandomize=True)
 @given(cases())
 def test_matching_is_one_to_one_and_inside_its_windows(case):
     f_true, truth, f_det, shapes = case

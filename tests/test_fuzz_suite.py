@@ -116,9 +116,11 @@ VALUES = st.one_of(st.sampled_from(list(NUMBERS.values()) + list(TYPES.values())
 PATHS = [p for p, v in _leaves(SMOKE) if p and not isinstance(v, dict)]
 
 
-@hypothesis.settings(max_examples=60, deadline=None,
+# derandomized: a stop's CI run must not fail on a case no one has seen (as test_fuzz_scene)
+@hypothesis.settings(max_examples=60, deadline=None, derandomize=True,
                      suppress_health_check=[hypothesis.HealthCheck.too_slow])
 @hypothesis.given(st.lists(st.tuples(st.sampled_from(PATHS), VALUES), min_size=1, max_size=3))
+@hypothesis.example([(("scenes", 0), "\n")])  # a raw newline in a name made the error 2 lines
 def test_random_mutations(mutations):
     data = copy.deepcopy(SMOKE)
     for path, value in mutations:

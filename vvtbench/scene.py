@@ -632,15 +632,16 @@ def find_scene(name_or_path: str | Path) -> Path:
     for candidate in (SCENES_DIR / f"{name_or_path}.toml", SCENES_DIR / str(name_or_path)):
         if candidate.is_file():
             return candidate
+    shown = str(name_or_path) if str(name_or_path).isprintable() else repr(str(name_or_path))
     if not SCENES_DIR.is_dir():
         raise SceneError(
-            f"{name_or_path}: no such scene file, and the shipped scenes are not installed "
+            f"{shown}: no such scene file, and the shipped scenes are not installed "
             f"(looked in {_PACKAGE_DIR / 'scenes'} and {SCENES_DIR}); give a path to a scene "
             "file, or install vvtbench from its source checkout (pip install -e .)"
         )
     known = sorted(q.stem for q in SCENES_DIR.glob("*.toml"))
     raise SceneError(
-        f"{name_or_path}: no such scene file, and not a shipped scene; shipped scenes: "
+        f"{shown}: no such scene file, and not a shipped scene; shipped scenes: "
         + (", ".join(known) or "(none found in " + str(SCENES_DIR) + ")")
     )
 
