@@ -779,6 +779,20 @@ def test_summary_gives_each_mode_its_entries_of_the_candidate_lists(tmp_path) ->
         assert "roughness" not in ms.summary()[1]
 
 
+
+@pytest.mark.parametrize("key, value", [("fps", -1.0), ("fps", float("nan")), ("fps", "30"),
+                                        ("fps", True), ("n_frames", 0), ("n_frames", 2.5)])
+def test_an_edited_modes_json_with_a_bad_rate_is_refused(tmp_path, key, value) -> None:
+    """A hand-edited rate or record length is one error naming the file and key, not a
+    mode set whose frequency resolution and start displacements are nonsense."""
+    out = modeset([5.0], np.ones((1, 4, 4, 2), np.float32)).save(tmp_path / "m")
+    path = tmp_path / "m" / "modes.json"
+    doc = json.loads(path.read_text())
+    doc[key] = value
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=f"modes.json: key '{key}' must be"):
+        ModeSet.load(out)
+
 def test_noisy_pixels_attenuated_in_the_shapes() -> None:
     """A strip of unreliable pixels (noise 0.02 px and the mode's motion read 5x too large
     there, as at a texture seam) dominates a 0.01 px mode's unit-norm shape; attenuating the

@@ -295,9 +295,15 @@ class ModeSet:
         if missing:
             raise ValueError(f"{npath}: missing arrays {missing}")
         try:
-            fps, n_frames = float(doc["fps"]), int(doc["n_frames"])
+            fps, n_frames = doc["fps"], doc["n_frames"]
         except KeyError as e:
             raise ValueError(f"{jpath}: missing key {e}") from None
+        if isinstance(fps, bool) or not isinstance(fps, int | float) or not 0 < fps < np.inf:
+            raise ValueError(f"{jpath}: key 'fps' must be a finite number > 0, got {fps!r}")
+        if isinstance(n_frames, bool) or not isinstance(n_frames, int) or n_frames < 1:
+            raise ValueError(f"{jpath}: key 'n_frames' must be an integer >= 1, got "
+                             f"{n_frames!r}")
+        fps = float(fps)
         return cls(
             **arrays,
             fps=fps,
