@@ -212,6 +212,24 @@ def _train(argv: list[str]) -> int:
     return main_train(argv)
 
 
+def _calibrate(argv: list[str]) -> int:
+    from .calibrate import main_calibrate
+
+    return main_calibrate(argv)
+
+
+def _invert(argv: list[str]) -> int:
+    from .invert import main_invert
+
+    return main_invert(argv)
+
+
+def _score(argv: list[str]) -> int:
+    from .score import main_score
+
+    return main_score(argv)
+
+
 DELEGATED = {
     "extract": (_extract,
                 "motion, spectrum and image-space modes of a video (see `extract --help`)"),
@@ -226,6 +244,11 @@ DELEGATED = {
     "train": (_train, "fit a learned solver on a scene family's train split"),
     "verify": (_verify, "check a sample, a run folder or an exported dataset against its "
                         "recorded sha256 and shapes"),
+    "calibrate": (_calibrate, "estimate a camera from clicked points and draw the mesh over "
+                              "the first frame (see `calibrate --help`)"),
+    "invert": (_invert, "from your video, object and clicks to a material map: extract -> "
+                        "observe -> solve -> report (see `invert --help`)"),
+    "score": (_score, "score a folder of estimates against truth the submitter does not hold"),
 }
 COMMANDS = ("simulate", "generate", "scenes", *DELEGATED)
 

@@ -1,0 +1,10 @@
+"""The ``calibrate`` command (being built: it raises a clear error until it is)."""
+
+from __future__ import annotations
+
+import sys
+
+
+def main_calibrate(argv: list[str] | None = None) -> int:
+    print("error: `vvtbench calibrate` is not built yet", file=sys.stderr)
+    return 2
