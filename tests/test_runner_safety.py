@@ -142,7 +142,7 @@ class Crash(_Base):
 ALL = ["sleep", "exit", "segv", "hog", "nans", "shape", "negative", "crash"]
 EXPECT = {
     "sleep": ("error", "solve: timeout: no result after 4 s"),
-    "exit": ("error", "solve: crashed: the solver process exited with code 0 without a result"),
+    "exit": ("error", "solve: crashed: the plug-in process exited with code 0 without a result"),
     "segv": ("error", "solve: crashed: killed by signal 11 (SIGSEGV)"),
     "hog": ("error", "solve: out of memory: MemoryError"),
     "nans": ("invalid", "w is not finite in 25 of 27 voxels"),
@@ -287,7 +287,7 @@ def test_two_concurrent_cli_runs_on_one_folder(tiny, tmp_path):
                               "--no-progress"], env=env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
     try:
-        _wait_for(tmp_path / "sleep.pid")
+        _wait_for_plugin("Sleep")
         second = subprocess.run([sys.executable, "-m", "vvtbench.cli", "run", str(suite), "-o",
                                  str(out), "--no-progress"], env=env, capture_output=True,
                                 text=True, timeout=120)
@@ -391,12 +391,26 @@ def test_check_results_accepts_true_only_and_rejects_tampered(tiny, tmp_path):
     assert ok == ""
 
 
-def _wait_for(path: Path, timeout: float = 90.0) -> None:
+def _wait_for_plugin(cls: str, timeout: float = 90.0) -> int:
+    """The host pid of the sealed child solving with the plug-in class ``cls`` (found by its
+    command line and its spec: the plug-in itself can write nowhere the test can see)."""
     t0 = time.time()
-    while not path.exists():
-        if time.time() - t0 > timeout:
-            raise AssertionError(f"{path} never appeared")
+    while time.time() - t0 < timeout:
+        for entry in os.listdir("/proc"):
+            try:
+                argv = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if argv[1:3] != [b"-m", b"vvtbench.sealed"]:
+                continue
+            try:
+                spec = json.loads(Path(argv[3].decode()).read_text())
+            except (OSError, ValueError, IndexError):
+                continue
+            if spec.get("job") == "solve" and spec.get("target", "").endswith(f":{cls}"):
+                return int(entry)
         time.sleep(0.1)
+    raise AssertionError(f"no sealed child solving with {cls} after {timeout:g} s")
 
 
 @pytest.mark.parametrize("workers", ["1", "2"])
@@ -414,8 +428,7 @@ def test_ctrl_c_stops_cleanly(tiny, tmp_path, workers):
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
                             preexec_fn=_default_sigint)
     try:
-        _wait_for(tmp_path / "sleep.pid")
-        child = int((tmp_path / "sleep.pid").read_text())
+        child = _wait_for_plugin("Sleep")
         time.sleep(0.5)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=180)  # a loaded machine exits slowly

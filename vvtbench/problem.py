@@ -221,6 +221,29 @@ class Estimate:
             "converged": self.converged, "iterations": len(self.history),
             "history": self.history, "extra": self.extra_scalars()})
 
+    @classmethod
+    def load(cls, folder: str | Path, problem: InverseProblem | None = None) -> Estimate:
+        """The estimate :meth:`save` wrote into ``folder`` (arrays without pickle; the
+        per-parameter fields, stated standard deviations and scalar extras)."""
+        folder = Path(folder)
+        doc = json.loads((folder / "estimate.json").read_text())
+        if not isinstance(doc, dict):
+            raise ValueError(f"{folder / 'estimate.json'}: not a JSON object")
+        with np.load(folder / "estimate.npz", allow_pickle=False) as z:
+            w, v = z["w_params"], z["v_params"]
+            extra = {f"{n}_std": z[f"{n}_std_params"] for n in ("w", "v")
+                     if f"{n}_std_params" in z.files}
+        scalars = doc.get("extra") if isinstance(doc.get("extra"), dict) else {}
+        history = doc.get("history") if isinstance(doc.get("history"), list) else []
+        config = doc.get("config") if isinstance(doc.get("config"), dict) else {}
+        runtime = doc.get("runtime_s")
+        return cls(w=w, v=v, history=history,
+                   runtime_s=float(runtime) if isinstance(runtime, (int, float)) else 0.0,
+                   config=config, solver=str(doc.get("solver") or ""),
+                   version=str(doc.get("solver_version") or ""),
+                   converged=doc.get("converged") if isinstance(doc.get("converged"), bool)
+                   else None, extra={**scalars, **extra})
+
     def std(self, name: str) -> np.ndarray | None:
         """The stated per-parameter standard deviation ``extra[name]`` (``"w_std"`` or
         ``"v_std"``) as a float array of the estimate's shape, or None when not given."""

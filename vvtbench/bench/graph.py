@@ -201,15 +201,14 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
     def info(spec: str, extra: dict | None = None):
         ck = (spec, json.dumps(_canon(extra or {}), sort_keys=True))
         if ck not in solver_info:
-            try:
-                from ..plugins import load_solver
+            try:  # the plug-in is imported in a sealed child, never here
+                from ..sealed import describe_sealed
 
-                name = load_solver(spec).name
+                name = describe_sealed("solver", spec)["name"]
                 over = {**(cfgs.get(spec) or cfgs.get(name) or {}), **(extra or {})}
-                cls, cfg = solver_setup(spec, over)
-                inputs = solver_inputs(cls, cfg)
-                solver_info[ck] = (cls.name, str(cls.version), cfg, None,
-                                   bool(getattr(cls, "uses_truth", False)), inputs)
+                d = describe_sealed("solver", spec, over)
+                solver_info[ck] = (d["name"], d["version"], d["config"], None,
+                                   d["uses_truth"], d["inputs"])
             except Exception as error:  # a broken plug-in becomes error rows
                 solver_info[ck] = (spec, "", {}, f"setup: {type(error).__name__}: {error}",
                                    False, {})

@@ -16,6 +16,7 @@ import numpy as np
 from .._version import __version__
 from ..dataset import sha256_file
 from ..io import jsonable, write_json, write_npz, write_text
+from ..sealed import SealedError
 from .graph import Task
 from .suite import observation_kind
 
@@ -39,15 +40,24 @@ def sample_path(cache: Path, gen_key: str) -> Path:
     return cache / gen_key / "sample"
 
 
-def _stage_extract(cache: Path, task: Task, out: Path, deps: dict) -> dict:
+def _stage_extract(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
     from ..dataset import open_sample
-    from ..modes import extract_modes
+    from ..sealed import extract_sealed
 
     sample = open_sample(sample_path(cache, task.deps[0]))
     opts = {k: v for k, v in task.payload["options"].items() if not k.startswith("merge_")}
-    ms = extract_modes(sample.video_path, sample.fps, **opts)
-    ms.save(out)
-    return {"n_modes": len(ms), "frequencies_hz": ms.frequencies_hz.tolist()}
+    limits = ctx.get("limits") or {}
+    result = extract_sealed(sample.video_path, sample.fps, opts, out,
+                            timeout=limits.get("timeout"),
+                            memory_bytes=limits.get("memory_bytes"),
+                            threads=ctx.get("threads"), secrets=_secrets(cache, sample.path))
+    return {"n_modes": result["n_modes"], "frequencies_hz": result["frequencies_hz"],
+            "sandbox": result["sandbox"]}
+
+
+def _secrets(cache: Path, *more: Path) -> list[Path]:
+    """What a plug-in must not see: the run folder (its cache holds every truth) and more."""
+    return [cache.parent, cache, *more]
 
 
 def observe_options(inference: dict, observation: str, extract: dict):
@@ -107,16 +117,23 @@ def load_observation(cache: Path, observe_key: str, truth: bool = False):
     return (problem, Truth.load(cache / observe_key)) if truth else problem
 
 
-def _stage_solve(cache: Path, task: Task, out: Path, deps: dict) -> dict:
-    from ..plugins import load_solver, run_solver
+def _stage_solve(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
+    from ..sealed import describe_sealed, solve_sealed
 
-    cls = load_solver(task.payload["solver"])
-    reference = bool(getattr(cls, "uses_truth", False))
-    problem, truth = load_observation(cache, task.deps[0], truth=True)
-    est, wall = run_solver(cls, task.payload["config"], problem, truth if reference else None)
-    est.save(out, problem, wall_s=wall)
+    spec, config = task.payload["solver"], task.payload["config"]
+    limits = ctx.get("limits") or {}
+    reference = bool(describe_sealed("solver", spec, config)["uses_truth"])
+    if reference:  # only a declared reference is handed the truth
+        problem, truth = load_observation(cache, task.deps[0], truth=True)
+    else:
+        problem, truth = load_observation(cache, task.deps[0]), None
+    est, wall, info = solve_sealed(spec, config, problem, truth=truth,
+                                   timeout=limits.get("timeout"),
+                                   memory_bytes=limits.get("memory_bytes"),
+                                   threads=ctx.get("threads"), secrets=_secrets(cache),
+                                   dest=out)
     return {"runtime_s": est.runtime_s or wall, "iterations": len(est.history),
-            "reference": reference}
+            "reference": info["reference"], "sandbox": info["sandbox"]}
 
 
 def _stage_evaluate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
@@ -156,6 +173,7 @@ def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True,
     return {"metrics": ev["metrics"], "notes": ev["notes"], "n_modes_observed": problem.n_modes}
 
 
+SEALED = ("extract", "solve")  # the stages that run plug-ins
 STAGE_FUNCS = {"generate": _stage_generate, "extract": _stage_extract,
                "observe": _stage_observe, "solve": _stage_solve, "evaluate": _stage_evaluate}
 
@@ -198,8 +216,8 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
     Returns a status dict: ``{"key", "status": ok|error|skipped, "computed": bool,
     "seconds", "result"|"error"}``; ``"recomputed"``: why a cached output was not reused.
 
-    ``limits``: ``{"timeout": s, "memory_bytes": n, "isolate": bool}`` for solve tasks, which
-    run in a child process (:mod:`.child`) unless ``isolate`` is False."""
+    ``limits``: ``{"timeout": s, "memory_bytes": n}`` for the extract and solve tasks, which
+    run their plug-ins in a sealed child (:mod:`vvtbench.sealed`)."""
     cache = Path(cache)
     limits = limits or {}
     final = cache / task.key
@@ -238,18 +256,12 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
     err_dir = cache / f"{task.key}.error"
     t0 = time.perf_counter()
     try:
-        if task.stage == "solve" and limits.get("isolate", True):
-            from .child import DEFAULT_TIMEOUT, run_isolated
-
-            result = run_isolated(cache, task, tmp,
-                                  timeout=limits.get("timeout", DEFAULT_TIMEOUT),
-                                  memory_bytes=limits.get("memory_bytes"), threads=threads)
-            shutil.rmtree(tmp / ".child", ignore_errors=True)
-            if not (tmp / "estimate.npz").is_file():  # the parent checks what the child wrote
-                from .child import IsolationError
-
-                raise IsolationError("crashed", "the solver process reported success but "
-                                                "wrote no estimate.npz")
+        if task.stage in SEALED:  # plug-ins: a sealed child with the limits
+            result = STAGE_FUNCS[task.stage](cache, task, tmp,
+                                             {"limits": limits, "threads": threads})
+            if task.stage == "solve" and not (tmp / "estimate.npz").is_file():
+                raise SealedError("crashed", "the solver reported success but wrote no "
+                                             "estimate.npz")
         elif threads:
             from threadpoolctl import threadpool_limits
 
@@ -276,11 +288,7 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(error, KeyboardInterrupt):
             raise
-        from .child import ChildError, IsolationError
-
-        if isinstance(error, ChildError):
-            msg, tb = str(error), error.log
-        elif isinstance(error, IsolationError):
+        if isinstance(error, SealedError):
             msg, tb = f"{task.stage}: {error}", f"{task.stage}: {error}\n{error.log}"
         else:
             msg, tb = f"{task.stage}: {type(error).__name__}: {error}", traceback.format_exc()
