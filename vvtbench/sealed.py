@@ -128,12 +128,13 @@ def _bwrap_argv(work: Path, inputs: Mapping[str, Path], extra_ro: Sequence[Path]
             visible = [v for v in visible if not _inside(v, root)] + [root]
     for root in sorted(visible):
         argv += ["--ro-bind", str(root), str(root)]
-    for secret in secrets:
-        secret = Path(os.path.realpath(secret))
+    hidden = sorted({Path(os.path.realpath(s)) for s in secrets})
+    hidden = [s for s in hidden if not any(_inside(s, o) and s != o for o in hidden)]
+    for secret in hidden:
         if not any(_inside(secret, v) for v in visible):
             continue
         if secret.is_dir():
-            argv += ["--tmpfs", str(secret)]
+            argv += ["--tmpfs", str(secret), "--remount-ro", str(secret)]
         elif secret.exists():
             argv += ["--ro-bind", "/dev/null", str(secret)]
     argv += ["--dir", str(work), "--bind", str(work / "out"),

@@ -1,0 +1,254 @@
+"""Sealed plug-ins: a hostile solver or extractor finds no truth by any route, writes nowhere
+but its own output, reaches no network, and leaves no process behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vvtbench.observe import observe
+from vvtbench.scene import load_scene
+from vvtbench.sealed import SealedError, extract_sealed, sandbox_kind, solve_sealed
+
+pytestmark = pytest.mark.skipif(shutil.which("bwrap") is None or sys.platform != "linux",
+                                reason="bubblewrap is the sandbox on Linux (.ci/setup "
+                                       "installs it)")
+
+HOSTILE = '''
+import dataclasses, gc, inspect, os, socket, subprocess, sys, time
+import numpy as np
+from vvtbench.problem import Estimate
+
+SECRET = {secret!r}
+TRUTH_FILE = {truth!r}
+PORT = {port}
+MARKER = {marker!r}
+
+
+@dataclasses.dataclass
+class Config:
+    pass
+
+
+def peek():
+    seen = []
+    if any(type(o).__name__ == "Truth" for o in gc.get_objects()):
+        seen.append("a Truth object in memory")
+    frame = inspect.currentframe()
+    while frame is not None:
+        if any(type(v).__name__ == "Truth" for v in frame.f_locals.values()):
+            seen.append("a Truth in a caller's frame")
+        frame = frame.f_back
+    for path in (TRUTH_FILE, SECRET):
+        if os.path.exists(path) and (os.path.isfile(path) or os.listdir(path)):
+            seen.append("saw " + path)
+    for root, _, files in os.walk(os.path.dirname(SECRET)):
+        if any(f.startswith("truth") for f in files):
+            seen.append("found truth under " + root)
+    if SECRET in " ".join(sys.argv) + os.getcwd() + repr(dict(os.environ)):
+        seen.append("the secret path in argv, cwd or environment")
+    try:
+        with open(os.path.join(SECRET, "victim.txt"), "w") as f:
+            f.write("owned")
+        seen.append("wrote into the secret folder")
+    except OSError:
+        pass
+    try:
+        socket.create_connection(("127.0.0.1", PORT), timeout=2).close()
+        seen.append("reached the network")
+    except OSError:
+        pass
+    return seen
+
+
+class Peek:
+    name = "peek"
+    version = "0"
+    description = "hostile"
+    Config = Config
+
+    def __init__(self, config=None):
+        pass
+
+    def solve(self, problem):
+        seen = peek()
+        m = problem.n_params
+        return Estimate(w=np.full(m, 9000.0), v=np.full(m, 1000.0),
+                        extra={{"seen": "; ".join(seen)}})
+
+
+class Escape(Peek):
+    name = "escape"
+
+    def solve(self, problem):
+        subprocess.Popen([sys.executable, "-c",
+                          "import os, time; os.setsid(); time.sleep(300)  # " + MARKER])
+        time.sleep(300)
+
+
+class Link(Peek):
+    name = "link"
+
+    def solve(self, problem):
+        import atexit
+
+        def swap():  # after the child saved the estimate
+            for name in ("estimate.npz", "estimate.json"):
+                os.remove("out/" + name)
+                os.symlink("/etc/hostname", "out/" + name)
+
+        atexit.register(swap)
+        return super().solve(problem)
+
+
+class Liar(Peek):
+    name = "liar"
+    uses_truth = False
+    calls = [0]
+
+    def __init__(self, config=None):
+        type(self).uses_truth = True  # claims to be a reference once running
+
+
+class ExtractPeek:
+    name = "extractpeek"
+    version = "0"
+    description = "hostile extractor"
+    Config = Config
+
+    def __init__(self, config=None):
+        seen = peek()
+        if seen:
+            raise RuntimeError("SAW: " + "; ".join(seen))
+        from vvtbench.motion.extractors import PhaseExtractor
+        self.inner = PhaseExtractor()
+
+    def prepare(self, reference):
+        return self.inner.prepare(reference)
+'''
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """A problem with its truth saved in a 'run folder', and a hostile plug-in file beside it
+    that knows exactly where that truth is."""
+    root = tmp_path_factory.mktemp("sealed")
+    secret = root / "run"
+    (secret / "obs").mkdir(parents=True)
+    problem, truth = observe(load_scene("jello_cube_defect_top"), observation="true",
+                             n_modes=6, inference_shape=(3, 3, 3))
+    truth.save(secret / "obs")
+    problem.save(secret / "obs")
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen()
+    marker = f"vvtbench-escape-{os.getpid()}-{time.time_ns()}"
+    plugin = root / "hostile.py"
+    plugin.write_text(HOSTILE.format(secret=str(secret), truth=str(secret / "obs" / "truth.npz"),
+                                     port=listener.getsockname()[1], marker=marker))
+    yield root, secret, problem, truth, plugin, marker
+    listener.close()
+
+
+def test_the_sandbox_is_bubblewrap():
+    assert sandbox_kind() == "bwrap"
+
+
+def test_a_solver_finds_no_truth_by_any_route(world):
+    root, secret, problem, truth, plugin, _ = world
+    assert (secret / "obs" / "truth.npz").is_file()
+    est, _, info = solve_sealed(f"{plugin}:Peek", {}, problem, truth=truth, secrets=[secret])
+    assert info["sandbox"] == "bwrap" and info["reference"] is False
+    assert est.extra["seen"] == ""
+    assert not (secret / "victim.txt").exists()
+
+
+def test_unsandboxed_the_child_still_gets_no_truth_object_nor_path(world, monkeypatch):
+    """Without bubblewrap the files are readable (documented); but nothing hands the truth
+    or its path to the plug-in."""
+    root, secret, problem, truth, plugin, _ = world
+    monkeypatch.setenv("VVTBENCH_SANDBOX", "none")
+    sandbox_kind.cache_clear()
+    try:
+        est, _, info = solve_sealed(f"{plugin}:Peek", {}, problem, truth=truth,
+                                    secrets=[secret])
+    finally:
+        monkeypatch.delenv("VVTBENCH_SANDBOX")
+        sandbox_kind.cache_clear()
+    assert info["sandbox"] == "none"
+    seen = est.extra["seen"]
+    assert "Truth" not in seen and "argv" not in seen
+
+
+def _alive(marker: str) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        try:
+            if marker.encode() in Path(f"/proc/{entry}/cmdline").read_bytes():
+                out.append(int(entry))
+        except OSError:
+            pass
+    return out
+
+
+@pytest.mark.parametrize("sandbox", ["bwrap", "none"])
+def test_a_grandchild_that_left_the_group_ends_with_the_plugin(world, monkeypatch, sandbox):
+    root, secret, problem, truth, plugin, marker = world
+    if sandbox == "none":
+        monkeypatch.setenv("VVTBENCH_SANDBOX", "none")
+    sandbox_kind.cache_clear()
+    try:
+        with pytest.raises(SealedError, match="timeout"):
+            solve_sealed(f"{plugin}:Escape", {}, problem, secrets=[secret], timeout=4)
+    finally:
+        monkeypatch.delenv("VVTBENCH_SANDBOX", raising=False)
+        sandbox_kind.cache_clear()
+    time.sleep(0.5)
+    assert _alive(marker) == []
+
+
+def test_links_in_the_output_are_refused(world):
+    root, secret, problem, truth, plugin, _ = world
+    with pytest.raises(SealedError, match="link"):
+        solve_sealed(f"{plugin}:Link", {}, problem, secrets=[secret])
+
+
+def test_a_solver_that_changes_its_mind_about_truth_gets_none(world):
+    root, secret, problem, truth, plugin, _ = world
+    with pytest.raises(SealedError, match="uses_truth"):
+        solve_sealed(f"{plugin}:Liar", {}, problem, truth=truth, secrets=[secret])
+
+
+def test_an_extractor_finds_no_truth_beside_the_video(world, tmp_path):
+    root, secret, problem, truth, plugin, _ = world
+    sample = secret / "sample"
+    sample.mkdir(exist_ok=True)
+    (sample / "truth.zarr").mkdir(exist_ok=True)
+    (sample / "truth.zarr" / "truth.npz").write_bytes(b"x")
+    rng = np.random.default_rng(0)
+    base = rng.random((40, 40)).astype(np.float32)
+    t = np.arange(64) / 200.0
+    frames = np.stack([np.roll(base, 0, 0) + 0.01 * np.sin(2 * np.pi * 30 * ti) * base
+                       for ti in t])
+    np.save(sample / "video.npy", frames)
+    out = tmp_path / "modes"
+    result = extract_sealed(sample / "video.npy", 200.0,
+                            {"extractor": f"{plugin}:ExtractPeek"}, out, secrets=[secret])
+    assert result["sandbox"] == "bwrap"
+    assert (out / "modes.json").is_file()
+    assert json.loads((out / "modes.json").read_text())
+
+
+def test_a_reference_solver_is_handed_the_truth(world):
+    root, secret, problem, truth, plugin, _ = world
+    est, _, info = solve_sealed("oracle", {"max_iter": 2}, problem, truth=truth,
+                                secrets=[secret])
+    assert info["reference"] is True and est.w.shape == truth.w.shape
