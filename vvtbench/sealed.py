@@ -47,8 +47,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SealedError", "describe_sealed", "extract_sealed", "run_sealed", "sandbox_kind",
-           "solve_sealed"]
+__all__ = ["SealedError", "describe_sealed", "extract_sealed", "list_sealed", "run_sealed",
+           "sandbox_kind", "solve_sealed"]
 
 DEFAULT_TIMEOUT = 3600.0
 _LOG_TAIL = 4000
@@ -492,6 +492,14 @@ def describe_sealed(kind: str, target: str, config: Mapping[str, Any] | None = N
     return _DESCRIBED[key]
 
 
+def list_sealed(kind: str, timeout: float | None = 600.0) -> dict[str, dict]:
+    """name -> ``{"version", "description", "fields"}`` (or ``{"error"}``) of every registered
+    plug-in of ``kind`` (``solver`` or ``extractor``), imported in one sealed child."""
+    return {k: v for k, v in run_sealed({"job": "list", "kind": kind}, {}, None,
+                                        timeout=timeout).items()
+            if k not in ("sandbox", "seconds")}
+
+
 def _target(target: str) -> str:
     """A file plug-in's path made absolute (the child runs elsewhere)."""
     module, sep, attr = target.partition(":")
@@ -581,7 +589,24 @@ def _job_describe(spec: dict, work: Path) -> dict:
             "config": json.loads(json.dumps(config, default=str)), "inputs": dict(inputs)}
 
 
-JOBS = {"solve": _job_solve, "extract": _job_extract, "describe": _job_describe}
+def _job_list(spec: dict, work: Path) -> dict:
+    from .extractors import EXTRACTORS
+    from .plugins import SOLVERS, PluginError, describe_config
+
+    kind = SOLVERS if spec["kind"] == "solver" else EXTRACTORS
+    out = {}
+    for name, target in sorted(kind.registry().items()):
+        try:
+            cls = kind.import_class(target)
+            out[name] = {"version": str(cls.version), "description": str(cls.description),
+                         "fields": [list(f) for f in describe_config(cls.Config)]}
+        except (PluginError, Exception) as error:  # noqa: BLE001 -- listed with its error
+            out[name] = {"error": f"{type(error).__name__}: {error}"}
+    return out
+
+
+JOBS = {"solve": _job_solve, "extract": _job_extract, "describe": _job_describe,
+        "list": _job_list}
 
 
 def child_main(spec_path: str) -> int:

@@ -9,15 +9,8 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from ..plugins import (
-    PluginError,
-    describe_config,
-    list_solvers,
-    load_solver,
-    parse_overrides,
-    run_solver,
-)
-from . import bounded, explain, positive_float, positive_int
+from ..plugins import PluginError
+from . import bounded, explain, one_line, positive_float, positive_int
 
 
 def main_solvers(argv: list[str] | None = None) -> int:
@@ -25,29 +18,45 @@ def main_solvers(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="vvtbench solvers", description="list inverse solvers")
     p.add_argument("-v", "--verbose", action="store_true", help="also list config options")
     args = p.parse_args(argv)
-    _list(list_solvers(), args.verbose)
-    return 0
+    return _list("solver", args.verbose)
 
 
 def main_extractors(argv: list[str] | None = None) -> int:
     """``vvtbench extractors [-v]``: list registered motion extractors (options under -v)."""
-    from ..extractors import list_extractors
-
     p = argparse.ArgumentParser(prog="vvtbench extractors",
                                 description="list motion extractors (for `extract --extractor` "
                                 "and a suite's 'extracted:NAME' observations)")
     p.add_argument("-v", "--verbose", action="store_true", help="also list config options")
     args = p.parse_args(argv)
-    _list(list_extractors(), args.verbose)
+    return _list("extractor", args.verbose)
+
+
+def _list(kind: str, verbose: bool) -> int:
+    """The registered plug-ins of ``kind``, each described by a sealed child (never imported
+    here); one that cannot be imported is listed with its error."""
+    from ..sealed import list_sealed
+
+    for name, d in list_sealed(kind).items():
+        if "error" in d:
+            print(f"{name:14s} {'-':8s} cannot be loaded: {d['error']}")
+            continue
+        print(f"{name:14s} {d['version']:8s} {d['description']}")
+        if verbose:
+            for key, default, help_ in d["fields"]:
+                print(f"    {key:18s} = {default:10s} {help_}")
     return 0
 
 
-def _list(classes: dict, verbose: bool) -> None:
-    for name, cls in classes.items():
-        print(f"{name:14s} {cls.version:8s} {cls.description}")
-        if verbose:
-            for key, default, help_ in describe_config(cls.Config):
-                print(f"    {key:18s} = {default:10s} {help_}")
+def overrides_mapping(items: list[str] | None) -> dict[str, str]:
+    """``["key=value", ...]`` (``--set``) as a mapping, read against the plug-in's Config in
+    its sealed child."""
+    values = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise PluginError(f"--set {item!r}: expected key=value")
+        values[key.strip()] = text.strip()
+    return values
 
 
 def build_solve_parser() -> argparse.ArgumentParser:
@@ -82,6 +91,11 @@ def build_solve_parser() -> argparse.ArgumentParser:
                    help="samples only: a clicks file (JSON or CSV of inference-mesh vertex, u, "
                    "v; >= 6 non-coplanar vertices, format in docs/modes.md): the camera is "
                    "estimated from it instead of taken from the sample")
+    p.add_argument("--timeout", type=positive_float, default=None,
+                   help="seconds the solver may run (default 3600), then it is stopped")
+    p.add_argument("--memory-gb", type=positive_float, default=None,
+                   help="address-space limit of the solver's process in GB (default 75 %% of "
+                   "the machine's memory)")
     return p
 
 
@@ -127,14 +141,16 @@ def main_solve(argv: list[str] | None = None) -> int:
     if args.grid is not None and len(args.grid) not in (2, 3):
         return _fail(f"--grid: give 3 integers (boxes: nx ny nz) or 2 (drums), got "
                      f"{len(args.grid)}")
-    try:
-        cls = load_solver(args.solver)
-    except PluginError as error:  # an unknown name gets a "did you mean" (explain)
-        return _fail(error)
-    try:
-        config = parse_overrides(args.overrides, cls.Config)
+    from ..bench.child import DEFAULT_TIMEOUT, default_memory_bytes
+    from ..sealed import SealedError, describe_sealed, solve_sealed
+
+    timeout = args.timeout or DEFAULT_TIMEOUT
+    try:  # imported and configured in a sealed child; an unknown name gets a "did you mean"
+        overrides = overrides_mapping(args.overrides)
+        desc = describe_sealed("solver", args.solver, overrides, timeout=min(timeout, 600.0))
     except PluginError as error:
-        return _fail(f"{cls.name} config: {explain(error)}")
+        return _fail(error)
+    name = desc["name"]
     target, out = Path(args.target), Path(args.output)
     message = _check_output(out, target)
     if message:
@@ -190,30 +206,48 @@ def main_solve(argv: list[str] | None = None) -> int:
         print(f"camera from {n_clicks} clicks ({args.clicks}): reprojection rms "
               f"{problem.meta['clicks_rms_px']:.3f} px")
     t_setup = time.perf_counter() - t0
-    estimate, wall = run_solver(cls, config, problem, truth)
+    memory = (int(args.memory_gb * 2**30) if args.memory_gb else default_memory_bytes())
+    secrets = [out, *([target] if target.is_dir() else [])]
+    try:
+        estimate, wall, sinfo = solve_sealed(args.solver, overrides, problem, truth=truth,
+                                             timeout=timeout, memory_bytes=memory,
+                                             secrets=secrets)
+    except SealedError as error:
+        print(f"error: {name} failed on {target}: {one_line(str(error))}", file=sys.stderr)
+        return 1
     out.mkdir(parents=True, exist_ok=True)
     estimate.save(out, problem, wall_s=wall)
     stds = (estimate.std("w_std"), estimate.std("v_std"))
     ev = write_evaluation(out, problem, truth, estimate.w, estimate.v,
                           modes=not args.no_mode_match, w_std=stds[0], v_std=stds[1])
+    reference = bool(sinfo["reference"])
     write_json(out / "solve.json", {
         **info, "scene": truth.meta.get("scene"), "observation": observation,
-        "reference": bool(getattr(cls, "uses_truth", False)), "n_modes": problem.n_modes,
+        "solver": name, "solver_version": sinfo["version"], "config": sinfo["config"],
+        "sandbox": sinfo["sandbox"], "reference": reference, "n_modes": problem.n_modes,
         "setup_s": t_setup, "vvtbench": __version__, "problem": problem.meta,
         "status": "invalid" if ev.get("invalid") else "ok", "invalid": ev.get("invalid"),
         "metrics": ev["metrics"],
         "extraction": None if truth.extraction_mac is None else {
             "matched_true_modes": truth.matched, "extraction_mac": truth.extraction_mac,
             "true_frequencies_hz": truth.frequencies_hz}})
-    plot_fields(out / "slices.png", problem, {cls.name: (estimate.w, estimate.v)}, truth)
-    if any(sd is not None for sd in stds) and not ev.get("invalid"):
+    if ev.get("invalid"):
+        print(f"INVALID ESTIMATE, not a result: {name} on {target}: {ev['invalid']} "
+              f"(an estimate must be finite and positive in every voxel; nothing is drawn "
+              f"or scored) -> {out / 'solve.json'}", file=sys.stderr)
+        return 1
+    scene = truth.meta.get("scene") or target.name
+    score = ", ".join(_field_score(ev["metrics"], f) for f in "wv")
+    plot_fields(out / "slices.png", problem, {name: (estimate.w, estimate.v)}, truth)
+    if any(sd is not None for sd in stds):
         plot_uncertainty(out / "uncertainty.png", problem, (estimate.w, estimate.v), stds, truth,
-                         title=f"{cls.name}: stated uncertainty on {target}")
-    m = ev["metrics"]
-    score = (f"invalid estimate ({ev['invalid']}), not scored" if ev.get("invalid") else
-             ", ".join(_field_score(m, f) for f in "wv"))
-    print(f"{cls.name} on {target} ({observation} modes, {problem.n_modes}): "
-          f"{len(estimate.history)} iterations, {estimate.runtime_s:.2f} s; {score} -> {out}")
+                         title=f"{name} on {scene} ({observation} modes): stated uncertainty")
+    print(f"{name}{' (reference: reads the truth)' if reference else ''} on {target} "
+          f"({observation} modes, {problem.n_modes}): {len(estimate.history)} iterations, "
+          f"{estimate.runtime_s:.2f} s; {score} -> {out}")
+    print("  NC: normalized correlation of the estimated and true fields per voxel (1 = same "
+          "pattern, 0 = none); details in docs/metrics.md. Next: open "
+          f"{out / 'slices.png'}, or compare solvers with `vvtbench run`.")
     return 0
 
 
@@ -233,7 +267,7 @@ def _check_clicks(path: str) -> tuple[int, str | None]:
 def _modes(sample, modes_file: str | None, out: Path) -> tuple[Path | None, str | None]:
     """The extract output folder to observe: ``--modes-file``, or OUTPUT/modes (extracted from
     the sample's video now unless already there)."""
-    from ..modes import ModeSet, extract_modes
+    from ..modes import ModeSet
 
     if modes_file is not None:
         modes_dir = Path(modes_file)
@@ -249,5 +283,11 @@ def _modes(sample, modes_file: str | None, out: Path) -> tuple[Path | None, str 
                       "--observation true")
     modes_dir = out / "modes"
     if not (modes_dir / "modes.json").is_file():
-        extract_modes(sample.video_path, sample.fps).save(modes_dir)
+        from ..sealed import SealedError, extract_sealed
+
+        try:
+            extract_sealed(sample.video_path, sample.fps, {}, modes_dir,
+                           secrets=[sample.path, out])
+        except SealedError as error:
+            return None, f"{sample.video_path}: extraction failed: {error}"
     return modes_dir, None
