@@ -42,6 +42,28 @@ BUILTIN = {
     "learned": "solvers.learned:LearnedSolver",
 }
 REQUIRED = ("name", "version", "description", "Config", "solve")
+# The shipped solvers that declare ``uses_truth`` (references): a results row of one of them
+# must be marked as a reference (checked against the classes by the tests).
+REFERENCE_BUILTINS = ("oracle",)
+
+
+def name_problem(value: object, max_len: int = 80) -> str | None:
+    """Why ``value`` cannot be a name in a results table, a CSV cell or a Markdown row (not a
+    string; empty or too long; a control character or a space; a leading ``=``, ``+``, ``-``
+    or ``@``, which spreadsheets read as a formula), or None when it can.
+
+    >>> name_problem("vvt"), name_problem("=HYPERLINK(1)") is not None
+    (None, True)
+    """
+    if not isinstance(value, str):
+        return f"must be a string, got {type(value).__name__}"
+    if not value or len(value) > max_len:
+        return f"must have 1 to {max_len} characters"
+    if not value.isprintable() or any(ch.isspace() for ch in value) or "|" in value:
+        return "must be printable, without spaces, newlines or '|'"
+    if value[0] in "=+-@":
+        return "must not start with '=', '+', '-' or '@' (a spreadsheet formula)"
+    return None
 
 
 class PluginError(ValueError):
@@ -95,6 +117,10 @@ class Kind:
             raise PluginError(f"{where or cls}: not a {self.noun}: missing "
                               f"{', '.join(missing)} (a {self.noun} needs "
                               f"{', '.join(self.required)})")
+        for attr in ("name", "version"):
+            problem = name_problem(getattr(cls, attr))
+            if problem:
+                raise PluginError(f"{where or cls}: {attr} {getattr(cls, attr)!r}: {problem}")
         if not dataclasses.is_dataclass(cls.Config):
             raise PluginError(f"{where or cls}: Config must be a dataclass")
         for f in dataclasses.fields(cls.Config):

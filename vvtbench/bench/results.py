@@ -27,7 +27,8 @@ COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "con
            "variation",
            "variation_options", "seed", "observation", "n_modes", "n_modes_observed",
            *METRIC_COLUMNS, "runtime_s", "status", "error", "vvtbench_version",
-           "dataset_revision", "estimate_path", "traceback_path")
+           "dataset_revision", "estimate_path", "traceback_path", "estimate_sha256",
+           "observation_sha256", "sandbox")
 
 
 def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
@@ -74,13 +75,16 @@ def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
     sres = results.get(run.solve_key, {}).get("result", {})
     row["runtime_s"] = float(sres.get("runtime_s", float("nan")))
     row["n_modes_observed"] = int(res.get("n_modes_observed", -1))
+    row.update(estimate_sha256=res.get("estimate_sha256"),
+               observation_sha256=res.get("observation_sha256"),
+               sandbox=sres.get("sandbox"),
+               estimate_path=f"{cache_rel}/{run.evaluate_key}/fields.npz")
     if res.get("invalid"):  # never scored, never ranked
         row.update(status="invalid", error=res["invalid"])
         return row
     for m in METRIC_COLUMNS:
         val = res["metrics"].get(m)
         row[m] = float("nan") if val is None else float(val)
-    row["estimate_path"] = f"{cache_rel}/{run.evaluate_key}/fields.npz"
     return row
 
 
@@ -122,9 +126,11 @@ def write_results(df, out_dir: Path) -> tuple[Path, Path]:
 _INT = ("seed", "n_modes", "n_modes_observed")
 _FLOAT = (*METRIC_COLUMNS, "runtime_s")
 _BOOL = ("reference",)
-_OPTIONAL_STR = ("estimate_path", "traceback_path")
-# Columns a table may lack (older tables: before `reference`); every other column is required.
-OPTIONAL = ("reference",)
+_OPTIONAL_STR = ("estimate_path", "traceback_path", "estimate_sha256", "observation_sha256",
+                 "sandbox")
+# Columns a table may lack (tables written before they existed); every other column is
+# required.
+OPTIONAL = ("reference", "estimate_sha256", "observation_sha256", "sandbox")
 
 
 def _parse_csv(raw) -> tuple[object, list[str]]:
@@ -214,6 +220,57 @@ SCORED = ("nc_w_uncentered", "nc_v_uncentered", "runtime_s")
 SCORED_EITHER = (("nc_w", "false_contrast_w"), ("nc_v", "false_contrast_v"))
 _STRINGS = ("track", "solver", "solver_version", "config_hash", "scene", "variation",
             "vvtbench_version", "dataset_revision")
+
+
+# names: strict (a plug-in's name and version, a track); text: printable, no formula
+_NAMES = ("track", "solver", "solver_version", "config_hash", "vvtbench_version",
+          "dataset_revision", "sandbox")
+_TEXT = ("scene", "variation", "observation", "error", "estimate_path", "traceback_path")
+_SHA = ("estimate_sha256", "observation_sha256")
+_FORMULA = "=+-@"
+
+
+def _check_cells(df, err) -> None:
+    """Cells that would mislead a reader: a newline (a fake Markdown row), a control character,
+    a leading formula character (a spreadsheet runs it), a malformed sha256; scores on rows
+    that are not scored (error, invalid); a shipped reference solver not marked as one."""
+    import pandas as pd
+
+    from ..plugins import REFERENCE_BUILTINS, name_problem
+
+    for c in _NAMES:
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if isinstance(val, str) and val and name_problem(val, max_len=200):
+                err(f"column {c!r}, row {i}: {val!r} {name_problem(val, max_len=200)}")
+    for c in _TEXT:
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if isinstance(val, str) and val and (not val.isprintable() or val[0] in _FORMULA):
+                err(f"column {c!r}, row {i}: {val[:40]!r} must be printable text (no newline "
+                    "or control character) and must not start with '=', '+', '-' or '@'")
+    for c in _SHA:
+        if c not in df.columns:
+            continue
+        for i, val in df[c].items():
+            if isinstance(val, str) and not re.fullmatch(r"[0-9a-f]{64}", val):
+                err(f"column {c!r}, row {i}: {val[:20]!r} must be a sha256 (64 hex digits)")
+    if "status" in df.columns:
+        for i, st in df["status"].items():
+            if st in ("error", "invalid"):
+                scored = [c for c in METRIC_COLUMNS if c in df.columns
+                          and np.isfinite(pd.to_numeric(pd.Series([df.at[i, c]]),
+                                                        errors="coerce").iloc[0])]
+                if scored:
+                    err(f"row {i}: status {st!r} but scores in {', '.join(scored[:4])} "
+                        "(a row that is not scored has no scores)")
+    if "reference" in df.columns and "solver" in df.columns:
+        for i, (name, ref) in enumerate(zip(df["solver"], df["reference"], strict=True)):
+            if name in REFERENCE_BUILTINS and not bool(ref):
+                err(f"row {df.index[i]}: solver {name!r} reads the truth (a reference) but "
+                    "'reference' is False")
 
 
 def check_results(path_or_df, max_errors: int = 50) -> list[str]:
@@ -340,6 +397,7 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
                 if not isinstance(row["error"], str) or not row["error"].strip():
                     err(f"column 'error', row {i}: rows with status {row['status']!r} need "
                         "the reason")
+    _check_cells(df, err)
     key = [c for c in ("track", "solver", "config_hash", "scene", "variation", "seed",
                        "observation") if c in df.columns]
     if len(key) >= 6 and len(df):

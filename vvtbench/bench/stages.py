@@ -138,12 +138,37 @@ def _stage_solve(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
 
 def _stage_evaluate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     solve_key, observe_key = task.deps
+    hashes = scored_inputs(cache, solve_key, observe_key)
     problem, truth = load_observation(cache, observe_key, truth=True)
-    with np.load(cache / solve_key / "estimate.npz", allow_pickle=False) as est:
+    w, v, std = load_estimate_arrays(cache / solve_key / "estimate.npz")
+    return {**write_evaluation(out, problem, truth, w, v, **std), **hashes}
+
+
+def load_estimate_arrays(path: Path) -> tuple[np.ndarray, np.ndarray, dict]:
+    """``(w, v, {"w_std": ..., "v_std": ...})`` of an ``estimate.npz`` (stds where stated)."""
+    with np.load(path, allow_pickle=False) as est:
         w, v = est["w_params"], est["v_params"]
         std = {f"{n}_std": est[f"{n}_std_params"] for n in ("w", "v")
                if f"{n}_std_params" in est.files}
-    return write_evaluation(out, problem, truth, w, v, **std)
+    return w, v, std
+
+
+def observation_sha256(folder: Path) -> str:
+    """One sha256 of an observe output (problem and truth): over its files' names and
+    sha256, in name order."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name, digest in file_hashes(folder).items():
+        h.update(f"{name}\0{digest}\n".encode())
+    return h.hexdigest()
+
+
+def scored_inputs(cache: Path, solve_key: str, observe_key: str) -> dict:
+    """The sha256 of the estimate and of the observation an evaluation scores: an evaluation
+    is reused only while both are unchanged, and every results row carries them."""
+    return {"estimate_sha256": sha256_file(cache / solve_key / "estimate.npz"),
+            "observation_sha256": observation_sha256(cache / observe_key)}
 
 
 def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True,
@@ -202,6 +227,18 @@ def verify_cached(folder: Path, info: dict) -> str | None:
     return None
 
 
+def _scored_inputs_changed(cache: Path, task: Task, result: dict) -> str | None:
+    """Why a cached evaluation no longer scores what its dependencies hold, or None."""
+    try:
+        now = scored_inputs(cache, *task.deps)
+    except OSError:
+        return None  # a dependency is missing: the dependency check below reports it
+    for key, digest in now.items():
+        if result.get(key) != digest:
+            return f"{key.removesuffix('_sha256')} changed since it was scored"
+    return None
+
+
 def _tmp_name(key: str) -> str:
     return f"{key}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
@@ -229,6 +266,8 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
             recomputed = verify_cached(final, info)
         except (OSError, ValueError):
             recomputed = "task.json unreadable"
+        if recomputed is None and task.stage == "evaluate":
+            recomputed = _scored_inputs_changed(cache, task, info.get("result") or {})
         if recomputed is None:
             return {"key": task.key, "status": "ok", "computed": False, "seconds": 0.0,
                     "result": info.get("result", {})}

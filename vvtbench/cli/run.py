@@ -9,27 +9,40 @@ import shlex
 import sys
 from pathlib import Path
 
-from ..bench import SuiteError, check_results, load_suite, read_results, run_suite, solver_setup
+from ..bench import SuiteError, check_results, load_suite, read_results, run_suite
+from ..bench.rescore import has_cache, rescore
+from ..sealed import describe_sealed
 
 
 def main_check_results(argv: list[str] | None = None) -> int:
     """``vvtbench check-results FILE``: exit 0 when valid, 1 with the problems listed."""
     p = argparse.ArgumentParser(prog="vvtbench check-results",
                                 description="validate a results table (docs/results.md)")
-    p.add_argument("file", help="results .parquet or .csv (or a run folder)")
+    p.add_argument("file", help="results .parquet or .csv (or a run folder); with the run's "
+                   "cache beside it every score is recomputed from the estimates and the truth")
     args = p.parse_args(argv)
     path = Path(args.file)
     if not path.exists():
         print(f"error: {path}: no such results file or run folder", file=sys.stderr)
         return 2
     problems = check_results(args.file)
+    run_dir = has_cache(path)
+    if not problems and run_dir is not None:
+        df = read_results(args.file)
+        problems = rescore(run_dir, df)
     if problems:
         print(f"{args.file}: {len(problems)} problem(s)", file=sys.stderr)
         for msg in problems:
             print(f"  {msg}", file=sys.stderr)
         return 1
     df = read_results(args.file)
-    print(f"{args.file}: valid ({len(df)} rows, {df['solver'].nunique()} solver(s))")
+    if run_dir is None:
+        print(f"{args.file}: valid form ({len(df)} rows, {df['solver'].nunique()} solver(s)); "
+              "scores NOT recomputed: no run cache beside the table (give the run folder, or "
+              "score estimates with `vvtbench score`)")
+    else:
+        print(f"{args.file}: valid ({len(df)} rows, {df['solver'].nunique()} solver(s)); every "
+              f"score recomputed from the estimates and the truth in {run_dir / 'cache'}")
     return 0
 
 
@@ -120,7 +133,7 @@ def main_run(argv: list[str] | None = None) -> int:
         solvers = None if args.solvers is None else [s for s in args.solvers.split(",") if s]
         overrides = _parse_set(args.overrides)
         for name, values in overrides.items():  # a bad --set is the user's, not error rows
-            solver_setup(name, {**suite.solver_config.get(name, {}), **values})
+            describe_sealed("solver", name, {**suite.solver_config.get(name, {}), **values})
     except (SuiteError, PluginError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
