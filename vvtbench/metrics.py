@@ -191,6 +191,10 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
             notes.append(f"the true {name} is constant: NC undefined, false contrast scored")
             continue
         metrics[f"nc_{name}"] = normalized_correlation(est, tru)
+        if is_constant(est):  # no pattern to match at any blur: resolution undefined
+            metrics[f"sigma_star_{name}"] = metrics[f"nc_at_sigma_star_{name}"] = None
+            notes.append(f"the estimated {name} is constant: intrinsic resolution undefined")
+            continue
         ir = intrinsic_resolution(problem.to_grid(est), problem.to_grid(tru))
         metrics[f"sigma_star_{name}"] = ir["sigma_star"]
         metrics[f"nc_at_sigma_star_{name}"] = ir["nc_at_sigma_star"]
@@ -231,7 +235,7 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
 
 
 # --------------------------------------------------------------------------- calibration
-# (uncertainty of solvers that report per-voxel standard deviations: issue 16)
+# (uncertainty of solvers that report per-voxel standard deviations)
 
 
 COVERAGE_Z = 1.96  # the interval scored in the results table: estimate +- 1.96 std (95 %)

@@ -7,6 +7,7 @@ import json
 import math
 import shlex
 import sys
+import textwrap
 from pathlib import Path
 
 from ..bench import SuiteError, check_results, load_suite, read_results, run_suite
@@ -66,12 +67,29 @@ def format_table(df) -> str:
             "nc_w", "nc_v", "sigma_star_w", "mode_mac", "runtime_s", "status"]
     view = df[[c for c in cols if c in df.columns]].copy()
     with_err = df["status"] != "ok"
-    text = view.to_string(index=False, float_format=lambda x: f"{x:.3f}")
+    text = view.to_string(index=False, float_format=lambda x: f"{x:.3f}", na_rep="-")
     if with_err.any():
         text += "\n\nerrors:\n" + "\n".join(
             f"  {r.solver} on {r.scene} [{r.variation}, {r.observation}]: {r.error}"
             for r in df[with_err].itertuples())
     return text
+
+
+LEGEND = (
+    "columns: nc_w, nc_v = normalized correlation of the estimated and true stiffness and "
+    "density per voxel (1 = the true pattern, 0 = none; '-' where the truth is constant: the "
+    "false contrast is scored instead); sigma_star_w = the blur of the true stiffness, in "
+    "voxels, at which the estimate matches it best (its resolution; '-' for a constant "
+    "estimate); mode_mac = how well the estimate's own vibration modes match the observed ones "
+    "(1 = exactly); runtime_s = solver seconds. Every formula: docs/metrics.md.")
+
+
+def next_steps(out: Path, suite: str) -> str:
+    """What to run after a suite: the board, the check, the docs."""
+    q = shlex.quote(str(out))
+    return (f"next: `vvtbench leaderboard {q} -o {q}/board` (ranked tables and figures), "
+            f"`vvtbench check-results {q}` (every score recomputed), or run another suite "
+            f"(`vvtbench run {suite} --solvers NAME,...`)")
 
 
 def _positive(what: str):
@@ -169,6 +187,8 @@ def main_run(argv: list[str] | None = None) -> int:
                         for s, v in st.items() if v["tasks"])
     print(f"\n{len(df)} rows in {df.attrs.get('wall_s', 0):.1f} s ({summary}) -> "
           f"{out / 'results.parquet'}, {out / 'results.csv'}")
+    print(textwrap.fill(LEGEND, 100))
+    print(next_steps(out, args.suite))
     bad = df[df["status"] != "ok"]
     if len(bad):
         kinds = ", ".join(f"{n} {s}" for s, n in bad["status"].value_counts().items())
