@@ -230,6 +230,12 @@ def _score(argv: list[str]) -> int:
     return main_score(argv)
 
 
+def _challenge(argv: list[str]) -> int:
+    from .score import main_challenge
+
+    return main_challenge(argv)
+
+
 DELEGATED = {
     "extract": (_extract,
                 "motion, spectrum and image-space modes of a video (see `extract --help`)"),
@@ -248,6 +254,8 @@ DELEGATED = {
                               "the first frame (see `calibrate --help`)"),
     "invert": (_invert, "from your video, object and clicks to a material map: extract -> "
                         "observe -> solve -> report (see `invert --help`)"),
+    "challenge": (_challenge, "write a hidden-truth challenge from samples: problems to hand "
+                              "out, truth to keep"),
     "score": (_score, "score a folder of estimates against truth the submitter does not hold"),
 }
 COMMANDS = ("simulate", "generate", "scenes", *DELEGATED)

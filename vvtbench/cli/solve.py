@@ -4,6 +4,7 @@ a scene or a sample and score it)."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -65,8 +66,9 @@ def build_solve_parser() -> argparse.ArgumentParser:
                                 "score it")
     p.add_argument("solver", help="registered name or path/to/file.py:Class")
     p.add_argument("target", help="a sample folder written by `vvtbench generate` (observed as "
-                   "it is, never simulated), or a scene name or .toml (simulated now; true "
-                   "image-space modes)")
+                   "it is, never simulated), a scene name or .toml (simulated now; true "
+                   "image-space modes), or a challenge's problems folder (`vvtbench "
+                   "challenge`: every problem is solved into a submission in OUTPUT)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="solver config override (repeatable)")
     p.add_argument("--modes", type=positive_int, default=10,
@@ -152,6 +154,8 @@ def main_solve(argv: list[str] | None = None) -> int:
         return _fail(error)
     name = desc["name"]
     target, out = Path(args.target), Path(args.output)
+    if _is_problems(target):
+        return _solve_problems(args, desc, overrides, target, out, timeout)
     message = _check_output(out, target)
     if message:
         return _fail(message)
@@ -249,6 +253,50 @@ def main_solve(argv: list[str] | None = None) -> int:
           "pattern, 0 = none); details in docs/metrics.md. Next: open "
           f"{out / 'slices.png'}, or compare solvers with `vvtbench run`.")
     return 0
+
+
+def _is_problems(target: Path) -> bool:
+    from ..bench.submission import PROBLEMS
+
+    try:
+        return json.loads((target / "manifest.json").read_text()).get("format") == PROBLEMS
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _solve_problems(args, desc: dict, overrides: dict, problems: Path, out: Path,
+                    timeout: float) -> int:
+    """Every problem of a challenge's problems folder, solved sealed, into a submission."""
+    from ..bench.child import default_memory_bytes
+    from ..bench.submission import SubmissionError, read_manifest, write_submission
+    from ..problem import InverseProblem
+    from ..sealed import SealedError, solve_sealed
+
+    if desc["uses_truth"]:
+        return _fail(f"{desc['name']} reads the truth (a reference); a challenge has none")
+    if out.exists() and any(out.iterdir()):
+        return _fail(f"-o {out}: exists and is not empty; give a new folder")
+    try:
+        man = read_manifest(problems, "vvtbench-problems")
+    except SubmissionError as error:
+        return _fail(error)
+    memory = int(args.memory_gb * 2**30) if args.memory_gb else default_memory_bytes()
+    estimates, failed = {}, []
+    for instance in sorted(man["instances"]):
+        problem = InverseProblem.load(problems / instance)
+        try:
+            est, _, _ = solve_sealed(args.solver, overrides, problem, timeout=timeout,
+                                     memory_bytes=memory, secrets=[out])
+        except SealedError as error:
+            failed.append(instance)
+            print(f"  {instance}: {one_line(str(error))}", file=sys.stderr)
+            continue
+        estimates[instance] = est
+        print(f"  {instance}: {len(est.history)} iterations, {est.runtime_s:.2f} s")
+    write_submission(estimates, problems, out, desc["name"], desc["version"])
+    print(f"{len(estimates)} of {len(man['instances'])} problems solved by {desc['name']} -> "
+          f"{out} (a submission: score it with `vvtbench score {out} --truth TRUTH -o DIR`)")
+    return 1 if failed else 0
 
 
 def _check_clicks(path: str) -> tuple[int, str | None]:
