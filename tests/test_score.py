@@ -31,11 +31,9 @@ def challenge(tmp_path_factory):
     return root, {i: (p, t) for i, p, t in items}
 
 
-def _estimates(items, scale=1.0):
-    out = {}
-    for instance, (problem, truth) in items.items():
-        out[instance] = Estimate(w=truth.w * scale + 100.0, v=truth.v, runtime_s=1.5)
-    return out
+def _estimates(items):
+    return {instance: Estimate(w=truth.w + 100.0, v=truth.v, runtime_s=1.5)
+            for instance, (_, truth) in items.items()}
 
 
 def test_scores_are_computed_from_the_estimates(challenge, tmp_path):
