@@ -252,3 +252,21 @@ def test_a_reference_solver_is_handed_the_truth(world):
     est, _, info = solve_sealed("oracle", {"max_iter": 2}, problem, truth=truth,
                                 secrets=[secret])
     assert info["reference"] is True and est.w.shape == truth.w.shape
+
+
+def test_a_plugin_that_hangs_at_import_is_an_error_row_within_the_limit(tmp_path):
+    from test_runner_safety import TINY
+
+    from vvtbench.bench import run_suite
+
+    (tmp_path / "tiny.toml").write_text(TINY)
+    plugin = tmp_path / "slow.py"
+    plugin.write_text("import time\ntime.sleep(1000)\n")
+    t0 = time.perf_counter()
+    df = run_suite(str(tmp_path / "tiny.toml"), ["homogeneous", f"{plugin}:Slow"],
+                   tmp_path / "run", progress=False, timeout=3)
+    assert time.perf_counter() - t0 < 60
+    rows = df.set_index("solver")
+    assert rows.loc["homogeneous", "status"] == "ok"
+    slow = df[df.solver != "homogeneous"].iloc[0]
+    assert slow.status == "error" and "timeout" in slow.error

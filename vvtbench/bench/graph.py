@@ -189,14 +189,19 @@ def _check_types(cls, config, overrides: dict) -> None:
 
 
 def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = None,
-                until: str = "evaluate") -> tuple[dict[str, Task], list[Run]]:
-    """All tasks (by key) and runs (rows) of a suite."""
+                until: str = "evaluate", timeout: float | None = None
+                ) -> tuple[dict[str, Task], list[Run]]:
+    """All tasks (by key) and runs (rows) of a suite; ``timeout`` (default: the suite's)
+    bounds the sealed import that describes each solver plug-in."""
     tasks: dict[str, Task] = {}
     runs: list[Run] = []
     cfgs = {**suite.solver_config}
     for k, v in (solver_config or {}).items():
         cfgs[k] = {**cfgs.get(k, {}), **v}
     solver_info: dict = {}
+    # a plug-in whose import hangs becomes an error row within the suite's time limit
+    limit = timeout if timeout is not None else suite.timeout
+    describe_timeout = min(float(limit), 600.0) if limit else 600.0
 
     def info(spec: str, extra: dict | None = None):
         ck = (spec, json.dumps(_canon(extra or {}), sort_keys=True))
@@ -204,9 +209,9 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             try:  # the plug-in is imported in a sealed child, never here
                 from ..sealed import describe_sealed
 
-                name = describe_sealed("solver", spec)["name"]
+                name = describe_sealed("solver", spec, timeout=describe_timeout)["name"]
                 over = {**(cfgs.get(spec) or cfgs.get(name) or {}), **(extra or {})}
-                d = describe_sealed("solver", spec, over)
+                d = describe_sealed("solver", spec, over, timeout=describe_timeout)
                 solver_info[ck] = (d["name"], d["version"], d["config"], None,
                                    d["uses_truth"], d["inputs"])
             except Exception as error:  # a broken plug-in becomes error rows

@@ -80,7 +80,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
     memory_bytes = (int(memory_gb * 2**30) if memory_gb is not None
                     else default_memory_bytes(workers if scheduler is None else 1))
     limits = {"timeout": float(timeout), "memory_bytes": memory_bytes, "isolate": isolate}
-    tasks, runs = build_graph(suite, solvers, solver_config, until)
+    tasks, runs = build_graph(suite, solvers, solver_config, until, timeout=float(timeout))
     out_dir.mkdir(parents=True, exist_ok=True)
     lock = RunLock(out_dir, wait=wait,
                    on_wait=lambda msg: print(msg, file=sys.stderr, flush=True))
