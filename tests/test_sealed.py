@@ -270,3 +270,65 @@ def test_a_plugin_that_hangs_at_import_is_an_error_row_within_the_limit(tmp_path
     assert rows.loc["homogeneous", "status"] == "ok"
     slow = df[df.solver != "homogeneous"].iloc[0]
     assert slow.status == "error" and "timeout" in slow.error
+
+
+NEGATIVE = '''
+import dataclasses
+import numpy as np
+from vvtbench.problem import Estimate
+
+
+@dataclasses.dataclass
+class Config:
+    pass
+
+
+class Negative:
+    name = "negative"
+    version = "0"
+    description = "a field that is not positive"
+    Config = Config
+
+    def __init__(self, config=None):
+        pass
+
+    def solve(self, problem):
+        w = np.full(problem.n_params, problem.w_mean)
+        w[0] = -1.0
+        return Estimate(w=w, v=np.full(problem.n_params, problem.v0))
+'''
+
+
+def test_solve_states_an_invalid_estimate_first_and_draws_nothing(tmp_path, capsys):
+    from vvtbench.cli import main
+
+    plugin = tmp_path / "neg.py"
+    plugin.write_text(NEGATIVE)
+    out = tmp_path / "out"
+    args = ["solve", "homogeneous", "jello_cube_defect_top", "--grid", "3", "3", "3",
+            "--modes", "4", "-o", str(out)]
+    assert main(args) == 0 and (out / "slices.png").is_file()
+    capsys.readouterr()
+    assert main(["solve", f"{plugin}:Negative", *args[2:]]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("INVALID ESTIMATE, not a result: negative") and "not positive" in err
+    assert not (out / "slices.png").exists()  # the earlier figure would read as this result
+    assert json.loads((out / "solve.json").read_text())["status"] == "invalid"
+
+
+def test_solve_leaves_nothing_half_written_on_a_full_disk(tmp_path, monkeypatch, capsys):
+    import errno
+
+    import vvtbench.plots
+    from vvtbench.cli import main
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(vvtbench.plots, "plot_fields", full)
+    out = tmp_path / "out"
+    assert main(["solve", "homogeneous", "jello_cube_defect_top", "--grid", "3", "3", "3",
+                 "--modes", "4", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "No space left on device" in err[0] and str(out) in err[0]
+    assert list(out.iterdir()) == []

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -132,11 +135,8 @@ def _check_output(out: Path, target: Path) -> str | None:
 def main_solve(argv: list[str] | None = None) -> int:
     """``vvtbench solve SOLVER TARGET [--set k=v] [--modes K] -o DIR``: observe the target
     (:func:`vvtbench.observe.observe`), solve, score against the truth, write the outputs."""
-    from ..bench.stages import write_evaluation
     from ..dataset import DatasetError, open_sample
-    from ..io import write_json
     from ..observe import ObserveError, ObserveOptions, observe
-    from ..plots import plot_fields, plot_uncertainty
     from ..scene import SceneError, load_scene
 
     args = build_solve_parser().parse_args(argv)
@@ -220,39 +220,73 @@ def main_solve(argv: list[str] | None = None) -> int:
         print(f"error: {name} failed on {target}: {one_line(str(error))}", file=sys.stderr)
         return 1
     out.mkdir(parents=True, exist_ok=True)
-    estimate.save(out, problem, wall_s=wall)
-    stds = (estimate.std("w_std"), estimate.std("v_std"))
-    ev = write_evaluation(out, problem, truth, estimate.w, estimate.v,
-                          modes=not args.no_mode_match, w_std=stds[0], v_std=stds[1])
-    reference = bool(sinfo["reference"])
-    write_json(out / "solve.json", {
-        **info, "scene": truth.meta.get("scene"), "observation": observation,
-        "solver": name, "solver_version": sinfo["version"], "config": sinfo["config"],
-        "sandbox": sinfo["sandbox"], "reference": reference, "n_modes": problem.n_modes,
-        "setup_s": t_setup, "vvtbench": __version__, "problem": problem.meta,
-        "status": "invalid" if ev.get("invalid") else "ok", "invalid": ev.get("invalid"),
-        "metrics": ev["metrics"],
-        "extraction": None if truth.extraction_mac is None else {
-            "matched_true_modes": truth.matched, "extraction_mac": truth.extraction_mac,
-            "true_frequencies_hz": truth.frequencies_hz}})
+    stage = Path(tempfile.mkdtemp(prefix=".solve-", dir=out))
+    try:  # everything is written aside, then moved into place: never a half-written folder
+        ev = _write_solve(stage, args, estimate, wall, sinfo, problem, truth, info, observation,
+                          t_setup, target)
+        _publish(stage, out, invalid=bool(ev.get("invalid")))
+    except OSError as error:
+        shutil.rmtree(stage, ignore_errors=True)
+        return _fail(f"{out}: cannot write the results: {error.strerror or error} (nothing "
+                     "was changed there)")
     if ev.get("invalid"):
         print(f"INVALID ESTIMATE, not a result: {name} on {target}: {ev['invalid']} "
               f"(an estimate must be finite and positive in every voxel; nothing is drawn "
               f"or scored) -> {out / 'solve.json'}", file=sys.stderr)
         return 1
-    scene = truth.meta.get("scene") or target.name
     score = ", ".join(_field_score(ev["metrics"], f) for f in "wv")
-    plot_fields(out / "slices.png", problem, {name: (estimate.w, estimate.v)}, truth)
-    if any(sd is not None for sd in stds):
-        plot_uncertainty(out / "uncertainty.png", problem, (estimate.w, estimate.v), stds, truth,
-                         title=f"{name} on {scene} ({observation} modes): stated uncertainty")
-    print(f"{name}{' (reference: reads the truth)' if reference else ''} on {target} "
+    print(f"{name}{' (reference: reads the truth)' if sinfo['reference'] else ''} on {target} "
           f"({observation} modes, {problem.n_modes}): {len(estimate.history)} iterations, "
           f"{estimate.runtime_s:.2f} s; {score} -> {out}")
     print("  NC: normalized correlation of the estimated and true fields per voxel (1 = same "
           "pattern, 0 = none); details in docs/metrics.md. Next: open "
           f"{out / 'slices.png'}, or compare solvers with `vvtbench run`.")
     return 0
+
+
+def _write_solve(stage: Path, args, estimate, wall, sinfo, problem, truth, info, observation,
+                 t_setup, target) -> dict:
+    from ..bench.stages import write_evaluation
+    from ..io import write_json
+    from ..plots import plot_fields, plot_uncertainty
+
+    name = sinfo["name"]
+    estimate.save(stage, problem, wall_s=wall)
+    stds = (estimate.std("w_std"), estimate.std("v_std"))
+    ev = write_evaluation(stage, problem, truth, estimate.w, estimate.v,
+                          modes=not args.no_mode_match, w_std=stds[0], v_std=stds[1])
+    write_json(stage / "solve.json", {
+        **info, "scene": truth.meta.get("scene"), "observation": observation,
+        "solver": name, "solver_version": sinfo["version"], "config": sinfo["config"],
+        "sandbox": sinfo["sandbox"], "reference": bool(sinfo["reference"]),
+        "n_modes": problem.n_modes, "setup_s": t_setup, "vvtbench": __version__,
+        "problem": problem.meta, "status": "invalid" if ev.get("invalid") else "ok",
+        "invalid": ev.get("invalid"), "metrics": ev["metrics"],
+        "extraction": None if truth.extraction_mac is None else {
+            "matched_true_modes": truth.matched, "extraction_mac": truth.extraction_mac,
+            "true_frequencies_hz": truth.frequencies_hz}})
+    if ev.get("invalid"):
+        return ev
+    scene = truth.meta.get("scene") or target.name
+    plot_fields(stage / "slices.png", problem, {name: (estimate.w, estimate.v)}, truth)
+    if any(sd is not None for sd in stds):
+        plot_uncertainty(stage / "uncertainty.png", problem, (estimate.w, estimate.v), stds,
+                         truth, title=f"{name} on {scene} ({observation} modes): stated "
+                                      "uncertainty")
+    return ev
+
+
+def _publish(stage: Path, out: Path, invalid: bool) -> None:
+    """Move the staged outputs into ``out``; an earlier solve's figures go when this estimate
+    is invalid (they would be read as its result)."""
+    for f in sorted(stage.iterdir()):
+        os.replace(f, out / f.name)
+    stage.rmdir()
+    if invalid:
+        for stale in ("slices.png", "uncertainty.png"):
+            p = out / stale
+            if p.is_file() and not p.is_symlink():
+                p.unlink()
 
 
 def _is_problems(target: Path) -> bool:
