@@ -1,4 +1,4 @@
-"""Extraction recall over the true modes detectable in the video (issue 17).
+"""Extraction recall over the true modes detectable in the video.
 
 For every generated sample with video in a run's cache whose scene name matches
 ``--scenes`` (default: the paper suite's undamped defect cubes and damped cubes), the

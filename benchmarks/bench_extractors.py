@@ -1,4 +1,4 @@
-"""Motion sub-benchmark: displacement error of every registered extractor (issue 17, item 4).
+"""Motion sub-benchmark: displacement error of every registered extractor.
 
 Synthetic video: a seeded band-limited periodic speckle image (Gaussian spectrum, sigma =
 1 px), translated by exact Fourier phase ramps along a diagonal direction by a sinusoid of

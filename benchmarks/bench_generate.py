@@ -1,4 +1,4 @@
-"""Dataset-generation throughput of scene families (issue 14, item 2).
+"""Dataset-generation throughput of scene families.
 
 Prints:
 1. modes-only instances of ``cube_defects`` per hour with ``--workers`` local processes

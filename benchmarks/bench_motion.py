@@ -1,4 +1,4 @@
-"""Motion extraction and mode identification benchmark (issue 4).
+"""Motion extraction and mode identification benchmark.
 
 Prints, in one run:
 

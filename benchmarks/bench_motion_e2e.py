@@ -1,4 +1,4 @@
-"""End-to-end check of mode identification on a rendered cube (issue 4, item 6).
+"""End-to-end check of mode identification on a rendered cube.
 
 Renders a sample with ``vvtbench.dataset.generate`` (or uses ``--sample DIR``), runs the
 streaming extraction (``vvtbench.modes.extract_modes``: phase-based motion, Hann-windowed

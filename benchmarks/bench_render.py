@@ -1,4 +1,4 @@
-"""Rendering and dataset-generation benchmark (issue 3, item 7).
+"""Rendering and dataset-generation benchmark.
 
 Prints:
 1. frames per second of the renderer at 256^2 and 512^2 output with the default supersampling

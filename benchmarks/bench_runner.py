@@ -1,4 +1,4 @@
-"""Benchmark-runner figures (issue 6): a suite's wall time with 1 and 2 local workers, the
+"""Benchmark-runner figures: a suite's wall time with 1 and 2 local workers, the
 speed-up, and the cache-hit rerun time as a fraction of the first run.
 
     .venv/bin/python benchmarks/bench_runner.py [--suite smoke] [--keep DIR]

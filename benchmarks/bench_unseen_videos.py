@@ -1,4 +1,4 @@
-"""Extraction on seeded synthetic videos unlike the shipped tests (issue 17, items 1, 2 and 5).
+"""Extraction on seeded synthetic videos unlike the shipped tests.
 
 Each seed draws one video: a crop (96-200 px a side, not always square, not a power of two)
 of a band-limited random speckle (Gaussian spectrum, sigma 0.8-2.5 px), warped by 2-6 smooth

@@ -1,5 +1,5 @@
 """Which false detections are distortion products, how rough they are, and whether their
-phase is a product's (issue 17).
+phase is a product's.
 
     .venv/bin/python benchmarks/diag_products.py [--line-fit] SAMPLE [SAMPLE ...]
 

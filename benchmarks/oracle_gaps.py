@@ -1,4 +1,4 @@
-"""Why the oracle is below a ranked solver, row by row (issue 16, item 3).
+"""Why the oracle is below a ranked solver, row by row.
 
     .venv/bin/python benchmarks/oracle_gaps.py RUN/results.parquet
 

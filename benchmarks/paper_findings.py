@@ -1,4 +1,4 @@
-"""The paper's findings, checked on a `paper` suite run (issue 6).
+"""The paper's findings, checked on a `paper` suite run.
 
     .venv/bin/python benchmarks/paper_findings.py [runs/paper/results.parquet] [--solver vvt]
 

@@ -1,4 +1,4 @@
-"""What the `standard` suite shows, printed from a run's results table (issues 14, 16, 17).
+"""What the `standard` suite shows, printed from a run's results table.
 
     .venv/bin/python benchmarks/standard_findings.py [runs/standard/results.parquet]
 

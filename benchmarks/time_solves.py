@@ -1,4 +1,4 @@
-"""Wall and CPU time of ``sensitivity`` against ``vvt`` on a run's own problems (issue 16).
+"""Wall and CPU time of ``sensitivity`` against ``vvt`` on a run's own problems.
 
     .venv/bin/python benchmarks/time_solves.py runs/paper/results.parquet            # 20 modes
     .venv/bin/python benchmarks/time_solves.py runs/paper/results.parquet --modes 14

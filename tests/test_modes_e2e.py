@@ -1,4 +1,4 @@
-"""End-to-end mode identification on a small rendered cube (issue 4, item 6).
+"""End-to-end mode identification on a small rendered cube.
 
 A 6^3-element jello cube (``jello_cube_defect_top`` with a coarser mesh), 1.5 s at 200 fps,
 256^2 pixels, is rendered with the dataset generator (~10 s), then the streaming extraction

@@ -345,7 +345,7 @@ def test_shipped_bunny_mesh_is_used_on_every_machine(tmp_path, monkeypatch, scen
     assert not (tmp_path / "cache").exists()
 
 
-# ---------------------------------------------------------------- validation (issue 13, item 3)
+# ---------------------------------------------------------------- validation
 _BOX = ('name = "x"\n[geometry]\nkind = "box"\ncells = [3, 3, 3]\n'
         '[excitation]\nkind = "pluck"\nat = [0.05, 0.0, 0.05]\n'
         '[simulation]\nn_modes = 4\nfps = 1000.0\nduration = 0.01\n')
