@@ -94,6 +94,16 @@ class Escape(Peek):
         time.sleep(300)
 
 
+class Linger(Peek):
+    name = "linger"
+
+    def solve(self, problem):
+        subprocess.Popen([sys.executable, "-c",
+                          "import os, time; os.setsid(); time.sleep(300)  # " + MARKER])
+        time.sleep(0.5)
+        return super().solve(problem)
+
+
 class Link(Peek):
     name = "link"
 
@@ -213,6 +223,21 @@ def test_a_grandchild_that_left_the_group_ends_with_the_plugin(world, monkeypatc
         sandbox_kind.cache_clear()
     time.sleep(0.5)
     assert _alive(marker) == []
+
+
+@pytest.mark.parametrize("sandbox", ["bwrap", "none"])
+def test_a_grandchild_left_behind_by_a_finished_solve_ends_too(world, monkeypatch, sandbox):
+    root, secret, problem, truth, plugin, marker = world
+    if sandbox == "none":
+        monkeypatch.setenv("VVTBENCH_SANDBOX", "none")
+    sandbox_kind.cache_clear()
+    try:
+        est, _, _ = solve_sealed(f"{plugin}:Linger", {}, problem, secrets=[secret])
+    finally:
+        monkeypatch.delenv("VVTBENCH_SANDBOX", raising=False)
+        sandbox_kind.cache_clear()
+    time.sleep(0.5)
+    assert est.w.size == problem.n_params and _alive(marker) == []
 
 
 def test_links_in_the_output_are_refused(world):

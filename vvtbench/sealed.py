@@ -305,17 +305,24 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _read_regular(path: Path) -> bytes | None:
-    """The bytes of ``path`` if it is a regular file with one link, else None."""
+@contextlib.contextmanager
+def _open_regular(path: Path):
+    """``path`` opened for reading if it is a regular file with one link (no link followed),
+    else None."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
     except OSError:
-        return None
+        yield None
+        return
     with os.fdopen(fd, "rb") as f:
         st = os.fstat(f.fileno())
-        if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
-            return None
-        return f.read()
+        yield f if stat.S_ISREG(st.st_mode) and st.st_nlink == 1 else None
+
+
+def _read_regular(path: Path, limit: int = 1 << 20) -> bytes | None:
+    """The bytes (at most ``limit``) of ``path`` if it is a regular file with one link."""
+    with _open_regular(path) as f:
+        return None if f is None else f.read(limit)
 
 
 def _classify(code: int | None, response: bytes | None, seconds: float,
@@ -356,21 +363,21 @@ def _collect(src: Path, dest: Path, accept: Sequence[str] | None) -> None:
     for entry in sorted(os.listdir(src)):
         if entry.startswith(".") or (accept is not None and entry not in accept):
             continue
-        data = _read_regular(src / entry)
-        if data is None:
-            raise SealedError("error", f"{entry}: the plug-in wrote a link or a special file "
-                                       "where a result file belongs")
-        _write_new(dest / entry, data)
+        with _open_regular(src / entry) as f:
+            if f is None:
+                raise SealedError("error", f"{entry}: the plug-in wrote a link or a special "
+                                           "file where a result file belongs")
+            _write_new(dest / entry, f)
 
 
-def _write_new(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically through a fresh temporary file (never through a
-    link planted at either name)."""
+def _write_new(path: Path, source) -> None:
+    """Copy the open file ``source`` to ``path`` atomically through a fresh temporary file
+    (streamed; never through a link planted at either name)."""
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{time.monotonic_ns()}")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            shutil.copyfileobj(source, f, 1 << 20)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
