@@ -230,6 +230,12 @@ def _score(argv: list[str]) -> int:
     return main_score(argv)
 
 
+def _release(argv: list[str]) -> int:
+    from .release import main_release
+
+    return main_release(argv)
+
+
 def _challenge(argv: list[str]) -> int:
     from .score import main_challenge
 
@@ -254,6 +260,8 @@ DELEGATED = {
                               "the first frame (see `calibrate --help`)"),
     "invert": (_invert, "from your video, object and clicks to a material map: extract -> "
                         "observe -> solve -> report (see `invert --help`)"),
+    "release": (_release, "build a frozen dataset release, verify a copy byte for byte, or "
+                          "freeze a build (see `release --help`)"),
     "challenge": (_challenge, "write a hidden-truth challenge from samples: problems to hand "
                               "out, truth to keep"),
     "score": (_score, "score a folder of estimates against truth the submitter does not hold"),

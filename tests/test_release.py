@@ -1,0 +1,105 @@
+"""Frozen releases: a build is resumable, a frozen copy verifies byte for byte, and a flipped
+byte, a missing, an extra or a linked file, or an edited list, fails with the file named."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+
+from vvtbench.cli import main
+from vvtbench.release import load_release, read_sums
+
+TINY = """
+name = "tiny-release"
+vvtbench = "0.1.0"
+description = "two parts, a few modes-only instances"
+license = "CC-BY-4.0"
+
+[[parts]]
+name = "cubes"
+family = "cube_defects"
+video = false
+splits = { train = 2, test = 1 }
+
+[[parts]]
+name = "later"
+family = "drum_defects"
+video = true
+splits = { test = 1 }
+"""
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = tmp_path_factory.mktemp("release")
+    definition = root / "tiny-release.toml"
+    definition.write_text(TINY)
+    out = root / "build"
+    assert main(["release", "build", str(definition), "-o", str(out), "--part", "cubes"]) == 0
+    assert main(["release", "freeze", str(out), "--release", str(definition)]) == 0
+    return root, definition, out
+
+
+def test_the_shipped_release_is_well_formed():
+    rel = load_release("vvtbench-v1")
+    assert rel.n_instances() > 0 and {p.family for p in rel.parts} == {
+        "cube_defects", "drum_defects", "bunny_defects"}
+    assert any(not p.video for p in rel.parts) and any(p.video for p in rel.parts)
+
+
+def test_a_copy_verifies_byte_for_byte(built, tmp_path, capsys):
+    root, definition, out = built
+    sums = read_sums(definition.with_suffix(".sha256"))
+    assert sums and all(k.startswith("cubes/") or "/" not in k for k in sums)
+    assert "files_sha256" in definition.read_text()
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    assert main(["release", "verify", str(copy), "--release", str(definition)]) == 0
+    assert "match tiny-release byte for byte" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("damage", ["flip", "delete", "extra", "link"])
+def test_a_damaged_copy_fails_naming_the_file(built, tmp_path, capsys, damage):
+    root, definition, out = built
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    victim = next(p for p in sorted(copy.rglob("*.json")) if "cube_defects-train" in str(p))
+    rel = victim.relative_to(copy).as_posix()
+    if damage == "flip":
+        data = bytearray(victim.read_bytes())
+        data[len(data) // 2] ^= 1
+        victim.write_bytes(bytes(data))
+    elif damage == "delete":
+        victim.unlink()
+    elif damage == "extra":
+        rel = "cubes/train/notes.txt"
+        (copy / rel).write_text("mine")
+    else:
+        victim.unlink()
+        os.symlink(out / rel, victim)
+    capsys.readouterr()
+    assert main(["release", "verify", str(copy), "--release", str(definition)]) == 1
+    assert rel in capsys.readouterr().err
+
+
+def test_an_edited_list_and_an_unfrozen_part_are_refused(built, tmp_path, capsys):
+    root, definition, out = built
+    assert main(["release", "verify", str(out), "--release", str(definition), "--part",
+                 "later"]) == 2
+    assert "no frozen files yet" in capsys.readouterr().err
+    fake = tmp_path / "tiny-release.toml"
+    shutil.copy(definition, fake)
+    sums = definition.with_suffix(".sha256").read_text().splitlines()
+    fake.with_suffix(".sha256").write_text("\n".join(sums[1:]) + "\n")
+    assert main(["release", "verify", str(out), "--release", str(fake)]) == 2
+    assert "the list was edited" in capsys.readouterr().err
+
+
+def test_a_rebuild_resumes(built, capsys):
+    root, definition, out = built
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("truth.json")}
+    assert main(["release", "build", str(definition), "-o", str(out), "--part", "cubes"]) == 0
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("truth.json")} == before
+    assert main(["release", "verify", str(out), "--release", str(definition)]) == 0

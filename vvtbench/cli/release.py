@@ -1,0 +1,165 @@
+"""``vvtbench release``: build a frozen release, verify a copy of it, freeze a build."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from . import explain, positive_int
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vvtbench release",
+                                description="frozen dataset releases (releases/*.toml): build "
+                                "one, verify a copy byte for byte, or freeze a build's files")
+    sub = p.add_subparsers(dest="action", required=True)
+    b = sub.add_parser("build", help="generate every part of a release into a folder "
+                       "(resumable) and list its files' sha256 in FOLDER/SHA256SUMS")
+    b.add_argument("release", help="a shipped release name (e.g. vvtbench-v1) or its .toml")
+    b.add_argument("-o", "--out", required=True, type=Path, help="output folder")
+    b.add_argument("--part", action="append", default=None,
+                   help="build only this part (repeatable), e.g. the modes-only one")
+    b.add_argument("--workers", type=positive_int, default=1, help="local processes")
+    b.add_argument("--scheduler", default=None, help="a Dask scheduler address")
+    v = sub.add_parser("verify", help="check a copy against the release's frozen file list, "
+                       "byte for byte")
+    v.add_argument("folder", type=Path, help="the copy (the folder `build` wrote)")
+    v.add_argument("--release", default=None,
+                   help="the release (default: the one named in FOLDER/release.toml)")
+    v.add_argument("--part", action="append", default=None,
+                   help="verify only this part's files (repeatable)")
+    f = sub.add_parser("freeze", help="record a build's files as the release's frozen list "
+                       "(releases/NAME.sha256) and its digest in the definition")
+    f.add_argument("folder", type=Path, help="a build (its built parts are frozen)")
+    f.add_argument("--release", default=None,
+                   help="the definition to freeze (default: the shipped release named in "
+                   "FOLDER/release.toml)")
+    return p
+
+
+def main_release(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    return {"build": _build, "verify": _verify, "freeze": _freeze}[args.action](args)
+
+
+def _fail(message) -> int:
+    print(f"error: {explain(message)}", file=sys.stderr)
+    return 2
+
+
+def _build(args) -> int:
+    from ..io import write_text
+    from ..release import SUMS, ReleaseError, file_sums, load_release, write_sums
+    from . import main
+
+    try:
+        rel = load_release(args.release)
+        parts = [rel.part(n) for n in args.part] if args.part else list(rel.parts)
+    except ReleaseError as error:
+        return _fail(error)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / "release.toml", rel.source.read_text())
+    t0 = time.perf_counter()
+    for part in parts:
+        for split, n in part.splits.items():
+            folder = out / part.name / split
+            print(f"{rel.name}: {part.name} {split}: {n} instances of {part.family} -> {folder}",
+                  flush=True)
+            argv = ["generate", part.family, "--split", split, "--n", str(n), "-o",
+                    str(folder), "--workers", str(args.workers), "--no-progress"]
+            if not part.video:
+                argv.append("--no-video")
+            if args.scheduler:
+                argv += ["--scheduler", args.scheduler]
+            code = main(argv)
+            if code != 0:
+                print(f"error: {part.name} {split}: generate exited {code}; rerun the same "
+                      "command to resume", file=sys.stderr)
+                return code
+    sums = file_sums(out)
+    write_sums(sums, out / SUMS)
+    size = sum((out / p).stat().st_size for p in sums)
+    print(f"{rel.name}: {len(sums)} files, {size / 2**20:.1f} MiB in "
+          f"{time.perf_counter() - t0:.0f} s -> {out} (list: {out / SUMS}); check a copy with "
+          f"`vvtbench release verify {out}`")
+    return 0
+
+
+def _verify(args) -> int:
+    from ..release import ReleaseError, list_digest, load_release, read_sums, verify_copy
+
+    folder = args.folder
+    if not folder.is_dir():
+        return _fail(f"{folder}: no such folder")
+    try:
+        rel = load_release(args.release or folder / "release.toml")
+        if args.release is None:  # the definition the copy names, and its shipped list
+            rel = load_release(rel.name)
+        if not rel.sums_path.is_file():
+            raise ReleaseError(f"{rel.sums_path}: the release {rel.name} has no frozen file "
+                               "list yet (`vvtbench release freeze` a complete build)")
+        if rel.files_sha256 and list_digest(rel.sums_path) != rel.files_sha256:
+            raise ReleaseError(f"{rel.sums_path}: its sha256 is not the files_sha256 recorded "
+                               f"in {rel.source} (the list was edited)")
+        expected = read_sums(rel.sums_path)
+    except ReleaseError as error:
+        return _fail(error)
+    frozen = {k.split("/")[0] for k in expected if "/" in k}
+    wanted = args.part or [p.name for p in rel.parts if p.name in frozen]
+    unfrozen = [p for p in wanted if p not in frozen]
+    if unfrozen:
+        return _fail(f"{rel.sums_path}: part(s) {', '.join(unfrozen)} have no frozen files yet "
+                     f"(frozen: {', '.join(sorted(frozen)) or 'none'})")
+    keep = tuple(f"{p}/" for p in wanted)
+    if args.part:
+        expected = {k: v for k, v in expected.items() if k.startswith(keep)}
+    problems = verify_copy(folder, expected)
+    unbuilt = tuple(f"{p.name}/" for p in rel.parts if p.name not in frozen)
+    problems = [p for p in problems if not p.startswith(unbuilt)]  # not frozen: not checked
+    if args.part:  # the other parts' files are not this check's business
+        problems = [p for p in problems if p.startswith(keep)]
+    if problems:
+        print(f"{folder}: {len(problems)} problem(s) against {rel.sums_path}", file=sys.stderr)
+        for p in problems[:50]:
+            print(f"  {p}", file=sys.stderr)
+        if len(problems) > 50:
+            print(f"  ... and {len(problems) - 50} more", file=sys.stderr)
+        return 1
+    print(f"{folder}: {len(expected)} files of {', '.join(wanted)} match {rel.name} byte for "
+          "byte")
+    return 0
+
+
+def _freeze(args) -> int:
+    import tomllib
+
+    from ..io import write_text
+    from ..release import ReleaseError, file_sums, list_digest, load_release, write_sums
+
+    try:
+        rel = load_release(args.release or load_release(args.folder / "release.toml").name)
+    except ReleaseError as error:
+        return _fail(error)
+    sums = file_sums(args.folder)
+    built = {"/".join(k.split("/")[:2]) for k in sums}
+    frozen = [p.name for p in rel.parts if all(f"{p.name}/{s}" in built for s in p.splits)]
+    partial = [p.name for p in rel.parts if p.name not in frozen
+               and any(k.startswith(f"{p.name}/") for k in built)]
+    if not frozen or partial:
+        return _fail(f"{args.folder}: no complete part" if not frozen else
+                     f"{args.folder}: parts {', '.join(partial)} are only partly built")
+    sums = {k: v for k, v in sums.items() if k.split("/")[0] in frozen or "/" not in k}
+    write_sums(sums, rel.sums_path)
+    text = rel.source.read_text()
+    digest = list_digest(rel.sums_path)
+    lines = [ln for ln in text.splitlines() if not ln.startswith("files_sha256")]
+    head = [i for i, ln in enumerate(lines) if ln.startswith("vvtbench")]
+    at = head[0] + 1 if head else 0
+    lines.insert(at, f'files_sha256 = "{digest}"   # sha256 of {rel.sums_path.name}')
+    write_text(rel.source, "\n".join(lines) + "\n")
+    tomllib.loads(rel.source.read_text())
+    print(f"{rel.name}: {len(sums)} files of {', '.join(frozen)} frozen in {rel.sums_path}")
+    return 0
