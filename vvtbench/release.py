@@ -17,8 +17,9 @@ A release is a TOML file in ``releases/`` (``releases/vvtbench-v1.toml``)::
 Instance ``i`` of a split is drawn from a seed derived from (family, split, i) alone
 (:func:`vvtbench.families.instance_seed`), so the definition fixes every instance. Its files
 are fixed by ``releases/<name>.sha256`` (``sha256  relative/path`` per line, as ``sha256sum``
-writes it), recorded from the build the release was frozen from; the TOML records the sha256
-of that list (``files_sha256``).
+writes it), recorded from the build the release was frozen from: each sample folder by the
+sha256 of its ``manifest.json``, which lists the sha256 of every file in it, so one line fixes
+a sample byte for byte; the TOML records the sha256 of that list (``files_sha256``).
 
 * :func:`load_release` reads and checks a definition;
 * ``vvtbench release build NAME -o DIR`` generates every part (resumable: finished instances
@@ -34,6 +35,7 @@ for byte; a copy of the frozen files matches exactly.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import tomllib
 from collections.abc import Callable, Iterator
@@ -41,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 __all__ = ["RELEASES_DIR", "Release", "ReleaseError", "file_sums", "load_release",
-           "read_sums", "verify_copy", "write_sums"]
+           "read_sums", "release_sums", "verify_copy", "write_sums"]
 
 _PACKAGE_DIR = Path(__file__).resolve().parent
 RELEASES_DIR = next((d for d in (_PACKAGE_DIR / "releases", _PACKAGE_DIR.parent / "releases")
@@ -203,21 +205,71 @@ def read_sums(path: Path) -> dict[str, str]:
     return out
 
 
+def _sample_manifest(path: Path) -> dict[str, str] | None:
+    """``{file: sha256}`` of a sample folder's ``manifest.json`` (``{"files": {name:
+    {"sha256": ...}}}``), or None when ``path`` is not one."""
+    try:
+        doc = json.loads(path.read_text())
+        files = doc["files"]
+        return {str(k): str(v["sha256"]) for k, v in files.items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+def release_sums(root: str | Path) -> dict[str, str]:
+    """The frozen list of a build: every sample folder by the sha256 of its ``manifest.json``
+    (which holds the sha256 of each of its files, checked here), every other file by its own.
+    A sample whose files disagree with its manifest is refused."""
+    root = Path(root)
+    sums = file_sums(root)
+    samples = {k[: -len("/manifest.json")] for k in sums if k.endswith("/manifest.json")
+               and _sample_manifest(root / k) is not None}
+    out = {}
+    for rel, digest in sums.items():
+        owner = next((s for s in _prefixes(rel) if s in samples), None)
+        if owner is None or rel == f"{owner}/manifest.json":
+            out[rel] = digest
+            continue
+        listed = _sample_manifest(root / owner / "manifest.json")
+        if listed.get(rel[len(owner) + 1:]) != digest:
+            raise ReleaseError(f"{root / rel}: not the file its sample's manifest.json lists")
+    return out
+
+
+def _prefixes(rel: str) -> list[str]:
+    parts = rel.split("/")
+    return ["/".join(parts[:i]) for i in range(len(parts) - 1, 0, -1)]
+
+
 def verify_copy(root: str | Path, expected: dict[str, str]) -> list[str]:
-    """Problems of the copy ``root`` against the frozen list ``expected``: missing, changed
-    and extra files (empty when it matches byte for byte)."""
+    """Problems of the copy ``root`` against the frozen list ``expected`` (a sample folder
+    listed by its ``manifest.json``: every file the manifest lists): missing, changed and extra
+    files (empty when the copy matches byte for byte)."""
     root = Path(root)
     problems = []
     found = {f.relative_to(root).as_posix() for f in _files(root)}
-    for rel, digest in expected.items():
+    known = set()
+
+    def check(rel: str, digest: str) -> bool:
         f = root / rel
+        known.add(rel)
         if rel not in found:
             problems.append(f"{rel}: missing")
         elif f.is_symlink() or not f.is_file():
             problems.append(f"{rel}: not a regular file")
         elif _sha256(f) != digest:
             problems.append(f"{rel}: sha256 differs (changed or damaged)")
-    problems += [f"{rel}: not in the release" for rel in sorted(found - set(expected))]
+        else:
+            return True
+        return False
+
+    for rel, digest in expected.items():
+        if check(rel, digest) and rel.endswith("/manifest.json"):
+            listed = _sample_manifest(root / rel)
+            folder = rel[: -len("manifest.json")]
+            for name, sha in (listed or {}).items():
+                check(folder + name, sha)
+    problems += [f"{rel}: not in the release" for rel in sorted(found - known)]
     return problems
 
 

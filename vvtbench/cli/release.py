@@ -137,13 +137,16 @@ def _freeze(args) -> int:
     import tomllib
 
     from ..io import write_text
-    from ..release import ReleaseError, file_sums, list_digest, load_release, write_sums
+    from ..release import ReleaseError, list_digest, load_release, release_sums, write_sums
 
     try:
         rel = load_release(args.release or load_release(args.folder / "release.toml").name)
     except ReleaseError as error:
         return _fail(error)
-    sums = file_sums(args.folder)
+    try:
+        sums = release_sums(args.folder)
+    except ReleaseError as error:
+        return _fail(error)
     built = {"/".join(k.split("/")[:2]) for k in sums}
     frozen = [p.name for p in rel.parts if all(f"{p.name}/{s}" in built for s in p.splits)]
     partial = [p.name for p in rel.parts if p.name not in frozen
