@@ -3,6 +3,9 @@
 >>> for problem, truth in iter_instances("data/cube_defects", "train"):  # doctest: +SKIP
 ...     ...
 
+For fixed-shape numpy items that a DataLoader batches (padded modes and vertices with masks,
+a feature spec), use :class:`vvtbench.loaders.InstanceDataset`.
+
 A folder of samples (``vvtbench generate FAMILY --split S``, or any folder holding sample
 folders) or an exported dataset (``vvtbench export``: a ``.zarr`` folder or an HDF5 file) is
 read as it is: the simulator never runs (:func:`vvtbench.observe.observe`). An instance's split
@@ -18,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["instances", "iter_instances", "instance_info"]
+__all__ = ["instances", "is_dataset", "iter_instances", "instance_info"]
 
 SPLITS = ("train", "val", "test")
 _NAME = re.compile(r"^(?P<family>.+)-(?P<split>train|val|test)-(?P<index>\d+)$")
@@ -34,7 +37,9 @@ def instance_info(name: str, folder: Path | None = None) -> dict[str, Any]:
     return {"family": m["family"], "split": m["split"], "index": int(m["index"])}
 
 
-def _is_dataset(path: Path) -> bool:
+def is_dataset(path: Path) -> bool:
+    """Whether ``path`` is an exported dataset (an HDF5 file or a ``.zarr`` folder that is not
+    a sample)."""
     return path.is_file() or (path.is_dir() and (path / "zarr.json").is_file()
                               and not (path / "scene.toml").is_file())
 
@@ -47,7 +52,7 @@ def instances(path: str | Path, split: str | None = None) -> Iterator[tuple[str,
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such folder or dataset")
-    if _is_dataset(path):
+    if is_dataset(path):
         from .packed import open_dataset
 
         ds = open_dataset(path)
@@ -71,11 +76,37 @@ def _order(info: dict, name: str) -> tuple:
     return (str(info.get("family", "")), int(info.get("index", -1)), name)
 
 
-def iter_instances(path: str | Path, split: str | None = None, options=None,
+def iter_instances(path: str | Path, split: str | None = None, options=None, *,
+                   cache_dir: str | Path | None = None,
                    **overrides: Any) -> Iterator[tuple[Any, Any]]:
     """``(InverseProblem, Truth)`` of every instance of ``split`` in ``path`` (observe options
-    as for :func:`vvtbench.observe.observe`; default: the true image-space modes)."""
-    from .observe import observe
+    as for :func:`vvtbench.observe.observe`; default: the true image-space modes).
 
-    for _, source in instances(path, split):
-        yield observe(source, options, **overrides)
+    With ``observation="extracted"`` (and no ``modes`` given) each sample's modes are
+    extracted once and kept in ``cache_dir`` (default: a ``.vvtbench-extracted`` folder beside
+    the samples or the dataset; :func:`vvtbench.loaders.extracted_modes_folder`), so a second
+    pass reads them instead of extracting again.
+    """
+    from .loaders import default_cache_dir, extracted_modes_folder
+    from .observe import ObserveOptions, observe
+
+    if options is None:
+        opts = ObserveOptions.from_mapping(overrides)
+    else:
+        base = options if isinstance(options, ObserveOptions) else \
+            ObserveOptions.from_mapping(options)
+        opts = base.replace(**overrides) if overrides else base
+    path = Path(path)
+    cached = opts.observation == "extracted" and not opts.modes
+    if cached and cache_dir is None:
+        cache_dir = default_cache_dir(path)
+    for name, source in instances(path, split):
+        if not cached:
+            yield observe(source, opts)
+            continue
+        if isinstance(source, Path):
+            from .dataset import open_sample
+
+            source = open_sample(source)
+        folder = extracted_modes_folder(source, name, opts.extract, Path(cache_dir) / name)
+        yield observe(source, opts if folder is None else opts.replace(modes=(str(folder),)))

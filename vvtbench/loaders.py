@@ -1,0 +1,485 @@
+"""Map-style datasets for learning: fixed-shape numpy items from generated or exported samples.
+
+:class:`InstanceDataset` indexes the instances of one split of a folder of samples
+(``vvtbench generate FAMILY --split S``) or of an exported dataset (``vvtbench export``: a
+``.zarr`` folder or an HDF5 file). ``len(ds)`` is the instance count and ``ds[i]`` one item: a
+dict of numpy arrays and plain Python values that ``torch.utils.data.DataLoader`` collates as
+it is (vvtbench never imports torch)::
+
+    {"inputs": {...}, "targets": {"w": ..., "v": ...},
+     "split": "train", "instance": "cube_defects-train-00000", "family": "cube_defects",
+     "index": 0}
+
+Every array has the same shape in every item of a dataset: the observed modes are padded to
+``max_modes`` with a mode mask, and the observed vertices are scattered onto all nodes of the
+family's inference mesh with a visibility mask (hidden nodes, fixed nodes and missing modes
+are zeros and masked). The truth (w and v on the voxel grid) is only in ``targets``, which
+``targets=False`` leaves out. :data:`FEATURES` declares every array (name, shape, dtype,
+units, description); :meth:`InstanceDataset.features` gives the shapes of one dataset and
+:meth:`InstanceDataset.describe` prints them.
+
+Observation ``"true"`` observes the true image-space modes; ``"extracted"`` observes the modes
+extracted from the video, computed once per sample, extractor and extraction revision and kept
+beside the data (:func:`extracted_modes_folder`), never once per epoch.
+
+Several DataLoader workers are safe: the dataset holds no open file. A packed dataset is
+opened lazily, once per process (keyed by ``os.getpid()``), so a handle is never shared across
+``fork``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .dataset import DatasetError, sha256_file
+
+__all__ = ["FEATURES", "Feature", "InstanceDataset", "default_cache_dir", "extracted_modes_folder"]
+
+#: Name of the folder (beside the samples or the dataset) that keeps extracted modes.
+EXTRACTED_DIR = ".vvtbench-extracted"
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One array of an item.
+
+    Attributes
+    ----------
+    name : key in ``item[part]``.
+    part : ``"inputs"`` (what a method may use) or ``"targets"`` (the truth).
+    shape : dimensions: integers, or symbols resolved per dataset: ``K`` (``max_modes``),
+        ``N`` (nodes of the inference mesh), ``d`` (DOFs per node: 3 solids, 1 drums),
+        ``D`` (coordinates per node), ``grid`` (the voxel grid's dimensions).
+    dtype : numpy dtype name.
+    units : SI units (``1``: dimensionless; ``bool`` masks have none).
+    description : what the array holds.
+    """
+
+    name: str
+    part: str
+    shape: tuple
+    dtype: str
+    units: str
+    description: str
+
+
+FEATURES: tuple[Feature, ...] = (
+    Feature("gamma", "inputs", ("K", "N", 2), "float32", "px (unit norm per mode)",
+            "observed image-space modes: (x, y) image motion of each node, each present mode "
+            "of unit L2 norm over its visible nodes; 0 at hidden nodes and missing modes"),
+    Feature("eigenvalues", "inputs", ("K",), "float32", "rad^2/s^2",
+            "observed (2 pi f)^2 of each mode; 0 for missing modes"),
+    Feature("mode_mask", "inputs", ("K",), "bool", "",
+            "True for an observed mode, False for padding"),
+    Feature("visible", "inputs", ("N",), "bool", "",
+            "True for a node seen by the camera (its gamma entries are observed)"),
+    Feature("node_mask", "inputs", ("N",), "bool", "",
+            "True for a node of this instance's mesh, False for padding"),
+    Feature("fixed", "inputs", ("N",), "bool", "",
+            "True for a node held fixed (clamped base, drum rim)"),
+    Feature("points", "inputs", ("N", "D"), "float32", "m",
+            "node coordinates of the inference mesh (lowest corner at the origin)"),
+    Feature("jacobian", "inputs", ("N", 2, "d"), "float32", "px/m",
+            "camera Jacobian of each visible node: image motion per unit displacement of its "
+            "DOFs (gamma = jacobian @ u); 0 at hidden and fixed nodes"),
+    Feature("camera_K", "inputs", (3, 3), "float32", "px", "camera intrinsics"),
+    Feature("camera_R", "inputs", (3, 3), "float32", "1", "camera rotation (world to camera)"),
+    Feature("camera_t", "inputs", (3,), "float32", "m", "camera translation (world to camera)"),
+    Feature("image_size", "inputs", (2,), "int64", "px", "frame width and height"),
+    Feature("active", "inputs", ("grid",), "bool", "",
+            "True for a voxel holding material (an unknown), False for an empty voxel"),
+    Feature("w_mean", "inputs", (), "float32", "Pa (N/m for drums)",
+            "prior mean of the stiffness (the anchor of the stiffness/density scale)"),
+    Feature("w0", "inputs", (), "float32", "Pa (N/m for drums)", "prior initial stiffness"),
+    Feature("v0", "inputs", (), "float32", "kg/m^3 (kg/m^2 for drums)",
+            "prior initial density"),
+    Feature("w", "targets", ("grid",), "float32", "Pa (N/m for drums)",
+            "true Young's modulus (tension for drums) per voxel; 0 in empty voxels"),
+    Feature("v", "targets", ("grid",), "float32", "kg/m^3 (kg/m^2 for drums)",
+            "true density (areal density for drums) per voxel; 0 in empty voxels"),
+)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    modes: int
+    nodes: int
+    dofs: int
+    dim: int
+    grid: tuple[int, ...]
+
+    def resolve(self, shape: tuple) -> tuple[int, ...]:
+        sizes = {"K": self.modes, "N": self.nodes, "d": self.dofs, "D": self.dim}
+        out: list[int] = []
+        for s in shape:
+            if s == "grid":
+                out.extend(self.grid)
+            else:
+                out.append(int(sizes.get(s, s)) if isinstance(s, str) else int(s))
+        return tuple(out)
+
+
+class InstanceDataset:
+    """The instances of one split as fixed-shape numpy items (map-style: ``len``, ``[i]``).
+
+    Parameters
+    ----------
+    path : a folder of sample folders (or one sample folder), or an exported dataset (a
+        ``.zarr`` folder or an HDF5 file written by ``vvtbench export``).
+    split : ``"train"``, ``"val"``, ``"test"``, or None for every instance.
+    observation : ``"true"`` (the true image-space modes) or ``"extracted"`` (modes extracted
+        from each sample's video once, then read from the cache).
+    max_modes : the mode count K every item is padded to (the lowest ``max_modes`` modes are
+        observed; an instance with fewer has them masked).
+    targets : include the truth (``item["targets"]``); False for inputs only.
+    n_nodes : the node count N every item is padded to (default: that of the first instance's
+        inference mesh; an instance with more nodes is an error).
+    options : further :class:`vvtbench.observe.ObserveOptions` fields (``inference_shape``,
+        ``visibility``, ``extract``, ...); ``observation`` and ``n_modes`` are set from the
+        arguments above.
+    cache_dir : where extracted modes are kept (default: a ``.vvtbench-extracted`` folder
+        beside the samples or the dataset).
+    """
+
+    def __init__(self, path: str | Path, split: str | None = None, *,
+                 observation: str = "true", max_modes: int = 20, targets: bool = True,
+                 n_modes: int | None = None, n_nodes: int | None = None,
+                 options: Mapping[str, Any] | None = None,
+                 cache_dir: str | Path | None = None) -> None:
+        from .data import instance_info, instances, is_dataset
+        from .observe import ObserveOptions
+
+        if n_modes is not None:
+            max_modes = n_modes
+        self.path = Path(path)
+        self.split = split
+        self.targets = bool(targets)
+        given = dict(options or {})
+        for key in ("observation", "n_modes"):
+            if key in given:
+                raise DatasetError(f"InstanceDataset: give {key} as an argument, not in options")
+        self.options = ObserveOptions.from_mapping(
+            {**given, "observation": observation, "n_modes": max_modes}, "InstanceDataset")
+        self.max_modes = self.options.n_modes
+        self.observation = self.options.observation
+        self.n_nodes = None if n_nodes is None else int(n_nodes)
+        self.packed = is_dataset(self.path)
+        entries = []
+        for name, source in instances(self.path, split):  # opens and closes a dataset
+            info = instance_info(name, None if self.packed else source)
+            entries.append((name, None if self.packed else Path(source), info))
+        self._entries = entries
+        self.cache_dir = Path(default_cache_dir(self.path) if cache_dir is None else cache_dir)
+        self._handles: dict[int, Any] = {}
+        self._layout: _Layout | None = None
+        self._layout = self._first_layout()
+
+    # ---------------------------------------------------------------- map-style protocol
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    @property
+    def names(self) -> list[str]:
+        """Instance names, in item order."""
+        return [name for name, _, _ in self._entries]
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)):
+            raise TypeError(f"InstanceDataset indices are integers, got {type(i).__name__}")
+        n = len(self._entries)
+        if not -n <= i < n:
+            raise IndexError(f"index {i} out of range for {n} instances")
+        name, folder, info = self._entries[int(i) % n]
+        source = self._source(name, folder)
+        layout = self.layout()
+        problem, truth = self._observe(name, source)
+        item: dict[str, Any] = {"inputs": _inputs(problem, source.camera, layout, name)}
+        if self.targets:
+            item["targets"] = _targets(problem, truth, layout)
+        split = info.get("split")
+        item.update(split=str(split) if split is not None else "",
+                    instance=name, family=str(info.get("family", "")),
+                    index=int(info.get("index", -1)))
+        return item
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_handles"] = {}
+        return state
+
+    # ---------------------------------------------------------------- the feature spec
+    def layout(self) -> _Layout:
+        """The padded sizes (modes, nodes, DOFs per node, coordinates, voxel grid), from the
+        first instance's inference model."""
+        if self._layout is None:
+            self._layout = self._first_layout()
+        return self._layout
+
+    def _first_layout(self) -> _Layout:
+        if not self._entries:
+            raise DatasetError(f"{self.path}: no instance of split {self.split!r}")
+        name, folder, _ = self._entries[0]
+        opts = self.options.replace(observation="true", n_modes=1, modes=())
+        if folder is not None:
+            problem, _ = self._observe_plain(self._source(name, folder), opts)
+        else:
+            from .packed import open_dataset
+
+            with open_dataset(self.path) as ds:  # closed before any worker forks
+                problem, _ = self._observe_plain(ds[name], opts)
+        nodes = problem.mesh.n_nodes if self.n_nodes is None else self.n_nodes
+        return _Layout(self.max_modes, nodes, problem.mesh.dofs_per_node,
+                       problem.mesh.points.shape[1],
+                       tuple(int(s) for s in problem.voxel_map.grid.shape))
+
+    def features(self) -> list[Feature]:
+        """:data:`FEATURES` with this dataset's shapes (targets left out with
+        ``targets=False``)."""
+        layout = self.layout()
+        return [Feature(f.name, f.part, layout.resolve(f.shape), f.dtype, f.units,
+                        f.description)
+                for f in FEATURES if self.targets or f.part != "targets"]
+
+    def describe(self) -> str:
+        """The feature spec as a text table (one line per array)."""
+        rows = [("part", "name", "shape", "dtype", "units")]
+        rows += [(f.part, f.name, "x".join(map(str, f.shape)) or "scalar", f.dtype,
+                  f.units or "-") for f in self.features()]
+        widths = [max(len(r[i]) for r in rows) for i in range(5)]
+        head = (f"{len(self)} instances of {self.path.name} (split {self.split or 'all'}, "
+                f"observation {self.observation}); every item also has split, instance, "
+                "family, index")
+        return "\n".join([head, *("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True))
+                                  .rstrip()
+                                  for r in rows)])
+
+    def __repr__(self) -> str:
+        return (f"InstanceDataset({str(self.path)!r}, split={self.split!r}, "
+                f"{len(self)} instances, observation={self.observation!r}, "
+                f"max_modes={self.max_modes})")
+
+    # ---------------------------------------------------------------- sources
+    def _source(self, name: str, folder: Path | None) -> Any:
+        if folder is not None:
+            from .dataset import open_sample
+
+            return open_sample(folder)
+        return self._dataset()[name]
+
+    def _dataset(self) -> Any:
+        pid = os.getpid()
+        handle = self._handles.get(pid)
+        if handle is None:
+            from .packed import open_dataset
+
+            handle = self._handles[pid] = open_dataset(self.path)  # a parent's stays unused
+        return handle
+
+    def close(self) -> None:
+        """Close this process's dataset handle (reopened on the next item)."""
+        handle = self._handles.pop(os.getpid(), None)
+        if handle is not None:
+            handle.close()
+
+    def _observe(self, name: str, source: Any):
+        opts = self.options
+        if opts.observation == "true":
+            n_true = len(_array(source, "modes/eigenvalues"))
+            opts = opts.replace(n_modes=min(opts.n_modes, n_true))
+        elif not opts.modes:
+            folder = extracted_modes_folder(source, name, opts.extract, self._cache_for(name))
+            if folder is not None:
+                opts = opts.replace(modes=(str(folder),))
+        return self._observe_plain(source, opts)
+
+    def _cache_for(self, name: str) -> Path:
+        return self.cache_dir / name
+
+    @staticmethod
+    def _observe_plain(source: Any, opts: Any):
+        from .observe import observe
+
+        return observe(source, opts)
+
+
+def default_cache_dir(path: str | Path) -> Path:
+    """Where extracted modes of the samples in ``path`` are kept by default: a
+    ``.vvtbench-extracted`` folder in a folder of samples, beside a single sample, and beside
+    an exported dataset (in a sub-folder named after it)."""
+    from .data import is_dataset
+
+    path = Path(path)
+    if is_dataset(path):
+        return path.parent / EXTRACTED_DIR / path.name
+    if (path / "truth.json").is_file() and (path / "manifest.json").is_file():
+        return path.parent / EXTRACTED_DIR
+    return path / EXTRACTED_DIR
+
+
+def _array(source: Any, name: str) -> np.ndarray:
+    require = getattr(source, "require", None)
+    return np.asarray(require(name) if require is not None else source[name])
+
+
+# -------------------------------------------------------------------- items
+
+
+def _inputs(problem: Any, camera: Any, layout: _Layout, name: str) -> dict[str, np.ndarray]:
+    mesh = problem.mesh
+    n, d, K = mesh.n_nodes, mesh.dofs_per_node, layout.modes
+    if n > layout.nodes:
+        raise DatasetError(f"{name}: its inference mesh has {n} nodes, more than the "
+                           f"{layout.nodes} items are padded to; give n_nodes >= {n}")
+    if d != layout.dofs or mesh.points.shape[1] != layout.dim:
+        raise DatasetError(f"{name}: {d} DOFs per node, the first instance {layout.dofs}; "
+                           "one dataset holds one kind of object")
+    vis = problem.visible_nodes
+    k = min(problem.n_modes, K)
+    gamma = np.zeros((K, layout.nodes, 2), np.float32)
+    gamma[:k, vis] = problem.gamma[:k].reshape(k, len(vis), 2)
+    eig = np.zeros(K, np.float32)
+    eig[:k] = problem.eigenvalues[:k]
+    mode_mask = np.zeros(K, bool)
+    mode_mask[:k] = True
+
+    def per_node(dtype: Any, *tail: int) -> np.ndarray:
+        return np.zeros((layout.nodes, *tail), dtype)
+
+    visible, node_mask, fixed = per_node(bool), per_node(bool), per_node(bool)
+    visible[vis] = True
+    node_mask[:n] = True
+    fixed[problem.model.fixed_nodes] = True
+    points = per_node(np.float32, layout.dim)
+    points[:n] = mesh.points
+    jac = per_node(np.float32, 2, d)
+    cols = problem.model.free_index[vis[:, None] * d + np.arange(d)[None, :]]  # (n_vis, d)
+    P = problem.P.tocsr()
+    rows = 2 * np.arange(len(vis))
+    for c in range(d):
+        ok = cols[:, c] >= 0
+        for axis in range(2):
+            jac[vis[ok], axis, c] = np.asarray(P[rows[ok] + axis, cols[ok, c]]).ravel()
+    active = np.zeros(int(np.prod(layout.grid)), bool)
+    active[problem.voxel_map.active] = True
+    f32 = np.float32
+    return {
+        "gamma": gamma, "eigenvalues": eig, "mode_mask": mode_mask, "visible": visible,
+        "node_mask": node_mask, "fixed": fixed, "points": points, "jacobian": jac,
+        "camera_K": np.asarray(camera.K, f32), "camera_R": np.asarray(camera.R, f32),
+        "camera_t": np.asarray(camera.t, f32).ravel(),
+        "image_size": np.array([camera.width, camera.height], np.int64),
+        "active": active.reshape(layout.grid),
+        "w_mean": f32(problem.w_mean), "w0": f32(problem.w0), "v0": f32(problem.v0),
+    }
+
+
+def _targets(problem: Any, truth: Any, layout: _Layout) -> dict[str, np.ndarray]:
+    return {"w": problem.to_grid(truth.w, 0.0).astype(np.float32).reshape(layout.grid),
+            "v": problem.to_grid(truth.v, 0.0).astype(np.float32).reshape(layout.grid)}
+
+
+# -------------------------------------------------------------------- extracted modes
+
+
+def extraction_key(extract: Mapping[str, Any]) -> str:
+    """The cache folder name of an extraction: ``<extractor>-r<revision>``, plus the first 12
+    hex digits of the sha256 of the other ``extract_modes`` options when any are set."""
+    from .bench.graph import extraction_revision
+
+    opts = dict(extract)
+    extractor = opts.pop("extractor", "phase")
+    if not isinstance(extractor, str):
+        raise DatasetError("extract: extractor must be a name (or module:Class) to be cached")
+    revision = extraction_revision(opts)
+    rev = "-".join(map(str, revision)) if isinstance(revision, list) else str(revision)
+    safe = "".join(ch if ch.isalnum() or ch in "._" else "_" for ch in extractor)
+    key = f"{safe}-r{rev}"
+    if opts:
+        text = json.dumps(opts, sort_keys=True, default=str)
+        key += "-" + hashlib.sha256(text.encode()).hexdigest()[:12]
+    return key
+
+
+def _video_sha256(source: Any) -> str:
+    info = source.info.get("video") if isinstance(source.info.get("video"), dict) else {}
+    entry = source.manifest.get("files", {}).get(str(info.get("file", "")))
+    if not isinstance(entry, dict) or not isinstance(entry.get("sha256"), str):
+        raise DatasetError(f"{getattr(source, 'path', source)}: manifest.json lists no "
+                           "sha256 of the video; regenerate the sample")
+    return entry["sha256"]
+
+
+def _reusable(folder: Path, video_sha: str, extract: dict) -> bool:
+    try:
+        doc = json.loads((folder / "source.json").read_text())
+    except (OSError, ValueError):
+        return False
+    if (not isinstance(doc, dict) or doc.get("video_sha256") != video_sha
+            or doc.get("extract") != json.loads(json.dumps(extract, default=str))):
+        return False
+    files = doc.get("files")
+    if not isinstance(files, dict) or set(files) != {"modes.json", "modes.npz"}:
+        return False
+    return all((folder / rel).is_file() and sha256_file(folder / rel) == digest
+               for rel, digest in files.items())
+
+
+def extracted_modes_folder(source: Any, name: str, extract: Mapping[str, Any],
+                           cache: str | Path) -> Path | None:
+    """The folder of the modes extracted from ``source``'s video with ``extract``
+    (:func:`vvtbench.modes.extract_modes` options), extracting them on the first call only.
+
+    The folder is ``cache/<extractor>-r<revision>[-<options hash>]/`` (modes.json, modes.npz
+    and source.json: the video's sha256, the options and the sha256 of both mode files). It is
+    reused while all of them match; otherwise the modes are extracted again and the folder is
+    replaced in one rename. Returns None for a dataset entry that was packed with extracted
+    modes (observe uses those) and raises :class:`DatasetError` for a sample with no video.
+    """
+    from .io import write_json
+    from .modes import extract_modes
+
+    packed = getattr(source, "extracted_modes", None)
+    if packed is not None and getattr(source, "_extracted", None):
+        return None
+    if not getattr(source, "has_video", False):
+        raise DatasetError(f"{name}: observation 'extracted' needs a video; this sample was "
+                           "generated without one (--no-video)")
+    extract = dict(extract)
+    folder = Path(cache) / extraction_key(extract)
+    video_sha = _video_sha256(source)
+    if _reusable(folder, video_sha, extract):
+        return folder
+    video_path = getattr(source, "video_path", None)
+    frames = video_path if video_path is not None else source.frames()
+    modeset = extract_modes(frames, source.fps, **extract)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = folder.with_name(f".{folder.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        modeset.save(tmp)
+        write_json(tmp / "source.json", {
+            "video_sha256": video_sha, "extract": extract, "instance": name,
+            "files": {rel: sha256_file(tmp / rel) for rel in ("modes.json", "modes.npz")}})
+        old = folder.with_name(f".{folder.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.old")
+        try:
+            os.replace(folder, old)  # a stale or damaged extraction
+        except FileNotFoundError:
+            pass
+        try:
+            os.replace(tmp, folder)
+        except OSError:  # another process put its extraction there first
+            if not _reusable(folder, video_sha, extract):
+                raise
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return folder
