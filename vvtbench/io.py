@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["jsonable", "write_json", "write_npz", "write_text"]
+__all__ = ["jsonable", "open_new", "write_bytes", "write_json", "write_npz", "write_text"]
 
 
 def jsonable(x: Any) -> Any:
@@ -35,15 +35,30 @@ def _temp(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
 
 
-def write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (a reader sees the old or the new file)."""
+def open_new(path: str | Path, mode: str = "wb"):
+    """A file object for a file created now at ``path``: ``O_EXCL`` (never an existing file)
+    and ``O_NOFOLLOW`` (never through a link planted at that name)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+    return os.fdopen(fd, mode)
+
+
+def write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: a new temporary file beside it, renamed over it
+    (a link at ``path`` is replaced, never written through)."""
     path = Path(path)
     tmp = _temp(path)
     try:
-        tmp.write_text(text)
+        with open_new(tmp) as f:
+            f.write(data)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (a reader sees the old or the new file; a link at
+    ``path`` is replaced, never written through)."""
+    write_bytes(path, text.encode())
 
 
 def write_json(path: str | Path, data: Any, *, indent: int = 1, sort_keys: bool = False) -> None:
@@ -67,7 +82,8 @@ def write_npz(path: str | Path, arrays: dict[str, np.ndarray], compressed: bool 
             raise TypeError(f"write_npz: array {k!r} has dtype object (would need pickle)")
     tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp.npz")
     try:
-        (np.savez_compressed if compressed else np.savez)(tmp, **arrays)
+        with open_new(tmp) as f:
+            (np.savez_compressed if compressed else np.savez)(f, **arrays)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)

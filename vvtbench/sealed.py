@@ -373,10 +373,11 @@ def _collect(src: Path, dest: Path, accept: Sequence[str] | None) -> None:
 def _write_new(path: Path, source) -> None:
     """Copy the open file ``source`` to ``path`` atomically through a fresh temporary file
     (streamed; never through a link planted at either name)."""
+    from .io import open_new
+
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{time.monotonic_ns()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
     try:
-        with os.fdopen(fd, "wb") as f:
+        with open_new(tmp) as f:
             shutil.copyfileobj(source, f, 1 << 20)
         os.replace(tmp, path)
     except BaseException:
