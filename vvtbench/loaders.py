@@ -227,7 +227,12 @@ class InstanceDataset:
 
     def _first_layout(self) -> _Layout:
         if not self._entries:
-            raise DatasetError(f"{self.path}: no instance of split {self.split!r}")
+            from .data import instance_info, instances
+
+            here = sorted({str(instance_info(n, None if self.packed else s).get("split"))
+                           for n, s in instances(self.path)})
+            raise DatasetError(f"{self.path}: no instance of split {self.split!r} (here: "
+                               f"{', '.join(here) or 'no instances'})")
         name, folder, _ = self._entries[0]
         opts = self.options.replace(observation="true", n_modes=1, modes=())
         if folder is not None:
