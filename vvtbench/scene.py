@@ -488,6 +488,8 @@ class Scene(_Strict):
     def _name_is_a_slug(cls, name: str) -> str:
         if not name or not all(c.isalnum() or c in "-_." for c in name):
             raise ValueError("name may contain only letters, digits, '-', '_' and '.'")
+        if name.startswith("."):  # it names the sample folder: no hidden folder, '.' or '..'
+            raise ValueError("name must not start with '.'")
         return name
 
     @model_validator(mode="after")

@@ -28,6 +28,23 @@ SCENE_SECTIONS = ("seed", "description", "geometry", "material", "boundary", "da
                   "excitation", "simulation", "camera", "render")
 
 
+def folder_name_problem(name: object) -> str | None:
+    """Why ``name`` cannot name a folder vvtbench creates (a suite's run folder, a scene's
+    sample folder): not letters, digits, '-', '_' and '.' only, or starting with '.' (hidden,
+    '.' and '..'); None when it can.
+
+    >>> folder_name_problem("paper"), folder_name_problem("../../victim") is not None
+    (None, True)
+    """
+    if not isinstance(name, str) or not name:
+        return "must be a non-empty string"
+    if not all(c.isascii() and (c.isalnum() or c in "-_.") for c in name):
+        return "may contain only letters, digits, '-', '_' and '.'"
+    if name.startswith("."):
+        return "must not start with '.' (no hidden folder, no '.' or '..')"
+    return None
+
+
 class SuiteError(ValueError):
     """A suite file is malformed; the message names the file, the key and what is allowed."""
 
@@ -458,6 +475,9 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
     # The validated file is expanded from ``data`` itself: strict validation coerced nothing,
     # and the runner hashes and records the values as written (1, not 1.0).
     name = data.get("name") or Path(source).stem
+    problem = folder_name_problem(name)
+    if problem:  # the name becomes the default run folder, runs/NAME
+        raise SuiteError(f"{source}: key 'name': {name!r} {problem}")
     defaults = data.get("defaults", {})
     _split_options(defaults, source, "defaults")  # validate keys early
     extract = dict(data.get("extract", {}))
@@ -567,21 +587,17 @@ def observation_extractor(observation: str) -> str | None:
 def _check_extractor(name: str, table: dict, source: str, key: str) -> dict:
     """``{"spec", "name", "version", "config"}`` of the extractor ``name`` with the overrides
     ``table`` (validated now: a missing extractor or a bad option is a one-line error)."""
-    import dataclasses
-
-    from ..extractors import load_extractor
-    from ..plugins import PluginError, config_from_mapping
+    from ..plugins import PluginError
+    from ..sealed import describe_sealed
 
     file, _, cls_name = name.rpartition(":")
     spec = f"{scene_ref(file, source)}:{cls_name}" if file.endswith(".py") else name
-    try:
-        cls = load_extractor(spec)
-        config = config_from_mapping(cls.Config, table)
+    try:  # imported and configured in a sealed child, never here
+        d = describe_sealed("extractor", spec, table)
     except PluginError as error:
         raise SuiteError(f"{source}: key '{key}': {error}") from None
-    return {"spec": spec, "name": str(cls.name), "version": str(cls.version),
-            "config": {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
-                       if f.name in table}}
+    return {"spec": spec, "name": d["name"], "version": d["version"],
+            "config": {k: v for k, v in d["config"].items() if k in table}}
 
 
 def scene_ref(name: str, source: str) -> str:
