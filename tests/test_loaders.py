@@ -235,3 +235,15 @@ def test_extracted_without_video_is_one_clear_error(data):
         ds[0]
     with pytest.raises(Exception, match="n_modes must be an integer"):
         InstanceDataset(data / "train", "train", max_modes=0)
+
+
+def test_the_documented_training_example_runs(data, capsys):
+    text = (Path(__file__).parents[1] / "docs" / "learning.md").read_text()
+    (code,) = [block for block in re.findall(r"```python\n(.*?)```", text, re.S)
+               if "InstanceDataset(DATA" in block]
+    code = code.replace('"data/cube_defects/train"', repr(str(data / "train")))
+    exec(compile(code, "docs/learning.md", "exec"), {"__name__": "docs_example"})
+    out = capsys.readouterr().out
+    assert re.search(r"inputs\s+gamma\s+20x729x2", out)
+    fit = re.search(r"(ridge fit on 3 instances: training residual|epoch 1: loss) (\S+)", out)
+    assert fit is not None and np.isfinite(float(fit[2]))
