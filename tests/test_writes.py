@@ -60,3 +60,86 @@ def test_a_scene_name_that_would_hide_or_climb_is_refused(tmp_path, capsys, name
     data["name"] = name
     with pytest.raises(SceneError, match="must not start with '.'"):
         parse_scene(data, "x.toml")
+
+
+@pytest.fixture(scope="module")
+def sample(tmp_path_factory):
+    from vvtbench.generate import generate
+    from vvtbench.scene import load_scene
+
+    scene = load_scene("jello_cube_defect_top")
+    data = scene.to_toml_dict()
+    data["geometry"]["cells"] = [5, 5, 5]
+    data["simulation"]["n_modes"] = 4
+    from vvtbench.scene import parse_scene
+
+    return generate(parse_scene(data, "tiny"), tmp_path_factory.mktemp("s"), progress=False,
+                    video=False)
+
+
+def _problems(path):
+    from vvtbench.cli.verify import verify_path
+
+    return verify_path(path)
+
+
+@pytest.mark.parametrize("damage", ["flip", "delete", "attribute", "extra"])
+def test_verify_checks_every_file_of_a_zarr_dataset(sample, tmp_path, damage):
+    from vvtbench.export import pack
+
+    out = pack([sample], tmp_path / "ds.zarr")
+    assert _problems(out) == []
+    chunk = next(p for p in sorted(out.rglob("c/*")) if p.is_file())
+    if damage == "flip":
+        data = bytearray(chunk.read_bytes())
+        data[-1] ^= 1
+        chunk.write_bytes(bytes(data))
+    elif damage == "delete":
+        chunk.unlink()
+    elif damage == "attribute":
+        meta = next(p for p in sorted(out.rglob("zarr.json")) if p.parent != out)
+        meta.write_text(meta.read_text().replace('"', '"', 1) + " ")
+        chunk = meta
+    else:
+        chunk = out / "samples" / "notes.txt"
+        chunk.write_text("mine")
+    problems = _problems(out)
+    assert problems and str(chunk) in problems[0], problems
+
+
+def test_verify_checks_an_hdf5_dataset_against_its_croissant_sha256(sample, tmp_path):
+    from vvtbench.export import pack
+
+    out = pack([sample], tmp_path / "ds.h5", "hdf5")
+    assert _problems(out) == []
+    data = bytearray(out.read_bytes())
+    data[len(data) // 2] ^= 1
+    out.write_bytes(bytes(data))
+    assert any("sha256 differs" in p for p in _problems(out))
+
+
+def test_overwrite_never_deletes_a_file_it_did_not_write(sample, tmp_path, capsys):
+    from vvtbench.export import pack
+
+    out = pack([sample], tmp_path / "ds.zarr")
+    mine = out / "samples" / "my-notes.txt"
+    mine.write_text("mine")
+    assert main(["export", str(sample), "-o", str(out), "--overwrite"]) == 2
+    assert "my-notes.txt" in capsys.readouterr().err and mine.read_text() == "mine"
+    mine.unlink()
+    assert main(["export", str(sample), "-o", str(out), "--overwrite"]) == 0
+
+
+def test_two_exports_to_one_target_one_is_refused(sample, tmp_path, capsys):
+    from vvtbench.bench.lock import RunLock
+
+    out = tmp_path / "ds.zarr"
+    held = RunLock(tmp_path, name=".ds.zarr.lock", remove=True).acquire()  # a first export
+    try:
+        assert main(["export", str(sample), "-o", str(out)]) == 2
+        assert "another export is writing it" in capsys.readouterr().err
+        assert not out.exists()
+    finally:
+        held.release()
+    assert main(["export", str(sample), "-o", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds.zarr"]

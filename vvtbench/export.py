@@ -46,7 +46,8 @@ __all__ = ["ExportError", "check_output", "find_extracted", "find_samples", "is_
            "pack", "verify_sample"]
 
 #: Files a Zarr dataset folder written by :func:`pack` holds at its top level.
-_ZARR_TOP = {"zarr.json", "samples", "README.md", "croissant.json"}
+_ZARR_TOP = {"zarr.json", "samples", "README.md", "croissant.json", "SHA256SUMS"}
+SUMS = "SHA256SUMS"  # a Zarr dataset's list of every file it holds with its sha256
 
 
 # --------------------------------------------------------------------------- finding inputs
@@ -567,6 +568,43 @@ def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = 
             raise ExportError(f"{p}: a temporary path of this export already exists; remove "
                               "it (left by an interrupted export)")
     out.parent.mkdir(parents=True, exist_ok=True)
+    from .bench.lock import RunLock, RunLocked
+
+    try:  # one writer per output: a second export to the same path is refused
+        lock = RunLock(out.parent, name=f".{out.name}.lock", remove=True).acquire()
+    except RunLocked as error:
+        raise ExportError(f"{out}: another export is writing it ({error})") from None
+    try:
+        _check_replaceable(out, fmt, overwrite)
+        return _pack_locked(samples, out, fmt, source, names, card, partial, side, side_tmp,
+                            extracted)
+    finally:
+        lock.release()
+
+
+def _check_replaceable(out: Path, fmt: str, overwrite: bool) -> None:
+    """An existing Zarr dataset is replaced only when it holds exactly the files its
+    ``SHA256SUMS`` lists (nothing of the user's would be deleted with it)."""
+    if not (overwrite and fmt == "zarr" and out.is_dir()):
+        return
+    from .release import ReleaseError, file_sums, read_sums
+
+    if not (out / SUMS).is_file():
+        raise ExportError(f"{out}: has no {SUMS} (written by an older vvtbench): not replacing "
+                          "it, since its files cannot be told from yours; remove it yourself")
+    try:
+        listed = set(read_sums(out / SUMS))
+        held = set(file_sums(out, exclude=(SUMS,)))
+    except ReleaseError as error:
+        raise ExportError(f"{out}: {error}") from None
+    extra = sorted(held - listed)
+    if extra:
+        raise ExportError(f"{out / extra[0]}: not written by vvtbench export (not in "
+                          f"{SUMS}); not replacing the dataset that holds it")
+
+
+def _pack_locked(samples, out, fmt, source, names, card, partial, side, side_tmp,
+                 extracted) -> Path:
     scopes = _Scopes()
     created = []
     try:
@@ -586,6 +624,10 @@ def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = 
             with open(p, "x", encoding="utf-8") as f:  # exclusive: never through a link
                 f.write(text)
             created.append(p)
+        if fmt == "zarr":  # every chunk's sha256: verify checks them, --overwrite trusts them
+            from .release import file_sums, write_sums
+
+            write_sums(file_sums(partial, exclude=(SUMS,)), partial / SUMS)
         _replace(partial, out)
         created.remove(partial)
         if fmt == "hdf5":

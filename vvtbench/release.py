@@ -158,23 +158,22 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _files(root: Path) -> Iterator[Path]:
+def _files(root: Path, exclude: tuple[str, ...] = (SUMS, DEFINITION)) -> Iterator[Path]:
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
         for name in sorted(filenames):
-            if not name.startswith(".") and not (dirpath == str(root) and name in (SUMS,
-                                                                                  DEFINITION)):
+            if not name.startswith(".") and not (dirpath == str(root) and name in exclude):
                 yield Path(dirpath) / name
 
 
-def file_sums(root: str | Path, progress: Callable[[int], None] | None = None
-              ) -> dict[str, str]:
+def file_sums(root: str | Path, progress: Callable[[int], None] | None = None,
+              exclude: tuple[str, ...] = (SUMS, DEFINITION)) -> dict[str, str]:
     """``{relative POSIX path: sha256}`` of every file under ``root`` (hidden files and the
-    root's ``SHA256SUMS`` and ``release.toml`` excepted), in path order; symbolic links are
-    refused."""
+    root's files named in ``exclude`` -- by default ``SHA256SUMS`` and ``release.toml`` --
+    excepted), in path order; symbolic links are refused."""
     root = Path(root)
     out = {}
-    for n, f in enumerate(_files(root)):
+    for n, f in enumerate(_files(root, exclude)):
         if f.is_symlink():
             raise ReleaseError(f"{f}: a symbolic link (a release holds files only)")
         out[f.relative_to(root).as_posix()] = _sha256(f)
@@ -241,13 +240,14 @@ def _prefixes(rel: str) -> list[str]:
     return ["/".join(parts[:i]) for i in range(len(parts) - 1, 0, -1)]
 
 
-def verify_copy(root: str | Path, expected: dict[str, str]) -> list[str]:
+def verify_copy(root: str | Path, expected: dict[str, str],
+                exclude: tuple[str, ...] = (SUMS, DEFINITION)) -> list[str]:
     """Problems of the copy ``root`` against the frozen list ``expected`` (a sample folder
     listed by its ``manifest.json``: every file the manifest lists): missing, changed and extra
     files (empty when the copy matches byte for byte)."""
     root = Path(root)
     problems = []
-    found = {f.relative_to(root).as_posix() for f in _files(root)}
+    found = {f.relative_to(root).as_posix() for f in _files(root, exclude)}
     known = set()
 
     def check(rel: str, digest: str) -> bool:

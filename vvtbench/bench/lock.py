@@ -18,8 +18,10 @@ class RunLocked(RuntimeError):
 
 
 class RunLock:
-    def __init__(self, folder: str | Path, wait: bool = False, on_wait=None):
-        self.path = Path(folder) / ".lock"
+    def __init__(self, folder: str | Path, wait: bool = False, on_wait=None,
+                 name: str = ".lock", remove: bool = False):
+        self.path = Path(folder) / name
+        self.remove = remove  # delete the lock file on release (a lock beside a user's file)
         self.wait = wait
         self.on_wait = on_wait
         self.fd: int | None = None
@@ -72,6 +74,8 @@ class RunLock:
 
         try:
             os.ftruncate(self.fd, 0)
+            if self.remove:
+                self.path.unlink(missing_ok=True)
             fcntl.flock(self.fd, fcntl.LOCK_UN)
         finally:
             os.close(self.fd)

@@ -6,8 +6,13 @@
 * a run folder (``cache/``): every generated sample (``cache/generate/*/sample``) as above,
   and every cached task whose ``task.json`` records the sha256 of its outputs (a ``files``,
   ``outputs`` or ``sha256`` table of relative path -> sha256 or ``{"sha256": ...}``);
-* an exported dataset (``vvtbench export``: a Zarr folder or an HDF5 file): its format and
-  version, every sample's attributes, truth arrays and video readable, shapes as recorded.
+* an exported dataset (``vvtbench export``: a Zarr folder or an HDF5 file): every file
+  against the sha256 recorded at export (a Zarr folder's ``SHA256SUMS``: every chunk and
+  attribute file, none missing or extra; an HDF5 file's sha256 in its Croissant file), its
+  format and version, every sample's attributes, truth arrays and video readable, shapes as
+  recorded;
+* a run folder's results table is also re-scored: every score recomputed from the cached
+  estimate and truth (:func:`vvtbench.bench.rescore.rescore`).
 
 One line per problem on stdout, ``PATH: problem``; exit 0 when clean, 1 when problems were
 found, 2 when PATH is not one of the above.
@@ -122,11 +127,53 @@ def verify_run(path: Path, *, full: bool = True) -> Iterator[str]:
                 yield f"{p}: sha256 mismatch (recorded in {task_json.name})"
     if not samples and not any(cache.glob("*/*/task.json")):
         yield f"{path}: a run folder with no cached tasks"
+    if (path / "results.parquet").is_file():
+        from ..bench.rescore import rescore
+
+        yield from (f"{path / 'results.parquet'}: {p}" for p in rescore(path))
+
+
+def verify_dataset_files(path: Path) -> Iterator[str]:
+    """Every file of an exported dataset against the sha256 recorded at export: a Zarr
+    folder's ``SHA256SUMS`` (each chunk and attribute file; none missing, none extra), an HDF5
+    file's sha256 in its Croissant file."""
+    from ..dataset import sha256_file
+    from ..export import SUMS
+    from ..release import ReleaseError, read_sums, verify_copy
+
+    if path.is_dir():
+        if not (path / SUMS).is_file():
+            yield f"{path / SUMS}: missing (written by an older vvtbench, or deleted): the " \
+                  "dataset's files cannot be checked"
+            return
+        try:
+            expected = read_sums(path / SUMS)
+        except ReleaseError as error:
+            yield str(error)
+            return
+        yield from (f"{path / line}" for line in verify_copy(path, expected, exclude=(SUMS,)))
+        return
+    side = path.with_name(path.name + ".croissant.json")
+    try:
+        doc = json.loads(side.read_text())
+        recorded = next(d.get("sha256") for d in doc.get("distribution", [])
+                        if d.get("contentUrl") == path.name)
+    except (OSError, ValueError, StopIteration, AttributeError):
+        yield f"{side}: missing or unreadable: the file's sha256 cannot be checked"
+        return
+    if sha256_file(path) != recorded:
+        yield f"{path}: sha256 differs from the one recorded in {side.name} (changed or damaged)"
 
 
 def verify_dataset(path: Path) -> Iterator[str]:
-    """Problems of an exported dataset: format, version, every sample readable."""
+    """Problems of an exported dataset: every file's sha256, format, version, every sample
+    readable."""
     from ..packed import FORMAT_VERSION, ExportError, open_dataset
+
+    damaged = list(verify_dataset_files(path))
+    yield from damaged
+    if damaged:
+        return
 
     try:
         ds = open_dataset(path)
