@@ -247,3 +247,39 @@ def test_the_documented_training_example_runs(data, capsys):
     assert re.search(r"inputs\s+gamma\s+20x729x2", out)
     fit = re.search(r"(ridge fit on 3 instances: training residual|epoch 1: loss) (\S+)", out)
     assert fit is not None and np.isfinite(float(fit[2]))
+
+
+def test_cached_items_are_the_items_and_skip_the_observation(data, monkeypatch, tmp_path):
+    import vvtbench.observe
+
+    fresh = InstanceDataset(data / "train", "train", max_modes=16)
+    fresh_items = [fresh[i] for i in range(len(fresh))]
+    cached = InstanceDataset(data / "train", "train", max_modes=16, cache_items=True,
+                             cache_dir=tmp_path)
+    calls = []
+    real = vvtbench.observe.observe
+    monkeypatch.setattr(vvtbench.observe, "observe",
+                        lambda *a, **k: calls.append(1) or real(*a, **k))
+    first = [cached[i] for i in range(len(cached))]
+    assert len(calls) == N_TRAIN
+    second = [cached[i] for i in range(len(cached))]
+    assert len(calls) == N_TRAIN  # read from the cache
+    for i, want in enumerate(fresh_items):
+        for got in (first[i], second[i]):
+            assert {k: got[k] for k in want if k not in ("inputs", "targets")} == \
+                   {k: want[k] for k in want if k not in ("inputs", "targets")}
+            for k, v in _flat(want).items():
+                assert type(_flat(got)[k]) is type(v), k
+                np.testing.assert_array_equal(_flat(got)[k], v)
+    (item_file,) = (tmp_path / cached.names[0] / "items").glob("*.npz")
+    item_file.write_bytes(item_file.read_bytes()[:-8])  # damaged: observed again
+    cached[0]
+    assert len(calls) == N_TRAIN + 1
+    bare_ds = InstanceDataset(data / "train", "train", max_modes=16, cache_items=True,
+                              cache_dir=tmp_path, targets=False)
+    other = InstanceDataset(data / "train", "train", max_modes=12, cache_items=True,
+                            cache_dir=tmp_path)
+    before = len(calls)  # each dataset observed its first instance for its sizes
+    assert "targets" not in bare_ds[0] and len(calls) == before
+    other[0]  # other padded sizes: another item
+    assert len(calls) == before + 1

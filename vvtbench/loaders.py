@@ -29,6 +29,7 @@ opened lazily, once per process (keyed by ``os.getpid()``), so a handle is never
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -47,6 +48,8 @@ __all__ = ["FEATURES", "Feature", "InstanceDataset", "default_cache_dir", "extra
 
 #: Name of the folder (beside the samples or the dataset) that keeps extracted modes.
 EXTRACTED_DIR = ".vvtbench-extracted"
+#: Revision of the item layout (part of the key of cached items).
+ITEM_REVISION = 1
 
 
 @dataclass(frozen=True)
@@ -147,20 +150,22 @@ class InstanceDataset:
     options : further :class:`vvtbench.observe.ObserveOptions` fields (``inference_shape``,
         ``visibility``, ``extract``, ...); ``observation`` and ``n_modes`` are set from the
         arguments above.
-    cache_dir : where extracted modes are kept (default: a ``.vvtbench-extracted`` folder
-        beside the samples or the dataset).
+    cache_dir : where extracted modes (and cached items) are kept (default: a
+        ``.vvtbench-extracted`` folder beside the samples or the dataset).
+    cache_items : keep each finished item (inputs and targets) in ``cache_dir`` the first
+        time it is read, and read it from there later (a few milliseconds instead of the
+        sample's checks and its observation); keyed by the sample's manifest, the observe
+        options and the padded sizes, and checked against its sha256 on every read.
     """
 
     def __init__(self, path: str | Path, split: str | None = None, *,
                  observation: str = "true", max_modes: int = 20, targets: bool = True,
-                 n_modes: int | None = None, n_nodes: int | None = None,
-                 options: Mapping[str, Any] | None = None,
-                 cache_dir: str | Path | None = None) -> None:
+                 n_nodes: int | None = None, options: Mapping[str, Any] | None = None,
+                 cache_dir: str | Path | None = None, cache_items: bool = False) -> None:
         from .data import instance_info, instances, is_dataset
         from .observe import ObserveOptions
 
-        if n_modes is not None:
-            max_modes = n_modes
+        self.cache_items = bool(cache_items)
         self.path = Path(path)
         self.split = split
         self.targets = bool(targets)
@@ -200,12 +205,17 @@ class InstanceDataset:
         if not -n <= i < n:
             raise IndexError(f"index {i} out of range for {n} instances")
         name, folder, info = self._entries[int(i) % n]
-        source = self._source(name, folder)
-        layout = self.layout()
-        problem, truth = self._observe(name, source)
-        item: dict[str, Any] = {"inputs": _inputs(problem, source.camera, layout, name)}
-        if self.targets:
-            item["targets"] = _targets(problem, truth, layout)
+        item = self._cached_item(name, folder) if self.cache_items else None
+        if item is None:
+            source = self._source(name, folder)
+            problem, truth = self._observe(name, source)
+            layout = self.layout()
+            item = {"inputs": _inputs(problem, source.camera, layout, name),
+                    "targets": _targets(problem, truth, layout)}
+            if self.cache_items:
+                self._store_item(name, folder, item)
+        if not self.targets:
+            del item["targets"]
         split = info.get("split")
         item.update(split=str(split) if split is not None else "",
                     instance=name, family=str(info.get("family", "")),
@@ -309,6 +319,52 @@ class InstanceDataset:
 
     def _cache_for(self, name: str) -> Path:
         return self.cache_dir / name
+
+    def _item_file(self, name: str, folder: Path | None) -> Path:
+        from .io import jsonable
+
+        if folder is not None:
+            from .dataset import read_json
+
+            manifest = read_json(folder / "manifest.json")
+        else:
+            manifest = self._dataset()[name].manifest
+        opts = self.options.to_dict()
+        extraction = (extraction_key(self.options.extract)
+                      if self.observation == "extracted" else None)
+        text = json.dumps(jsonable({"manifest": manifest, "options": opts,
+                                    "extraction": extraction,
+                                    "layout": dataclasses.asdict(self.layout()),
+                                    "revision": ITEM_REVISION}), sort_keys=True, default=str)
+        key = hashlib.sha256(text.encode()).hexdigest()[:16]
+        return self._cache_for(name) / "items" / f"{key}.npz"
+
+    def _cached_item(self, name: str, folder: Path | None) -> dict[str, Any] | None:
+        path = self._item_file(name, folder)
+        try:
+            recorded = json.loads(path.with_suffix(".json").read_text()).get("sha256")
+        except (OSError, ValueError, AttributeError):
+            return None
+        if not path.is_file() or sha256_file(path) != recorded:
+            return None
+        item: dict[str, Any] = {"inputs": {}, "targets": {}}
+        with np.load(path, allow_pickle=False) as z:
+            for key in z.files:
+                part, _, feature = key.partition(".")
+                value = z[key]
+                item[part][feature] = value[()] if value.ndim == 0 else value
+        return item
+
+    def _store_item(self, name: str, folder: Path | None, item: dict[str, Any]) -> None:
+        from .io import write_json, write_npz
+
+        path = self._item_file(name, folder)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_npz(path, {f"{part}.{k}": np.asarray(v) for part in ("inputs", "targets")
+                         for k, v in item[part].items()}, compressed=False)
+        write_json(path.with_suffix(".json"), {"instance": name, "sha256": sha256_file(path),
+                                               "options": self.options.to_dict(),
+                                               "revision": ITEM_REVISION})
 
     @staticmethod
     def _observe_plain(source: Any, opts: Any):
