@@ -283,3 +283,19 @@ def test_cached_items_are_the_items_and_skip_the_observation(data, monkeypatch, 
     assert "targets" not in bare_ds[0] and len(calls) == before
     other[0]  # other padded sizes: another item
     assert len(calls) == before + 1
+
+
+def test_nodes_are_padded_to_a_stated_count_and_the_grid_follows_the_options(data):
+    ds = InstanceDataset(data / "train", "train", max_modes=8, n_nodes=800,
+                         options={"inference_shape": [4, 4, 4]})
+    x = ds[0]["inputs"]
+    assert x["gamma"].shape == (8, 800, 2) and x["active"].shape == (4, 4, 4)
+    assert x["node_mask"].tolist() == [True] * 125 + [False] * 675
+    assert not x["visible"][125:].any() and not x["gamma"][:, 125:].any()
+    assert not x["points"][125:].any() and x["points"][:125].max() > 0
+    assert InstanceDataset(data / "train", "train", options={"inference_shape": [4, 4, 4]}
+                           ).layout().nodes == 125
+    with pytest.raises(DatasetError, match=r"tinycube-train-00000: .*125 nodes, more than "
+                                           r"the 100 .*n_nodes >= 125"):
+        InstanceDataset(data / "train", "train", n_nodes=100,
+                        options={"inference_shape": [4, 4, 4]})[0]

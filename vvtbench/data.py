@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["instances", "is_dataset", "iter_instances", "instance_info"]
+__all__ = ["instances", "is_dataset", "iter_instances", "instance_info", "split_names"]
 
 SPLITS = ("train", "val", "test")
 _NAME = re.compile(r"^(?P<family>.+)-(?P<split>train|val|test)-(?P<index>\d+)$")
@@ -56,9 +56,7 @@ def instances(path: str | Path, split: str | None = None) -> Iterator[tuple[str,
         from .packed import open_dataset
 
         ds = open_dataset(path)
-        names = [n for n in ds.names
-                 if split is None or instance_info(n).get("split") == split]
-        for name in sorted(names, key=lambda n: _order(instance_info(n), n)):
+        for name in split_names(ds.names, split):
             yield name, ds[name]
         return
     from .export import find_samples
@@ -70,6 +68,15 @@ def instances(path: str | Path, split: str | None = None) -> Iterator[tuple[str,
             found.append((_order(info, folder.name), folder))
     for _, folder in sorted(found):
         yield folder.name, folder
+
+
+def split_names(names: list[str], split: str | None = None) -> list[str]:
+    """The names ``FAMILY-SPLIT-INDEX`` of an exported dataset that belong to ``split`` (all
+    if None), in family and index order."""
+    if split is not None and split not in SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)}; got {split!r}")
+    kept = [n for n in names if split is None or instance_info(n).get("split") == split]
+    return sorted(kept, key=lambda n: _order(instance_info(n), n))
 
 
 def _order(info: dict, name: str) -> tuple:

@@ -34,6 +34,7 @@ import hashlib
 import json
 import os
 import shutil
+import tomllib
 import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -162,7 +163,7 @@ class InstanceDataset:
                  observation: str = "true", max_modes: int = 20, targets: bool = True,
                  n_nodes: int | None = None, options: Mapping[str, Any] | None = None,
                  cache_dir: str | Path | None = None, cache_items: bool = False) -> None:
-        from .data import instance_info, instances, is_dataset
+        from .data import instance_info, instances, is_dataset, split_names
         from .observe import ObserveOptions
 
         self.cache_items = bool(cache_items)
@@ -179,11 +180,24 @@ class InstanceDataset:
         self.observation = self.options.observation
         self.n_nodes = None if n_nodes is None else int(n_nodes)
         self.packed = is_dataset(self.path)
-        entries = []
-        for name, source in instances(self.path, split):  # opens and closes a dataset
-            info = instance_info(name, None if self.packed else source)
-            entries.append((name, None if self.packed else Path(source), info))
+        entries, sizes = [], []
+        if self.packed:
+            from .packed import open_dataset
+
+            with open_dataset(self.path) as ds:  # closed before any worker forks
+                for name in split_names(ds.names, split):
+                    attrs = ds.root["samples"][name].attrs
+                    entries.append((name, None, instance_info(name)))
+                    sizes.append(self._inference_nodes(json.loads(_text(attrs["truth"])),
+                                                       tomllib.loads(_text(attrs["scene_toml"]))))
+        else:
+            for name, folder in instances(self.path, split):
+                entries.append((name, Path(folder), instance_info(name, folder)))
+                sizes.append(self._inference_nodes(
+                    json.loads((folder / "truth.json").read_text()),
+                    tomllib.loads((folder / "scene.toml").read_text())))
         self._entries = entries
+        self._max_nodes = max(sizes, default=0)
         self.cache_dir = Path(default_cache_dir(self.path) if cache_dir is None else cache_dir)
         self._handles: dict[int, Any] = {}
         self._layout: _Layout | None = None
@@ -252,7 +266,8 @@ class InstanceDataset:
 
             with open_dataset(self.path) as ds:  # closed before any worker forks
                 problem, _ = self._observe_plain(ds[name], opts)
-        nodes = problem.mesh.n_nodes if self.n_nodes is None else self.n_nodes
+        nodes = max(problem.mesh.n_nodes, self._max_nodes) if self.n_nodes is None \
+            else self.n_nodes
         return _Layout(self.max_modes, nodes, problem.mesh.dofs_per_node,
                        problem.mesh.points.shape[1],
                        tuple(int(s) for s in problem.voxel_map.grid.shape))
@@ -316,6 +331,14 @@ class InstanceDataset:
             if folder is not None:
                 opts = opts.replace(modes=(str(folder),))
         return self._observe_plain(source, opts)
+
+    def _inference_nodes(self, info: dict, scene: dict) -> int:
+        """Nodes of an instance's inference mesh, from its truth.json and scene: a box's mesh
+        is built on the inference grid, any other body's is its simulation mesh."""
+        if scene.get("geometry", {}).get("kind") != "box":
+            return int(info["mesh"]["n_nodes"])
+        shape = np.asarray(self.options.inference_shape or (8, 8, 8))
+        return int(np.prod(self.options.inference_order * shape + 1))
 
     def _cache_for(self, name: str) -> Path:
         return self.cache_dir / name
@@ -385,6 +408,10 @@ def default_cache_dir(path: str | Path) -> Path:
     if (path / "truth.json").is_file() and (path / "manifest.json").is_file():
         return path.parent / EXTRACTED_DIR
     return path / EXTRACTED_DIR
+
+
+def _text(value: Any) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def _array(source: Any, name: str) -> np.ndarray:
