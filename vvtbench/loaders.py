@@ -146,8 +146,8 @@ class InstanceDataset:
     max_modes : the mode count K every item is padded to (the lowest ``max_modes`` modes are
         observed; an instance with fewer has them masked).
     targets : include the truth (``item["targets"]``); False for inputs only.
-    n_nodes : the node count N every item is padded to (default: that of the first instance's
-        inference mesh; an instance with more nodes is an error).
+    n_nodes : the node count N every item is padded to (default: the largest inference mesh
+        of the split; give every split of a family the same value when its meshes vary).
     options : further :class:`vvtbench.observe.ObserveOptions` fields (``inference_shape``,
         ``visibility``, ``extract``, ...); ``observation`` and ``n_modes`` are set from the
         arguments above.
@@ -188,19 +188,19 @@ class InstanceDataset:
                 for name in split_names(ds.names, split):
                     attrs = ds.root["samples"][name].attrs
                     entries.append((name, None, instance_info(name)))
-                    sizes.append(self._inference_nodes(json.loads(_text(attrs["truth"])),
-                                                       tomllib.loads(_text(attrs["scene_toml"]))))
+                    sizes.append(self._inference_nodes(
+                        json.loads(_text(attrs["truth"])),
+                        tomllib.loads(_text(attrs["scene_toml"])), f"{self.path}:{name}"))
         else:
             for name, folder in instances(self.path, split):
                 entries.append((name, Path(folder), instance_info(name, folder)))
                 sizes.append(self._inference_nodes(
                     json.loads((folder / "truth.json").read_text()),
-                    tomllib.loads((folder / "scene.toml").read_text())))
+                    tomllib.loads((folder / "scene.toml").read_text()), str(folder)))
         self._entries = entries
         self._max_nodes = max(sizes, default=0)
         self.cache_dir = Path(default_cache_dir(self.path) if cache_dir is None else cache_dir)
         self._handles: dict[int, Any] = {}
-        self._layout: _Layout | None = None
         self._layout = self._first_layout()
 
     # ---------------------------------------------------------------- map-style protocol
@@ -243,10 +243,7 @@ class InstanceDataset:
 
     # ---------------------------------------------------------------- the feature spec
     def layout(self) -> _Layout:
-        """The padded sizes (modes, nodes, DOFs per node, coordinates, voxel grid), from the
-        first instance's inference model."""
-        if self._layout is None:
-            self._layout = self._first_layout()
+        """The padded sizes: modes, nodes, DOFs per node, coordinates per node, voxel grid."""
         return self._layout
 
     def _first_layout(self) -> _Layout:
@@ -286,12 +283,12 @@ class InstanceDataset:
         rows += [(f.part, f.name, "x".join(map(str, f.shape)) or "scalar", f.dtype,
                   f.units or "-") for f in self.features()]
         widths = [max(len(r[i]) for r in rows) for i in range(5)]
+        lines = ["  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip()
+                 for r in rows]
         head = (f"{len(self)} instances of {self.path.name} (split {self.split or 'all'}, "
                 f"observation {self.observation}); every item also has split, instance, "
                 "family, index")
-        return "\n".join([head, *("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True))
-                                  .rstrip()
-                                  for r in rows)])
+        return "\n".join([head, *lines])
 
     def __repr__(self) -> str:
         return (f"InstanceDataset({str(self.path)!r}, split={self.split!r}, "
@@ -332,11 +329,15 @@ class InstanceDataset:
                 opts = opts.replace(modes=(str(folder),))
         return self._observe_plain(source, opts)
 
-    def _inference_nodes(self, info: dict, scene: dict) -> int:
+    def _inference_nodes(self, info: dict, scene: dict, where: str) -> int:
         """Nodes of an instance's inference mesh, from its truth.json and scene: a box's mesh
         is built on the inference grid, any other body's is its simulation mesh."""
         if scene.get("geometry", {}).get("kind") != "box":
-            return int(info["mesh"]["n_nodes"])
+            n = (info.get("mesh") or {}).get("n_nodes")
+            if not isinstance(n, int):
+                raise DatasetError(f"{where}: truth.json has no mesh.n_nodes; regenerate the "
+                                   "sample with this vvtbench")
+            return n
         shape = np.asarray(self.options.inference_shape or (8, 8, 8))
         return int(np.prod(self.options.inference_order * shape + 1))
 
