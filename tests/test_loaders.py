@@ -212,6 +212,13 @@ def test_extracted_modes_are_computed_once(data, monkeypatch):
         pairs = list(iter_instances(data / "video", "val", observation="extracted",
                                     n_modes=8))
     assert len(calls) == 1 and pairs[0][0].n_modes == n
+    assert main(["export", str(data / "video"), "-o", str(data / "video.zarr")]) == 0
+    for _ in range(2):  # from the packed video's frames, once
+        packed = InstanceDataset(data / "video.zarr", "val", observation="extracted",
+                                 max_modes=8)[0]
+        assert len(calls) == 2
+        for k, v in _flat(first).items():
+            np.testing.assert_array_equal(_flat(packed)[k], v)
 
     cached = data / "video" / ".vvtbench-extracted" / ds.names[0]
     (folder,) = cached.iterdir()
@@ -222,11 +229,11 @@ def test_extracted_modes_are_computed_once(data, monkeypatch):
     npz = folder / "modes.npz"
     npz.write_bytes(npz.read_bytes()[:-10])  # damaged: extracted again, not trusted
     ds[0]
-    assert len(calls) == 2
+    assert len(calls) == 3
     other = InstanceDataset(data / "video", "val", observation="extracted", max_modes=8,
                             options={"extract": {"prominence": 0.7}})
     other[0]
-    assert len(calls) == 3 and len(list(cached.iterdir())) == 2
+    assert len(calls) == 4 and len(list(cached.iterdir())) == 2
 
 
 def test_extracted_without_video_is_one_clear_error(data):
