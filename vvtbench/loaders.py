@@ -95,7 +95,7 @@ FEATURES: tuple[Feature, ...] = (
             "node coordinates of the inference mesh (lowest corner at the origin)"),
     Feature("jacobian", "inputs", ("N", 2, "d"), "float32", "px/m",
             "camera Jacobian of each visible node: image motion per unit displacement of its "
-            "DOFs (gamma = jacobian @ u); 0 at hidden and fixed nodes"),
+            "DOFs (gamma is jacobian @ u scaled to unit norm); 0 at hidden and fixed nodes"),
     Feature("camera_K", "inputs", (3, 3), "float32", "px", "camera intrinsics"),
     Feature("camera_R", "inputs", (3, 3), "float32", "1", "camera rotation (world to camera)"),
     Feature("camera_t", "inputs", (3,), "float32", "m", "camera translation (world to camera)"),
