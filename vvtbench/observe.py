@@ -71,7 +71,19 @@ class ObserveOptions:
         extracted here.
     modes : extracted mode sets to use instead of extracting: ModeSet objects or folders
         written by ``vvtbench extract`` (several views of the object are merged).
-    merge_freq_tol, merge_min_mac : merging tolerances for several views.
+    merge_freq_tol, merge_min_mac : merging tolerances for several videos of one view.
+    views : number of synchronised cameras (1: the sample's own). With ``views > 1`` the
+        sample's camera is turned about the scene's up axis through the object's centre in
+        ``view_spread_deg / views`` steps (a ring of identical cameras; 360 puts 2 views on
+        opposite sides), each sees its own visible vertices (its own rasterized rest depth),
+        and the observation operator stacks the views: ``P = [P_1; P_2; ...]``, every mode
+        one vector over all views' rows, normalized once. A vertex seen by two views
+        contributes both views' rows: its 3-D motion is then observed along up to three
+        directions instead of two; every row has the same weight (the image noise is the same
+        per pixel in every view). ``problem.meta["observed_dof_fraction"]`` is the rank of
+        ``P`` over the free DOFs. True modes only: extracting modes from several videos is not
+        built yet.
+    view_spread_deg : degrees the ring of cameras spans (360: all around).
     clicks : a clicks file (vertex index of the inference mesh, u, v; see docs/modes.md):
         the camera is estimated from it (DLT + refinement) instead of taken from the sample.
     """
@@ -90,6 +102,8 @@ class ObserveOptions:
     modes: tuple = ()
     merge_freq_tol: float = 0.02
     merge_min_mac: float = 0.8
+    views: int = 1
+    view_spread_deg: float = 360.0
     clicks: str | None = None
 
     def __post_init__(self) -> None:
@@ -120,6 +134,16 @@ class ObserveOptions:
         for key in ("w0", "v0", "w_mean"):
             if getattr(self, key) is not None:
                 _number(key, getattr(self, key), 0.0)
+        _integer("views", self.views, 1, 16)
+        spread = _number("view_spread_deg", self.view_spread_deg, 0.0)
+        if spread > 360.0:
+            raise ObserveError(f"view_spread_deg must be in (0, 360], got {spread}")
+        if self.views > 1 and self.observation != "true":
+            raise ObserveError("views > 1 needs observation 'true': extracting modes jointly "
+                               "from several videos is not built yet")
+        if self.views > 1 and self.clicks is not None:
+            raise ObserveError("views > 1 with clicks is not built yet (one clicks file "
+                               "calibrates one camera)")
         _number("merge_freq_tol", self.merge_freq_tol, 0.0)
         if not 0.0 <= float(self.merge_min_mac) <= 1.0:
             raise ObserveError(f"merge_min_mac must be in [0, 1], got {self.merge_min_mac}")
@@ -431,6 +455,98 @@ def _true_modes(rec: _Record, model: ParametricModel, scale: np.ndarray, k: int)
     return at_nodes
 
 
+def _observed_views(rec: _Record, model: ParametricModel, opts: ObserveOptions,
+                    scale: np.ndarray):
+    """:func:`_observed_view` of every camera of the rig, stacked (one view: the sample's)."""
+    import scipy.sparse as sp
+
+    if opts.views == 1:
+        camera, visible, P, meta = _observed_view(rec, model, opts, scale)
+    else:
+        parts = [_observed_view(view, model, opts, scale)
+                 for view in _ring_records(rec, opts.views, opts.view_spread_deg)]
+        camera = parts[0][0]
+        visible = np.concatenate([p[1] for p in parts])
+        P = sp.vstack([p[2] for p in parts]).tocsr()
+        meta = {**parts[0][3], "views": opts.views, "view_spread_deg": opts.view_spread_deg,
+                "cameras": [p[3]["camera"] for p in parts],
+                "n_visible_per_view": [int(len(p[1])) for p in parts]}
+    meta["observed_dof_fraction"] = observed_dof_fraction(P, model)
+    return camera, visible, P, meta
+
+
+def _ring_records(rec: _Record, n: int, spread_deg: float) -> list[_Record]:
+    """The record seen by ``n`` cameras: its own turned about the scene's up axis through the
+    centre of the object's bounding box, each with its own rasterized rest depth."""
+    from dataclasses import replace
+
+    from .render.raster import rasterize
+
+    mesh = rec.mesh
+    nodes = mesh.surface_nodes
+    lut = np.full(mesh.n_nodes, -1, dtype=np.int64)
+    lut[nodes] = np.arange(len(nodes))
+    centre = 0.5 * (mesh.points.min(axis=0) + mesh.points.max(axis=0))
+    axis = np.asarray(getattr(rec.scene.camera, "up", (0.0, 0.0, 1.0)), dtype=float)
+    if mesh.points.shape[1] == 2:  # a drum head lies in z = 0: turn about its normal
+        axis = np.array([0.0, 0.0, 1.0])
+    out = []
+    for i in range(n):
+        camera = turned_camera(rec.camera, np.radians(spread_deg * i / n), axis, centre)
+        depth = rasterize(camera, _points3(mesh.points[nodes]), lut[mesh.surface]).depth
+        out.append(replace(rec, camera=camera, depth=depth))
+    return out
+
+
+def _points3(points: np.ndarray) -> np.ndarray:
+    return points if points.shape[1] == 3 else np.column_stack([points,
+                                                                np.zeros(len(points))])
+
+
+def turned_camera(camera, angle: float, axis: np.ndarray, centre: np.ndarray):
+    """``camera`` carried around the object: turned by ``angle`` (radians) about ``axis``
+    through ``centre`` (the same intrinsics; it keeps looking at the same point of the object
+    turned with it).
+
+    >>> from vvtbench.render import Camera
+    >>> cam = Camera.look_at((1.0, 0, 0), (0, 0, 0), fx=100.0, width=64, height=64)
+    >>> back = turned_camera(cam, np.pi, np.array([0, 0, 1.0]), np.zeros(3))
+    >>> back.project([0.0, 0.0, 0.0]).round(6).tolist(), (-back.R.T @ back.t).round(6).tolist()
+    ([31.5, 31.5], [-1.0, 0.0, 0.0])
+    """
+    from scipy.spatial.transform import Rotation
+
+    from .render import Camera
+
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    Q = Rotation.from_rotvec(angle * axis).as_matrix()
+    R = camera.R @ Q.T
+    t = camera.t + camera.R @ centre - R @ centre
+    return Camera(camera.K, R, t, camera.width, camera.height)
+
+
+def observed_dof_fraction(P, model: ParametricModel) -> float:
+    """The fraction of the inference model's free DOFs the observation operator sees: the rank
+    of ``P`` over ``n_free`` (each row moves one vertex: the rank is the sum over vertices of
+    the rank of their rows; a vertex seen in one view has rank 2 for a solid, one seen from
+    two directions 3)."""
+    import scipy.sparse as sp
+
+    P = sp.csr_matrix(P)
+    d = model.mesh.dofs_per_node
+    node_of_col = np.asarray(model.free_dofs) // d
+    coo = P.tocoo()
+    rows_by_node: dict[int, set[int]] = {}
+    for r, c in zip(coo.row, coo.col, strict=True):
+        rows_by_node.setdefault(int(node_of_col[c]), set()).add(int(r))
+    rank = 0
+    for node, rows in rows_by_node.items():
+        cols = np.flatnonzero(node_of_col == node)
+        block = P[sorted(rows)][:, cols].toarray()
+        rank += int(np.linalg.matrix_rank(block))
+    return rank / max(1, model.n_free)
+
+
 def _observed_view(rec: _Record, model: ParametricModel, opts: ObserveOptions,
                    scale: np.ndarray):
     """(camera, visible nodes, P, camera meta) of the inference mesh seen in the video."""
@@ -473,7 +589,7 @@ def _observe_record(rec: _Record, opts: ObserveOptions) -> tuple[InverseProblem,
                            f"{n_true} (simulation.n_modes)")
     k = n_true if opts.observation == "extracted" else opts.n_modes
     model = _inference_model(rec, opts, scale)
-    camera, visible, P, cam_meta = _observed_view(rec, model, opts, scale)
+    camera, visible, P, cam_meta = _observed_views(rec, model, opts, scale)
     U = _true_modes(rec, model, scale, k).reshape(-1, k)[model.free_dofs]
     gamma = (P @ U).T
     norms = np.linalg.norm(gamma, axis=1)

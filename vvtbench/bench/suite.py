@@ -87,6 +87,10 @@ class InferenceOptions(_Strict):
     w_mean: PositiveNumber | None = Field(None, description="a number > 0 (Pa)")
     visibility: Literal["depth", "normals"] | None = Field(
         None, description="'depth' (rest depth buffer) or 'normals' (facing the camera)")
+    views: Annotated[int, Field(ge=1, le=16)] | None = Field(
+        None, description="an integer in 1..16 (cameras on a ring around the object)")
+    view_spread_deg: Annotated[float, Field(gt=0, le=360, allow_inf_nan=False)] | None = Field(
+        None, description="a number in (0, 360] (degrees the ring of cameras spans)")
 
 
 class ExtractOptions(_Strict):
