@@ -40,10 +40,11 @@ import numpy as np
 
 from ._version import __version__
 from .export_card import croissant, dataset_card, sample_revision
+from .io import NoSpaceError, check_free_space, is_disk_full, open_new
 from .packed import FORMAT, FORMAT_VERSION, MODESET_ARRAYS, VIDEO_CHUNK, ExportError
 
-__all__ = ["ExportError", "check_output", "find_extracted", "find_samples", "is_packed_dataset",
-           "pack", "verify_sample"]
+__all__ = ["ExportError", "check_output", "estimate_bytes", "find_extracted", "find_samples",
+           "is_packed_dataset", "pack", "verify_sample"]
 
 #: Files a Zarr dataset folder written by :func:`pack` holds at its top level.
 _ZARR_TOP = {"zarr.json", "samples", "README.md", "croissant.json", "SHA256SUMS"}
@@ -117,6 +118,51 @@ def _names(samples: list[Path]) -> list[str]:
             name = f"{base}-{sample_revision(s)[:8]}"
         names.append(name)
     return names
+
+
+# --------------------------------------------------------------------------- size
+def _tree_bytes(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()
+               and not p.is_symlink())
+
+
+def _raw_bytes(sample: Path, mode_dirs: list[Path]) -> int:
+    """The uncompressed size of everything packed for ``sample`` (an upper bound of its packed
+    size: the compressors never grow a chunk by more than a few bytes)."""
+    import zarr
+
+    from .dataset import open_sample
+
+    s = open_sample(sample, verify=False)
+    total = 0
+    if s.has_video:
+        pixel = 2 if s.info["video"]["pixel_format"] == "gray16le" else 1
+        total += s.n_frames * s.shape[0] * s.shape[1] * pixel
+    total += sum(int(np.prod(a.shape)) * a.dtype.itemsize
+                 for _, a in _walk_zarr(zarr.open_group(str(sample / "truth.zarr"), mode="r")))
+    for d in mode_dirs:
+        with np.load(d / "modes.npz", allow_pickle=False) as z:
+            total += sum(z[k].nbytes for k in z.files)
+        total += (d / "modes.json").stat().st_size
+    return total + sum((sample / f).stat().st_size for f in
+                       ("scene.toml", "truth.json", "camera.json", "manifest.json"))
+
+
+def estimate_bytes(samples: list[Path], extracted: dict[Path, list[Path]], fmt: str) -> int:
+    """Bytes the export of ``samples`` needs free at its output.
+
+    HDF5: the uncompressed size of every array and attribute (an upper bound: the HDF5
+    library must never meet a full disk in the middle of a file, which it does not survive).
+    Zarr: the size of the input files (the lossless video and truth.zarr compress the same
+    data about as well as the export does), since a full disk met while writing a Zarr
+    folder is caught and the partial folder removed.
+    """
+    if fmt == "hdf5":
+        body = sum(_raw_bytes(s, extracted.get(s, [])) for s in samples)
+    else:
+        body = sum(_tree_bytes(s) + sum(_tree_bytes(d) for d in extracted.get(s, []))
+                   for s in samples)
+    return int(body * 1.05) + (1 << 20) * (1 + len(samples))
 
 
 # --------------------------------------------------------------------------- output safety
@@ -568,6 +614,11 @@ def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = 
             raise ExportError(f"{p}: a temporary path of this export already exists; remove "
                               "it (left by an interrupted export)")
     out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        check_free_space(out.parent, estimate_bytes(samples, extracted, fmt),
+                         f"the {fmt} export of {len(samples)} sample(s)")
+    except NoSpaceError as error:
+        raise ExportError(str(error)) from None
     from .bench.lock import RunLock, RunLocked
 
     try:  # one writer per output: a second export to the same path is refused
@@ -578,6 +629,12 @@ def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = 
         _check_replaceable(out, fmt, overwrite)
         return _pack_locked(samples, out, fmt, source, names, card, partial, side, side_tmp,
                             extracted)
+    except OSError as error:
+        if not is_disk_full(error):
+            raise
+        raise ExportError(f"{out}: the disk holding {out.parent} became full while writing "
+                          f"({error.strerror or error}); nothing was written (the partial "
+                          "output is removed); free some space and export again") from None
     finally:
         lock.release()
 
@@ -621,8 +678,8 @@ def _pack_locked(samples, out, fmt, source, names, card, partial, side, side_tmp
         meta = croissant(out.stem, out, fmt, partial, names, source or "samples")
         for key, text in (("readme", card), ("croissant", json.dumps(meta, indent=2) + "\n")):
             p = side_tmp[key]
-            with open(p, "x", encoding="utf-8") as f:  # exclusive: never through a link
-                f.write(text)
+            with open_new(p) as f:  # exclusive: never through a link
+                f.write(text.encode())
             created.append(p)
         if fmt == "zarr":  # every chunk's sha256: verify checks them, --overwrite trusts them
             from .release import file_sums, write_sums

@@ -2,15 +2,54 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 import uuid
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["jsonable", "open_new", "write_bytes", "write_json", "write_npz", "write_text"]
+__all__ = ["NoSpaceError", "check_free_space", "is_disk_full", "jsonable", "open_new",
+           "write_bytes", "write_json", "write_npz", "write_text"]
+
+
+class NoSpaceError(OSError):
+    """A folder's file system lacks the free space a write needs (``errno`` is ENOSPC)."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+def is_disk_full(error: BaseException) -> bool:
+    """True for an ``OSError`` of a full disk or an exhausted quota (ENOSPC, EDQUOT)."""
+    return isinstance(error, OSError) and error.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
+def check_free_space(folder: str | Path, needed: int, what: str = "the output") -> None:
+    """Raise :class:`NoSpaceError` (one line naming ``folder`` and the bytes) when the file
+    system holding ``folder`` (or its nearest existing parent) has less than ``needed``
+    bytes free."""
+    folder = Path(folder)
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if free < needed:
+        raise NoSpaceError(errno.ENOSPC,
+                           f"{folder}: not enough free space for {what}: needs about "
+                           f"{needed:,} bytes ({_human(needed)}), {free:,} bytes "
+                           f"({_human(free)}) free; free some space or choose another folder")
+
+
+def _human(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
 
 
 def jsonable(x: Any) -> Any:
