@@ -357,3 +357,18 @@ def test_solve_leaves_nothing_half_written_on_a_full_disk(tmp_path, monkeypatch,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "No space left on device" in err[0] and str(out) in err[0]
     assert list(out.iterdir()) == []
+
+
+def test_a_file_the_config_names_is_shown_to_the_child_where_it_names_it(tmp_path,
+                                                                        monkeypatch):
+    from solvers.learned import weights_path
+
+    from vvtbench.dataset import sha256_file
+    from vvtbench.sealed import describe_sealed
+
+    shutil.copy(weights_path("cube_defects"), tmp_path / "w.npz")
+    monkeypatch.chdir(tmp_path)
+    for given in ("w.npz", str(tmp_path / "w.npz")):
+        d = describe_sealed("solver", "learned", {"weights": given})
+        assert sha256_file(tmp_path / "w.npz") in json.dumps(d["inputs"]), d["inputs"]
+        assert d["config"]["weights"] == given

@@ -113,7 +113,7 @@ def _inside(path: Path, root: Path) -> bool:
 
 
 def _bwrap_argv(work: Path, inputs: Mapping[str, Path], extra_ro: Sequence[Path],
-                secrets: Sequence[Path]) -> list[str]:
+                secrets: Sequence[Path], files: Mapping[str, Path] = {}) -> list[str]:
     argv = [shutil.which("bwrap") or "bwrap", "--unshare-all", "--die-with-parent",
             "--new-session", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp"]
     for p in _SYSTEM:
@@ -141,13 +141,35 @@ def _bwrap_argv(work: Path, inputs: Mapping[str, Path], extra_ro: Sequence[Path]
              str(work / "out"), "--ro-bind", str(work / "spec.json"), str(work / "spec.json")]
     for name, src in inputs.items():
         argv += ["--ro-bind", str(Path(src).resolve()), str(work / "in" / name)]
+    for name, src in files.items():  # files the plug-in's config names, where it names them
+        argv += ["--ro-bind", str(Path(src).resolve()), str(work / name)]
     return argv + ["--chdir", str(work), "--"]
 
 
-def _link_inputs(work: Path, inputs: Mapping[str, Path]) -> None:
+def config_files(config: Mapping[str, Any] | None) -> dict[str, Path]:
+    """The files a plug-in's config names (a string value that is an existing file, e.g.
+    learned weights), to show the sealed child read-only where the config names them: an
+    absolute path at itself, a relative one under the child's working folder."""
+    out = {}
+    for value in (config or {}).values():
+        if not isinstance(value, str) or not value or "\0" in value:
+            continue
+        path = Path(value)
+        if not path.is_file():
+            continue
+        if path.is_absolute():
+            out[str(path)] = path
+        elif ".." not in path.parts:
+            out[path.as_posix()] = path.resolve()
+    return out
+
+
+def _link_inputs(work: Path, inputs: Mapping[str, Path], files: Mapping[str, Path] = {}
+                 ) -> None:
     """Unsandboxed: the inputs appear under ``in/`` as hard links or copies (never as links
-    that name the cache)."""
-    for name, src in inputs.items():
+    that name the cache), and the relative files a config names under the working folder."""
+    named = {f"../{k}": v for k, v in files.items() if not Path(k).is_absolute()}
+    for name, src in {**inputs, **named}.items():
         dst = work / "in" / name
         dst.parent.mkdir(parents=True, exist_ok=True)
         src = Path(src)
@@ -241,7 +263,8 @@ def _reap_escaped(before: set[int]) -> None:
 def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
                secrets: Sequence[Path] = (), extra_ro: Sequence[Path] = (),
                timeout: float | None = DEFAULT_TIMEOUT, memory_bytes: int | None = None,
-               threads: int | None = None, accept: Sequence[str] | None = None) -> dict:
+               threads: int | None = None, accept: Sequence[str] | None = None,
+               files: Mapping[str, Path] = {}) -> dict:
     """Run the child job ``spec`` (``{"job": "solve"|"extract"|"describe", ...}``) sealed.
 
     ``inputs``: name -> file or folder shown read-only as ``in/<name>``; ``dest``: the folder
@@ -265,9 +288,9 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
                 else:
                     target.parent.mkdir(parents=True, exist_ok=True)
                     target.touch()
-            cmd = _bwrap_argv(work, inputs, extra_ro, secrets) + cmd
+            cmd = _bwrap_argv(work, inputs, extra_ro, secrets, files) + cmd
         else:
-            _link_inputs(work, inputs)
+            _link_inputs(work, inputs, files)
         reaper = kind == "none" and _become_subreaper()
         before = set(_children_of(os.getpid())) if reaper else set()
         log_path = work / "log.txt"
@@ -436,6 +459,7 @@ def solve_sealed(target: str, config: Mapping[str, Any] | None, problem, *, trut
         result = run_sealed({"job": "solve", "target": _target(target),
                              "config": dict(config or {}), "reference": reference},
                             inputs, keep, secrets=[*secrets, tmp], extra_ro=_extra(target),
+                            files=config_files(config),
                             timeout=timeout, memory_bytes=memory_bytes, threads=threads,
                             accept=("estimate.npz", "estimate.json"))
         estimate = Estimate.load(keep, problem)
@@ -476,6 +500,12 @@ def _jsonable_options(options: Mapping[str, Any]) -> dict:
 _DESCRIBED: dict[str, dict] = {}
 
 
+def forget_descriptions() -> None:
+    """Describe every plug-in afresh from now on (a run does this first: a file its config
+    names, such as learned weights, may have been replaced since)."""
+    _DESCRIBED.clear()
+
+
 def describe_sealed(kind: str, target: str, config: Mapping[str, Any] | None = None, *,
                     timeout: float | None = 600.0, secrets: Sequence[Path] = ()) -> dict:
     """Import the ``kind`` (``solver`` or ``extractor``) plug-in ``target`` in a sealed child
@@ -485,14 +515,16 @@ def describe_sealed(kind: str, target: str, config: Mapping[str, Any] | None = N
     raises :class:`vvtbench.plugins.PluginError` with the child's one-line message."""
     from .plugins import PluginError
 
-    key = json.dumps([kind, _target(target), _mtime(target), dict(config or {})],
+    named = {k: os.stat(v).st_mtime_ns for k, v in config_files(config).items()}
+    key = json.dumps([kind, _target(target), _mtime(target), dict(config or {}), named],
                      sort_keys=True, default=str)
     if key not in _DESCRIBED:
         try:
             _DESCRIBED[key] = run_sealed(
                 {"job": "describe", "kind": kind, "target": _target(target),
                  "config": dict(config or {})}, {}, None, secrets=secrets,
-                extra_ro=_extra(target), timeout=timeout, memory_bytes=None)
+                extra_ro=_extra(target), timeout=timeout, memory_bytes=None,
+                files=config_files(config))
         except SealedError as error:
             if error.kind == "error" and error.args[0].startswith("PluginError: "):
                 raise PluginError(error.args[0].removeprefix("PluginError: ")) from None

@@ -199,6 +199,9 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
     for k, v in (solver_config or {}).items():
         cfgs[k] = {**cfgs.get(k, {}), **v}
     solver_info: dict = {}
+    from ..sealed import forget_descriptions
+
+    forget_descriptions()
     # a plug-in whose import hangs becomes an error row within the suite's time limit
     limit = timeout if timeout is not None else suite.timeout
     describe_timeout = min(float(limit), 600.0) if limit else 600.0
