@@ -362,7 +362,6 @@ def test_solve_leaves_nothing_half_written_on_a_full_disk(tmp_path, monkeypatch,
 def test_a_file_the_config_names_is_shown_to_the_child_where_it_names_it(tmp_path,
                                                                         monkeypatch):
     from solvers.learned import weights_path
-
     from vvtbench.dataset import sha256_file
     from vvtbench.sealed import describe_sealed
 
