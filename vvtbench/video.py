@@ -153,6 +153,8 @@ class VideoInfo:
         bare stream or an image sequence, whose rate ffmpeg only assumes).
     capture_rate : the ``CAPTURE_FPS`` stream tag (videos written by vvtbench), or None.
     duration : container duration (s), or None.
+    frame_count : exact frame count stated by a camera file's header, or None.
+    bits : significant bits per sample of a camera file, or None.
     """
 
     path: Path
@@ -163,6 +165,8 @@ class VideoInfo:
     container_rate: Fraction | None
     capture_rate: Fraction | None
     duration: float | None
+    frame_count: int | None = None
+    bits: int | None = None
 
     @property
     def frame_rate(self) -> Fraction | None:
@@ -178,7 +182,9 @@ class VideoInfo:
     def n_frames(self) -> int | None:
         """Frame count estimated from duration x container rate: ffmpeg prints the duration
         to 10 ms, so at high frame rates this may be off by a few frames (count_frames is
-        exact)."""
+        exact). A camera file's header states it exactly."""
+        if self.frame_count is not None:
+            return self.frame_count
         if self.duration and self.container_rate:
             return int(round(self.duration * float(self.container_rate)))
         return None
@@ -203,8 +209,19 @@ def probe_video(path: str | Path) -> VideoInfo:
     """Size, pixel format, codec and exact frame rate of the first video stream of ``path``.
 
     Runs ffmpeg once, decoding one frame (``-vf showinfo``). Raises :class:`VideoError`
-    when the file has no decodable video stream.
+    when the file has no decodable video stream.  Image sequences (a folder, a glob, a printf
+    pattern), Photron, Phantom and ``.npy`` files are described from their headers
+    (:mod:`vvtbench.field.readers`): ``codec`` is the reader's kind, ``frame_count`` and
+    ``bits`` are set.
     """
+    from .field.readers import is_camera_source, open_camera_file
+
+    if is_camera_source(path):
+        cam = open_camera_file(path)
+        pix = "gray" if cam.bits is not None and cam.bits <= 8 else "gray16le"
+        return VideoInfo(Path(str(path)), cam.width, cam.height, pix, cam.kind, cam.fps, None,
+                         cam.n_frames / float(cam.fps) if cam.fps else None, cam.n_frames,
+                         cam.bits)
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video file not found: {path}")
@@ -582,12 +599,81 @@ def _limit(frames: Iterable[NDArray], n: int | None) -> Iterator[NDArray]:
 
 
 
-def _file_frames(path: Path) -> tuple[Iterator[NDArray[np.float32]], VideoInfo, dict[str, Any]]:
+#: codecs that keep every sample: no compression artefacts, no keyframe comb
+LOSSLESS_CODECS = frozenset({
+    "ffv1", "ffvhuff", "huffyuv", "rawvideo", "png", "apng", "utvideo", "magicyuv", "tiff",
+    "qtrle", "v210", "v410", "r210", "zlib", "zmbv", "flashsv", "lagarith", "fits", "bmp",
+    "pgm", "pam", "qoi", "sgi", "targa", "dpx", "exr", "jpegls", "jpeg2000-lossless",
+})
+#: frames decoded to find the keyframes of a lossy video
+KEYFRAME_PROBE_FRAMES = 600
+
+
+def keyframe_positions(path: str | Path, *, max_frames: int = KEYFRAME_PROBE_FRAMES) -> tuple[
+        list[int], int]:
+    """Indices of the keyframes among the first ``max_frames`` frames of ``path`` and the
+    number of frames looked at (decoded once through ffmpeg's ``showinfo``: ``iskey``)."""
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-nostats", "-v", "info", "-i",
+           f"file:{path}", "-map", "0:v:0", "-frames:v", str(int(max_frames)),
+           "-fps_mode", "passthrough", "-vf", "showinfo", "-f", "null", "-"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    keys, seen = [], 0
+    for line in proc.stderr.splitlines():
+        m = re.search(r"\bn:\s*(\d+).*\biskey:\s*([01])", line)
+        if m:
+            seen = max(seen, int(m.group(1)) + 1)
+            if m.group(2) == "1":
+                keys.append(int(m.group(1)))
+    if proc.returncode != 0 and not seen:
+        tail = "; ".join(proc.stderr.strip().splitlines()[-2:]) or "no output"
+        raise VideoError(f"{path}: cannot read the keyframes: {tail}")
+    return keys, seen
+
+
+def lossy_description(path: str | Path, info: VideoInfo) -> dict[str, Any] | None:
+    """What makes a compressed video lossy, or None for a lossless codec.
+
+    Returns ``{"codec", "bits", "gop", "keyframes", "frames_probed"}``: ``gop`` is the
+    keyframe interval (frames; the median spacing of the keyframes among the first
+    :data:`KEYFRAME_PROBE_FRAMES` frames), 1 for intra-only codecs (MJPEG, every frame a
+    keyframe), None when at most one keyframe was seen.
+    """
+    if info.codec in LOSSLESS_CODECS:
+        return None
+    keys, seen = keyframe_positions(path)
+    gop: int | None = None
+    if len(keys) >= 2:
+        gop = int(np.median(np.diff(keys)))
+    elif seen and len(keys) == seen:
+        gop = 1
+    return {"codec": info.codec, "bits": 16 if info.high_depth else 8,
+            "pix_fmt": info.pix_fmt, "gop": gop, "keyframes": keys[:32],
+            "frames_probed": int(seen)}
+
+
+def describe_lossy(lossy: dict[str, Any], fps: float | None) -> str:
+    """One line naming a lossy source (see :func:`lossy_description`)."""
+    text = f"lossy source: {lossy['codec']} {lossy['bits']}-bit"
+    gop = lossy.get("gop")
+    if gop == 1:
+        text += ", every frame a keyframe (intra-only)"
+    elif gop:
+        text += f", a keyframe every {gop} frames"
+        if fps:
+            text += (f": peaks on the keyframe comb (multiples of {fps / gop:g} Hz) are "
+                     "rejected")
+    else:
+        text += f", no keyframe interval seen in {lossy.get('frames_probed', 0)} frames"
+    return text + "; compression artefacts move like texture (prefer the camera's raw files)"
+
+
+def _file_frames(path: Path, start: int, stop: int | None) -> tuple[
+        Iterator[NDArray[np.float32]], VideoInfo, dict[str, Any]]:
     info = probe_video(path)
     bpp = 2 if info.high_depth else 1
 
     def gen() -> Iterator[NDArray[np.float32]]:
-        for frame in read_frames(path, bpp=bpp, info=info):
+        for frame in read_frames(path, bpp=bpp, info=info, start=start, stop=stop):
             yield to_gray(frame)
 
     meta = {
@@ -600,7 +686,23 @@ def _file_frames(path: Path) -> tuple[Iterator[NDArray[np.float32]], VideoInfo, 
         "frame_rate_source": "CAPTURE_FPS tag" if info.capture_rate is not None
         else ("container" if info.container_rate is not None else None),
     }
+    lossy = lossy_description(path, info)
+    if lossy is not None:
+        meta["lossy"] = lossy
     return gen(), info, meta
+
+
+def _frame_range(start: int, stop: int | None, n: int | None) -> tuple[int, int | None]:
+    start = int(start)
+    if start < 0 or (stop is not None and int(stop) <= start):
+        raise ValueError(f"frame range {start}:{'' if stop is None else stop} is empty or "
+                         "negative; need 0 <= start < stop")
+    if n is not None and start >= n:
+        raise ValueError(f"frame range starts at {start}, and the video has {n} frames")
+    stop = None if stop is None else int(stop)
+    if n is not None and stop is not None and stop > n:
+        raise ValueError(f"frame range {start}:{stop} ends after the video's {n} frames")
+    return start, stop
 
 
 def open_video(
@@ -608,42 +710,83 @@ def open_video(
     *,
     roi: tuple[int, int, int, int] | None = None,
     max_frames: int | None = None,
+    start: int = 0,
+    stop: int | None = None,
+    bit_depth: int | None = None,
 ) -> VideoStream:
-    """Open a video file, a ``.npy`` file, an array ``(T, H, W[, C])`` or an iterable of frames.
+    """Open a video file, a camera file, an array ``(T, H, W[, C])`` or an iterable of frames.
 
     Parameters
     ----------
     source : path, array or iterable
-        See the module notes.
+        See the module notes; image sequences (a folder, a glob, a printf pattern), Photron
+        ``.cih``/``.cihx``/``.mraw``, Phantom ``.cine`` and ``.npy`` files are read by
+        :mod:`vvtbench.field.readers` (frame rate and bit depth from their headers).
     roi : tuple of int, optional
-        Crop ``(y0, y1, x0, x1)`` (rows ``y0:y1``, columns ``x0:x1``).
+        Crop ``(y0, y1, x0, x1)`` (rows ``y0:y1``, columns ``x0:x1``); camera files read only
+        those rows.
     max_frames : int, optional
-        Read at most this many frames.
+        Read at most this many frames (counted from ``start``).
+    start, stop : int
+        Frame range ``start:stop`` of the source (``stop`` None: to the end), applied while
+        reading.
+    bit_depth : int, optional
+        Significant bits per sample of an image sequence, camera or ``.npy`` file (overrides
+        its header): samples are scaled by ``2**bit_depth - 1``.
 
     Returns
     -------
     VideoStream
+        For a lossy compressed video ``meta["lossy"]`` describes the codec, its bit depth and
+        keyframe interval (:func:`lossy_description`).
     """
     meta: dict[str, Any] = {}
     rate: Fraction | None = None
+    from .field.readers import is_camera_source, open_camera_file
+
+    if isinstance(source, (str, Path)) and is_camera_source(source):
+        cam = open_camera_file(source, bit_depth=bit_depth)
+        start, stop = _frame_range(start, stop, cam.n_frames)
+        shape, rate = (cam.height, cam.width), cam.fps
+        roi = _check_roi(roi, shape)
+        last = cam.n_frames if stop is None else stop
+        if max_frames is not None:
+            last = min(last, start + int(max_frames))
+        meta.update(source=str(source), reader=cam.kind, bits=cam.bits,
+                    frame_rate=str(rate) if rate is not None else None,
+                    frame_rate_source="file header" if rate is not None else None,
+                    frame_range=[start, last], **cam.meta)
+        if roi is not None:
+            meta["roi"] = list(roi)
+            shape = (roi[1] - roi[0], roi[3] - roi[2])
+        return VideoStream(
+            frames=cam.frames(start, last, roi), shape=(int(shape[0]), int(shape[1])),
+            fps=float(rate) if rate is not None else None, n_frames=last - start, meta=meta,
+            rate=rate)
+    if bit_depth is not None:
+        raise ValueError("--bit-depth applies to image sequences, .npy, Photron and Phantom "
+                         "files; a compressed video's decoder sets its own depth")
     if isinstance(source, (str, Path)):
         path = Path(source)
         if not path.is_file():
             raise FileNotFoundError(f"video file not found: {path}")
         meta["source"] = str(path)
-        if path.suffix.lower() == ".npy":
-            arr = np.load(path, mmap_mode="r")
-            frames: Iterable = arr
-            shape = tuple(arr.shape[1:3])
-            n = arr.shape[0]
-        else:
-            frames, info, more = _file_frames(path)
-            shape, rate, n = (info.height, info.width), info.frame_rate, info.n_frames
-            meta.update(more)
+        start, stop = _frame_range(start, stop, None)
+        frames, info, more = _file_frames(path, start, stop)
+        shape, rate, n = (info.height, info.width), info.frame_rate, info.n_frames
+        if n is not None:
+            n = max(0, (n if stop is None else min(n, stop)) - start)
+        if start or stop is not None:
+            meta["frame_range"] = [start, stop]
+        meta.update(more)
     elif isinstance(source, np.ndarray):
+        start, stop = _frame_range(start, stop, source.shape[0])
+        source = source[start:stop]
         frames, shape, n = source, tuple(source.shape[1:3]), source.shape[0]
         meta["source"] = f"array {source.shape} {source.dtype}"
     else:
+        if start or stop is not None:
+            source = _islice(source, start, stop)
         it = iter(source)
         try:
             first = np.asarray(next(it))
@@ -652,12 +795,9 @@ def open_video(
         frames = _chain(first, it)
         shape, n = tuple(first.shape[:2]), None
         meta["source"] = "iterable"
+    roi = _check_roi(roi, shape)
     if roi is not None:
-        y0, y1, x0, x1 = (int(r) for r in roi)
-        if not (0 <= y0 < y1 <= shape[0] and 0 <= x0 < x1 <= shape[1]):
-            raise ValueError(f"roi {roi} is outside the {shape[1]}x{shape[0]} frame")
-        roi = (y0, y1, x0, x1)
-        shape = (y1 - y0, x1 - x0)
+        shape = (roi[1] - roi[0], roi[3] - roi[2])
         meta["roi"] = list(roi)
     if max_frames is not None and n is not None:
         n = min(n, max_frames)
@@ -666,6 +806,24 @@ def open_video(
         frames=gray, shape=(int(shape[0]), int(shape[1])),
         fps=float(rate) if rate is not None else None, n_frames=n, meta=meta, rate=rate,
     )
+
+
+def _check_roi(roi: tuple[int, int, int, int] | None,
+               shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+    if roi is None:
+        return None
+    y0, y1, x0, x1 = (int(r) for r in roi)
+    if not (0 <= y0 < y1 <= shape[0] and 0 <= x0 < x1 <= shape[1]):
+        raise ValueError(f"roi {tuple(roi)} is outside the {shape[1]}x{shape[0]} frame "
+                         "(y0,y1,x0,x1 with 0 <= y0 < y1 <= height, 0 <= x0 < x1 <= width)")
+    return (y0, y1, x0, x1)
+
+
+def _islice(frames: Iterable, start: int, stop: int | None) -> Iterator:
+    import itertools
+
+    start, stop = _frame_range(start, stop, None)
+    return itertools.islice(frames, start, stop)
 
 
 def _chain(first: NDArray, rest: Iterator) -> Iterator:

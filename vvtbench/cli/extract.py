@@ -25,6 +25,19 @@ def _parse_roi(s: str) -> tuple[int, int, int, int]:
     return parts  # type: ignore[return-value]
 
 
+def _parse_frames(s: str) -> tuple[int, int | None]:
+    start, sep, stop = s.partition(":")
+    try:
+        a = int(start) if start.strip() else 0
+        b = int(stop) if stop.strip() else None
+    except ValueError:
+        a, b, sep = -1, None, ""
+    if not sep or a < 0 or (b is not None and b <= a):
+        raise argparse.ArgumentTypeError("frames must be START:STOP with 0 <= START < STOP "
+                                         "(either may be left out: 100: or :500)")
+    return a, b
+
+
 def _sample_fps(path: Path) -> float | None:
     """The capture frame rate recorded in a vvtbench sample folder (its container says less:
     Matroska timestamps cannot hold 2000 fps), or None."""
@@ -51,8 +64,11 @@ def _resolve_source(path: Path) -> Path:
     """The video file to read; a sample (folder or its video) is verified first
     (:func:`vvtbench.dataset.open_sample`: truth and video against the manifest)."""
     from ..dataset import DatasetError, open_sample
+    from ..field.readers import IMAGE_SUFFIXES, is_camera_source
 
     if not path.exists():
+        if is_camera_source(path):  # a glob or printf pattern of an image sequence
+            return path
         raise FileNotFoundError(2, "no such file or folder", str(path))
     sample = _sample_of(path)
     if sample is not None:
@@ -62,6 +78,8 @@ def _resolve_source(path: Path) -> Path:
         return path
     if path.is_dir():
         found = sorted(p for p in path.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+        if not found and any(p.suffix.lower() in IMAGE_SUFFIXES for p in path.iterdir()):
+            return path  # a folder of images: an image sequence
         if len(found) != 1:
             raise DatasetError(
                 f"{path}: a folder with {len(found)} video files "
@@ -83,14 +101,15 @@ def _check_output(out: Path, video: Path) -> None:
                              "sample and break its manifest); give another folder")
 
 
-def _note_fps(given: Path, src: Path, fps: float | None) -> None:
+def _note_fps(given: Path, src: Path, fps: float | None,
+              read: dict | None = None) -> None:
     """Tell on stderr which frame rate is used when ``--fps`` is not given."""
     if fps is not None:
         truth = given / "truth.json" if given.is_dir() else given.parent / "truth.json"
         print(f"note: --fps not given: using {fps:g} fps from {truth}", file=sys.stderr)
         return
     try:
-        fps = open_video(src).fps
+        fps = open_video(src, **(read or {})).fps
     except (OSError, ValueError):
         return  # extract_modes reports the error
     if fps is not None:
@@ -109,7 +128,9 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
         "and PNG plots; format in docs/modes.md).",
     )
     ap.add_argument(
-        "video", type=Path, help="video file (avi/mp4/mkv/.npy) or a folder holding one"
+        "video", type=Path, help="video file (avi/mp4/mkv/.npy), camera file (Photron "
+        ".cih/.cihx/.mraw, Phantom .cine), image sequence (a folder, a glob 'frames/*.tif' or "
+        "a pattern img_%%05d.png) or a folder holding a video (docs/reference/camera-files.md)"
     )
     ap.add_argument(
         "--fps",
@@ -146,7 +167,14 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     help="threads (-1 = all CPUs)")
     ap.add_argument("--average", type=positive_int, default=1,
                     help="average N consecutive frames")
-    ap.add_argument("--roi", type=_parse_roi, default=None, help="crop y0,y1,x0,x1")
+    ap.add_argument("--roi", type=_parse_roi, default=None,
+                    help="crop y0,y1,x0,x1 (rows y0:y1, columns x0:x1; camera files read only "
+                    "these rows)")
+    ap.add_argument("--frames", type=_parse_frames, default=None, metavar="START:STOP",
+                    help="frame range read (STOP excluded; either may be left out)")
+    ap.add_argument("--bit-depth", type=bounded(int, ge=1, le=16), default=None,
+                    help="significant bits per sample of an image sequence, .npy or camera "
+                    "file (default: the file's header; e.g. 12 for 12-bit data in 16-bit TIFFs)")
     ap.add_argument("--max-frames", type=positive_int, default=None)
     ap.add_argument("--weighting", choices=("confidence", "none", "noise"), default="noise",
                     help="pixel weights of the spectrum the peaks are picked from (default: noise; "
@@ -213,9 +241,11 @@ def main_extract(argv: list[str] | None = None) -> int:
                         (item.partition("=")[0].strip() for item in args.extractor_set)}
     _check_output(args.out, args.video)
     src = _resolve_source(args.video)
+    start, stop = args.frames if args.frames is not None else (0, None)
+    read = {"start": start, "stop": stop, "bit_depth": args.bit_depth}
     fps = args.fps if args.fps is not None else _sample_fps(args.video)
     if args.fps is None:
-        _note_fps(args.video, src, fps)
+        _note_fps(args.video, src, fps, read)
     try:
         ms = extract_modes(
             src,
@@ -251,6 +281,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             min_reliable_fraction=args.min_reliable_fraction,
             extractor=args.extractor,
             extractor_config=extractor_config,
+            **read,
         )
     except (ValueError, FileNotFoundError) as e:
         from . import explain
@@ -258,6 +289,11 @@ def main_extract(argv: list[str] | None = None) -> int:
         msg = explain(e)
         print(f"error: {msg if str(src) in msg else f'{src}: {msg}'}", file=sys.stderr)
         return 2
+    if ms.lossy is not None:
+        from ..video import describe_lossy
+
+        print(f"warning: {describe_lossy(ms.lossy, ms.metadata.get('fps_input'))}",
+              file=sys.stderr)
     ms.save(args.out)
     if not args.no_plots:
         from ..modes.plots import plot_modes
@@ -281,6 +317,9 @@ def main_extract(argv: list[str] | None = None) -> int:
             why = f"MAC {r['shake_mac']:.2f}"
         elif r["reason"] == "distortion":
             why = f"{r['kind']} of {r['parents_hz'][0]:.3f} and {r['parents_hz'][1]:.3f} Hz"
+        elif r["reason"] == "keyframe":
+            why = (f"harmonic {r['harmonic']} of the keyframe rate {r['comb_hz']:.3f} Hz, "
+                   f"a keyframe every {r['gop']} frames")
         elif r["reason"] == "unreliable":
             why = f"reliable fraction {r['reliable_fraction']:.3f}"
         else:

@@ -31,6 +31,7 @@ from .peaks import (
     align_phase,
     check_band,
     distortion_products,
+    keyframe_comb,
     pick_peaks,
     product_phase_residual,
     refine_frequency,
@@ -745,6 +746,10 @@ def extract_modes(
     line_fit: bool = False,
     roughness_weighting: str = "shape",
     min_reliable_fraction: float | None = None,
+    start: int = 0,
+    stop: int | None = None,
+    bit_depth: int | None = None,
+    reject_keyframe_comb: bool = True,
 ) -> ModeSet:
     """Extract image-space modes from a video end to end.
 
@@ -809,6 +814,13 @@ def extract_modes(
     roughness_weighting, min_reliable_fraction :
         Shape tests on the reliable pixels, see :func:`modes_from_displacements` (they use the
         noise weights of ``weighting="noise"``; with other weightings they change nothing).
+    start, stop, bit_depth :
+        Frame range read and the bit depth of an image sequence or camera file, see
+        :func:`video.open_video`.
+    reject_keyframe_comb : bool, default True
+        For a lossy video with a keyframe interval (``metadata["lossy"]["gop"]``), reject the
+        peaks within two bins (the Hann window's main lobe) of a multiple of ``fps / gop``
+        (reason ``"keyframe"``, :func:`peaks.keyframe_comb`).
 
     Returns
     -------
@@ -820,7 +832,8 @@ def extract_modes(
         raise ValueError(
             f"weighting must be 'confidence', 'none' or 'noise', got {weighting!r}"
         )
-    video = open_video(source, roi=roi, max_frames=max_frames)
+    video = open_video(source, roi=roi, max_frames=max_frames, start=start, stop=stop,
+                       bit_depth=bit_depth)
     fps_source = "argument"
     if fps is None:
         fps = video.fps
@@ -922,9 +935,31 @@ def extract_modes(
             roughness_weighting=roughness_weighting,
             min_reliable_fraction=min_reliable_fraction,
         )
+    gop = (video.meta.get("lossy") or {}).get("gop")
+    if reject_keyframe_comb and gop and len(ms):
+        ms = _reject_keyframe_comb(ms, float(fps), int(gop))
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
     return ms
+
+
+def _reject_keyframe_comb(ms: ModeSet, fps: float, gop: int) -> ModeSet:
+    """``ms`` without its peaks on the keyframe comb of a lossy source, each listed in
+    ``metadata["rejected"]`` with reason ``"keyframe"``."""
+    tolerance = 2.0 * ms.fps / ms.n_frames
+    on_comb = keyframe_comb(ms.frequencies_hz, fps, gop, tolerance, sampled_fps=ms.fps)
+    if not on_comb:
+        return ms
+    drop = np.zeros(len(ms), bool)
+    rejected = list(ms.metadata.get("rejected", []))
+    for c in on_comb:
+        k = c["index"]
+        drop[k] = True
+        rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(ms.frequencies_hz[k]),
+                         "reason": "keyframe", "gop": int(gop), "comb_hz": c["comb_hz"],
+                         "harmonic": c["harmonic"], "line_hz": c["line_hz"]})
+    ms.metadata["rejected"] = rejected
+    return ms.select(~drop)
 
 
 def _chain(first: np.ndarray, rest: Iterable) -> Iterable:

@@ -115,6 +115,14 @@ class ModeSet:
         return int(self.shapes.shape[0])
 
     @property
+    def lossy(self) -> dict[str, Any] | None:
+        """The lossy compression of the source video (``metadata["lossy"]``: codec, bit depth,
+        keyframe interval ``gop``), or None for a lossless source and for mode sets written
+        before the key existed."""
+        value = self.metadata.get("lossy")
+        return value if isinstance(value, dict) else None
+
+    @property
     def image_shape(self) -> tuple[int, int]:
         """``(H, W)``."""
         return int(self.shapes.shape[1]), int(self.shapes.shape[2])

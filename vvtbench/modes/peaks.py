@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,6 +33,7 @@ __all__ = [
     "align_phase",
     "check_band",
     "distortion_products",
+    "keyframe_comb",
     "pick_peaks",
     "product_phase_residual",
     "refine_frequency",
@@ -387,6 +389,36 @@ def _reference(p_i: float, p_j: float, p_max: float, scaling: str) -> float:
     if scaling == "product" and p_max > 0:
         return p_i * p_j / p_max
     return min(p_i, p_j)
+
+
+def keyframe_comb(frequencies: ArrayLike, fps: float, gop: int, tolerance_hz: float, *,
+                  sampled_fps: float | None = None) -> list[dict[str, Any]]:
+    """Peaks on a lossy codec's keyframe comb: within ``tolerance_hz`` of a multiple of
+    ``fps / gop``.
+
+    A keyframe every ``gop`` frames changes the compression error of every pixel with that
+    period, so the motion of a texture picks up lines at ``m fps / gop`` (``m = 1 ..
+    gop - 1``, and their images at ``sampled_fps`` when frames are averaged before the
+    spectrum).
+
+    Returns
+    -------
+    list of dict
+        ``{"index", "harmonic", "comb_hz", "line_hz"}`` per peak on the comb.
+    """
+    f = np.asarray(frequencies, dtype=np.float64)
+    if gop is None or int(gop) < 2 or f.size == 0:
+        return []
+    comb = float(fps) / int(gop)
+    seen_at = float(sampled_fps) if sampled_fps else float(fps)
+    lines = [(m, _folded(m * comb, seen_at)) for m in range(1, int(gop))]
+    out = []
+    for i, fi in enumerate(f):
+        best = min(lines, key=lambda ml: abs(ml[1] - fi))
+        if abs(best[1] - fi) <= tolerance_hz:
+            out.append({"index": i, "harmonic": int(best[0]), "comb_hz": comb,
+                        "line_hz": float(best[1])})
+    return out
 
 
 def _folded(frequency: float, fps: float) -> float:
