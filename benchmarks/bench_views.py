@@ -1,0 +1,107 @@
+"""What a second camera buys, from true modes: NC w against the number of views on family
+instances, with the fraction of DOFs observed and paired differences against one view.
+
+Every instance is observed with 1..N cameras on a ring (``observe(views=N)``), every solver
+runs sealed on each problem, and the table gives the mean NC w with its 95 % bootstrap
+interval per solver and view count, and the paired difference against one view.
+
+    python benchmarks/bench_views.py --family cube_defects --split test --n 12 \\
+        --views 1 2 3 4 --solvers sensitivity vvt --modes 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    from vvtbench.cli import main as cli
+    from vvtbench.dataset import open_sample
+    from vvtbench.export import find_samples
+    from vvtbench.metrics import evaluate, invalid_reason
+    from vvtbench.observe import observe
+    from vvtbench.sealed import solve_sealed
+    from vvtbench.stats import paired_comparison, summarize
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--family", default="cube_defects")
+    p.add_argument("--split", default="test")
+    p.add_argument("--n", type=int, default=12)
+    p.add_argument("--views", type=int, nargs="+", default=[1, 2, 3, 4])
+    p.add_argument("--solvers", nargs="+", default=["sensitivity"])
+    p.add_argument("--set", action="append", default=[], metavar="SOLVER.KEY=VALUE")
+    p.add_argument("--modes", type=int, default=20)
+    p.add_argument("--samples", type=Path, default=None,
+                   help="a folder of generated samples of the split (default: generated now)")
+    p.add_argument("--json", type=Path, default=None, help="write the rows here")
+    args = p.parse_args(argv)
+    config: dict[str, dict] = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        solver, _, opt = key.partition(".")
+        config.setdefault(solver, {})[opt] = json.loads(value)
+    folder = args.samples
+    if folder is None:
+        folder = Path(tempfile.mkdtemp(prefix="views-")) / args.split
+        if cli(["generate", args.family, "--split", args.split, "--n", str(args.n),
+                "--no-video", "-o", str(folder), "--no-progress"]) != 0:
+            return 1
+    samples = find_samples(folder)[: args.n]
+    rows = []
+    t0 = time.perf_counter()
+    for path in samples:
+        sample = open_sample(path)
+        for views in args.views:
+            problem, truth = observe(sample, n_modes=args.modes, views=views)
+            for solver in args.solvers:
+                est, wall, _ = solve_sealed(solver, config.get(solver, {}), problem,
+                                            truth=truth, timeout=1800)
+                reason = invalid_reason(est.w, est.v, problem.n_params)
+                nc = float("nan") if reason else float(
+                    evaluate(problem, truth, est.w, est.v, modes=False)["metrics"]["nc_w"]
+                    or float("nan"))
+                rows.append({"instance": path.name, "views": views, "solver": solver,
+                             "nc_w": nc, "invalid": reason, "wall_s": wall,
+                             "dof_fraction": problem.meta["observed_dof_fraction"]})
+                print(f"{path.name} views={views} {solver}: NC w {nc:.3f} "
+                      f"({problem.meta['observed_dof_fraction']:.3f} of DOFs, {wall:.1f} s)"
+                      + (f" invalid: {reason}" if reason else ""), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    print(f"\n{len(samples)} instances of {args.family} {args.split}, {args.modes} true modes, "
+          f"{time.perf_counter() - t0:.0f} s\n")
+    print("| solver | views | DOFs observed | mean NC w [95 % CI] | valid | paired vs 1 view "
+          "[95 % CI] | win rate |")
+    print("|---|---|---|---|---|---|---|")
+    for solver in args.solvers:
+        base = {r["instance"]: r["nc_w"] for r in rows
+                if r["solver"] == solver and r["views"] == args.views[0]}
+        for views in args.views:
+            sel = [r for r in rows if r["solver"] == solver and r["views"] == views]
+            nc = [r["nc_w"] for r in sel]
+            s = summarize(nc)
+            frac = np.mean([r["dof_fraction"] for r in sel])
+            valid = sum(np.isfinite(nc))
+            paired = "--"
+            win = "--"
+            if views != args.views[0]:
+                a = [r["nc_w"] for r in sel]
+                b = [base[r["instance"]] for r in sel]
+                c = paired_comparison(a, b)
+                paired = (f"{c['mean_diff']:+.3f} [{c['ci_low']:+.3f}, {c['ci_high']:+.3f}] "
+                          f"(n {c['n']})")
+                win = f"{c['win_rate']:.2f}"
+            print(f"| {solver} | {views} | {frac:.3f} | {s['mean']:.3f} [{s['mean_ci_low']:.3f}, "
+                  f"{s['mean_ci_high']:.3f}] | {valid}/{len(sel)} | {paired} | {win} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
