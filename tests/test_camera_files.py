@@ -203,3 +203,94 @@ def test_truncated_raw_container_is_not_a_shorter_video(tmp_path: Path) -> None:
     (tmp_path / "v.npy").write_bytes(raw[:-1])
     with pytest.raises(VideoError, match="says 8 frames, the file holds 7"):
         open_camera_file(tmp_path / "v.npy")
+
+
+# --------------------------------------------------------------------------- lossy sources
+def _two_mode_clip(n: int = 64, fps: int = 100, t_frames: int = 200) -> np.ndarray:
+    """8-bit frames of a smooth random texture moved by two smooth modes (14 and 36.5 Hz)."""
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    rng = np.random.default_rng(1)
+    tex = gaussian_filter(rng.standard_normal((3 * n, 3 * n)), 1.5)
+    tex = (tex - tex.min()) / (tex.max() - tex.min())
+    y, x = np.mgrid[0:n, 0:n].astype(float)
+    pa = np.stack([np.cos(2 * np.pi * x / n), 0.5 * np.sin(2 * np.pi * y / n)])
+    pb = np.stack([np.sin(2 * np.pi * y / n), np.cos(2 * np.pi * x / n)])
+    out = np.empty((t_frames, n, n), np.uint8)
+    for k in range(t_frames):
+        t = k / fps
+        d = 0.3 * pa * np.cos(2 * np.pi * 14 * t) + 0.2 * pb * np.cos(2 * np.pi * 36.5 * t)
+        img = map_coordinates(tex, [y + n - d[1], x + n - d[0]], order=3, mode="wrap")
+        out[k] = np.clip(np.round(img * 220 + 18), 0, 255)
+    return out
+
+
+def _h264(path: Path, frames: np.ndarray, fps: int, gop: int) -> None:
+    """H.264 with a keyframe every ``gop`` frames, the keyframes coded coarser than the
+    frames between them (``ipratio`` < 1): the keyframe pumping of consumer cameras."""
+    import imageio_ffmpeg
+
+    n = frames.shape[1]
+    w = imageio_ffmpeg.write_frames(
+        str(path), (n, n), pix_fmt_in="gray", pix_fmt_out="yuv420p", codec="libx264", fps=fps,
+        quality=None, macro_block_size=1, ffmpeg_log_level="error",
+        output_params=["-qp", "18", "-x264-params", "ipratio=0.2", "-g", str(gop),
+                       "-keyint_min", str(gop), "-sc_threshold", "0", "-bf", "0",
+                       "-threads", "1"])
+    w.send(None)
+    for f in frames:
+        w.send(np.ascontiguousarray(f))
+    w.close()
+
+
+def test_h264_keyframe_comb_rejected(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from vvtbench.cli.extract import main_extract
+    from vvtbench.modes import ModeSet
+    from vvtbench.modes.extract import extract_modes
+
+    fps, gop = 100, 10
+    frames = _two_mode_clip(fps=fps)
+    with VideoWriter(tmp_path / "lossless.mkv", 64, 64, pix_fmt="gray",
+                     playback_fps=fps) as w:
+        for f in frames:
+            w.write(f)
+    _h264(tmp_path / "clip.mp4", frames, fps, gop)
+    clean = extract_modes(tmp_path / "lossless.mkv", fps)
+    assert clean.lossy is None and "lossy" not in clean.metadata
+    assert main_extract([str(tmp_path / "clip.mp4"), "--fps", str(fps), "-o",
+                         str(tmp_path / "out"), "--no-plots", "--quiet"]) == 0
+    out = capsys.readouterr()
+    lines = [ln for ln in out.err.splitlines() if "lossy source" in ln]
+    assert lines == ["warning: lossy source: h264 8-bit, a keyframe every 10 frames: peaks on "
+                     "the keyframe comb (multiples of 10 Hz) are rejected; compression "
+                     "artefacts move like texture (prefer the camera's raw files)"]
+    lossy = ModeSet.load(tmp_path / "out")
+    assert lossy.lossy["codec"] == "h264" and lossy.lossy["gop"] == gop
+    assert lossy.lossy["keyframes"][:3] == [0, 10, 20]
+    extra = [f for f in lossy.frequencies_hz
+             if np.min(np.abs(clean.frequencies_hz - f)) > 2 * fps / 200]
+    assert len(extra) <= 1
+    comb = [r for r in lossy.metadata["rejected"] if r["reason"] == "keyframe"]
+    assert sorted(r["harmonic"] for r in comb) == [1, 2, 3, 4]
+    assert all(abs(r["frequency_hz"] - 10 * r["harmonic"]) <= 2 * fps / 200 for r in comb)
+    assert "harmonic 1 of the keyframe rate 10.000 Hz, a keyframe every 10 frames" in out.out
+    # without the rejection the comb would be reported as modes
+    kept = extract_modes(tmp_path / "clip.mp4", fps, reject_keyframe_comb=False)
+    assert len(kept) >= len(lossy) + 3
+
+
+def test_old_modes_json_without_lossy_key_loads(tmp_path: Path) -> None:
+    import json
+
+    from vvtbench.modes.extract import extract_modes
+
+    frames = _two_mode_clip(n=32, t_frames=64)
+    ms = extract_modes(frames, 100.0)
+    ms.metadata["lossy"] = {"codec": "h264", "gop": 5}
+    ms.save(tmp_path / "m")
+    doc = json.loads((tmp_path / "m" / "modes.json").read_text())
+    del doc["metadata"]["lossy"]
+    (tmp_path / "m" / "modes.json").write_text(json.dumps(doc))
+    from vvtbench.modes import ModeSet
+
+    assert ModeSet.load(tmp_path / "m").lossy is None
