@@ -294,3 +294,34 @@ def test_old_modes_json_without_lossy_key_loads(tmp_path: Path) -> None:
     from vvtbench.modes import ModeSet
 
     assert ModeSet.load(tmp_path / "m").lossy is None
+
+
+# --------------------------------------------------------------------------- command line
+def test_extract_command_on_camera_files(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture) -> None:
+    from vvtbench.cli import main
+    from vvtbench.modes import ModeSet
+
+    frames = _two_mode_clip(n=48, t_frames=120).astype(np.uint16) * 16  # 12 bits in 16
+    _tiff_sequence(tmp_path / "seq", frames)  # no depth tag: --bit-depth says it
+    out = tmp_path / "out"
+    assert main(["extract", str(tmp_path / "seq"), "--fps", "100", "-o", str(out),
+                 "--roi", "4,44,2,46", "--frames", "10:110", "--bit-depth", "12",
+                 "--no-plots", "--quiet"]) == 0
+    ms = ModeSet.load(out)
+    assert ms.n_frames == 100 and ms.image_shape == (40, 44)
+    assert ms.metadata["frame_range"] == [10, 110] and ms.metadata["roi"] == [4, 44, 2, 46]
+    assert ms.metadata["bits"] == 12 and ms.metadata["bit_depth_source"] == "--bit-depth"
+    assert np.min(np.abs(ms.frequencies_hz - 14.0)) < 1.0
+    capsys.readouterr()
+    # an image sequence has no rate; bad options are one line and status 2
+    assert main(["extract", str(tmp_path / "seq"), "-o", str(tmp_path / "o2"), "--quiet"]) == 2
+    assert "has no frame rate: pass --fps" in capsys.readouterr().err
+    assert main(["extract", str(tmp_path / "seq"), "--fps", "100", "-o", str(tmp_path / "o3"),
+                 "--frames", "100:500", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ends after the video's 120 frames" in err[0]
+    assert main(["extract", str(tmp_path / "seq"), "--fps", "100", "-o", str(tmp_path / "o4"),
+                 "--frames", "9:3"]) == 2
+    assert "argument --frames: frames must be START:STOP" in capsys.readouterr().err
+    assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()

@@ -838,7 +838,8 @@ def extract_modes(
     if fps is None:
         fps = video.fps
         if fps is None:
-            raise ValueError("fps is required (the source has no frame rate)")
+            raise ValueError("fps is required: the source has no frame rate: pass --fps "
+                             "(image sequences and arrays carry none)")
         fps_source = "container"
         _log.info("fps not given: using the container's %g fps (%s)", fps, video.meta["source"])
     if not fps > 0:
