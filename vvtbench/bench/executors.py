@@ -19,6 +19,58 @@ from typing import Any
 from .graph import STAGES, Task
 from .stages import execute_task
 
+#: Seconds a Dask scheduler has to answer a connection (an address that accepts and never
+#: answers would otherwise hang the command: distributed's Client waits for ever).
+SCHEDULER_TIMEOUT = 10.0
+
+
+class SchedulerError(ValueError):
+    """A Dask scheduler address that cannot be reached or does not answer."""
+
+
+def max_workers() -> int:
+    """The most local worker processes a command starts: 4 per CPU of this machine."""
+    return 4 * (os.cpu_count() or 1)
+
+
+def check_workers(workers: int) -> int:
+    """``workers`` when it is 1 to :func:`max_workers`, else ValueError saying what is
+    allowed."""
+    if not 1 <= int(workers) <= max_workers():
+        raise ValueError(f"workers: {workers} is not allowed; allowed: 1 to {max_workers()} "
+                         f"(4 per CPU; this machine has {os.cpu_count() or 1})")
+    return int(workers)
+
+
+def probe_scheduler(address: str, timeout: float | None = None) -> None:
+    """Raise :class:`SchedulerError` unless a Dask scheduler at ``address`` answers an
+    identity request within ``timeout`` seconds (default :data:`SCHEDULER_TIMEOUT`)."""
+    import asyncio
+
+    timeout = SCHEDULER_TIMEOUT if timeout is None else float(timeout)
+
+    from distributed.comm import connect
+
+    async def identity():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        reply = asyncio.run(asyncio.wait_for(identity(), timeout))
+    except (TimeoutError, OSError, ValueError, TypeError) as error:
+        why = str(error) or "no answer"
+        if isinstance(error, TimeoutError) or "Timed out" in why:
+            why = f"no answer within {timeout:g} s"
+        raise SchedulerError(f"--scheduler {address}: no Dask scheduler answers there ({why}); "
+                             "is the scheduler running at that address?") from None
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        raise SchedulerError(f"--scheduler {address}: answered, but not as a Dask scheduler "
+                             f"(identity {str(reply)[:80]!r})")
+
 
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C during a run: ``finished`` of ``total`` tasks have a result in the cache."""
@@ -120,7 +172,9 @@ class _Dask:
         from distributed import Client
 
         if isinstance(scheduler, str):
-            self.client, self.own = Client(scheduler), True
+            probe_scheduler(scheduler)
+            self.client = Client(scheduler, timeout=SCHEDULER_TIMEOUT)
+            self.own = True
         else:  # a Client or a cluster object
             self.client = scheduler if hasattr(scheduler, "submit") else Client(scheduler)
             self.own = not hasattr(scheduler, "submit")
@@ -156,6 +210,7 @@ def make_executor(workers: int = 1, scheduler=None):
     pool of ``workers`` processes, else (``workers=1``) in process."""
     if scheduler is not None:
         return _Dask(scheduler)
+    check_workers(workers)
     if workers > 1:
         return _Pool(workers)
     return _Inline()

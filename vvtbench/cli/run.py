@@ -109,8 +109,11 @@ def _workers(text: str) -> int:
         n = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer >= 1") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: allowed: an integer >= 1")
+    from vvtbench.bench.executors import max_workers
+
+    if not 1 <= n <= max_workers():
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: allowed: an integer from 1 to {max_workers()} (4 per CPU)")
     return n
 
 
