@@ -109,10 +109,14 @@ def _note_fps(given: Path, src: Path, fps: float | None,
         print(f"note: --fps not given: using {fps:g} fps from {truth}", file=sys.stderr)
         return
     try:
-        fps = open_video(src, **(read or {})).fps
+        stream = open_video(src, **(read or {}))
     except (OSError, ValueError):
         return  # extract_modes reports the error
-    if fps is not None:
+    fps = stream.fps
+    if fps is not None and stream.meta.get("frame_rate_source") == "file header":
+        print(f"note: --fps not given: using {fps:g} fps from the header of {src}",
+              file=sys.stderr)
+    elif fps is not None:
         print(
             f"note: --fps not given: using the container's frame rate, {fps:g} fps, of {src} "
             "(high-speed footage often stores a wrong one: pass --fps)",
