@@ -1,0 +1,118 @@
+"""Calibration from clicks against the project's camera model with known poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vvtbench.field.calibrate import (
+    CalibrationError,
+    calibrate_camera,
+    calibrate_from_file,
+    is_coplanar,
+    load_clicks_csv,
+)
+from vvtbench.field.objects import resolve_object
+from vvtbench.observe import ObserveError
+from vvtbench.render.camera import Camera
+
+W, H = 640, 480
+
+
+def _plate_points(rng, n):
+    return np.c_[rng.uniform(0, 0.1, (n, 2)), np.zeros(n)]
+
+
+def _rms(a, b):
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1))))
+
+
+@pytest.mark.parametrize("seed,n", [(0, 4), (1, 5), (2, 6), (3, 8)])
+def test_plate_from_coplanar_clicks_reprojects_within_one_pixel(seed, n):
+    rng = np.random.default_rng(seed)
+    true = Camera.look_at((0.22, -0.28, 0.30), (0.05, 0.05, 0.0), fx=900, width=W, height=H)
+    X = _plate_points(rng, n)
+    uv = true.project(X) + rng.normal(0, 0.5, (n, 2))
+    cal = calibrate_camera(X, uv, W, H)
+    assert cal.method.startswith("homography")
+    assert cal.rms_px < 1.0
+    held_out = _plate_points(rng, 200)
+    assert _rms(cal.camera.project(held_out), true.project(held_out)) < 1.0
+
+
+def test_plate_with_given_intrinsics_recovers_the_pose():
+    rng = np.random.default_rng(7)
+    true = Camera.look_at((0.05, -0.25, 0.25), (0.05, 0.05, 0.0), fx=1000, width=W, height=H)
+    X = _plate_points(rng, 6)
+    uv = true.project(X) + rng.normal(0, 0.5, (6, 2))
+    K = true.K
+    cal = calibrate_camera(X, uv, W, H, intrinsics=(K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+    assert np.linalg.norm(cal.camera.center - true.center) < 0.01  # metres, camera ~0.35 m off
+    assert cal.intrinsics == "given"
+
+
+def test_cube_from_ten_clicks_recovers_the_camera():
+    rng = np.random.default_rng(3)
+    true = Camera.look_at((0.30, -0.25, 0.28), (0.05, 0.05, 0.05), fx=850, width=W, height=H)
+    cube = resolve_object("box:0.1x0.1x0.1")
+    pts = cube.mesh.points
+    ids = rng.choice(np.flatnonzero(true.depth(pts) > 0), 10, replace=False)
+    X = pts[ids]
+    uv = true.project(X) + rng.normal(0, 0.5, (10, 2))
+    cal = calibrate_camera(X, uv, W, H)
+    assert cal.method == "DLT" and not is_coplanar(X)
+    assert _rms(cal.camera.project(pts), true.project(pts)) < 2.0
+    assert cal.rms_px < 1.0
+
+
+def test_noisy_click_above_the_bound_names_it(tmp_path):
+    rng = np.random.default_rng(4)
+    true = Camera.look_at((0.30, -0.25, 0.28), (0.05, 0.05, 0.05), fx=850, width=W, height=H)
+    cube = resolve_object("box:0.1x0.1x0.1")
+    ids = cube.corner_nodes()
+    uv = true.project(cube.mesh.points[ids]) + rng.normal(0, 0.3, (len(ids), 2))
+    uv[3] += (15.0, -12.0)
+    path = tmp_path / "clicks.csv"
+    rows = "".join(f"{i},{u},{v}\n" for i, (u, v) in zip(ids, uv, strict=True))
+    path.write_text("vertex,u,v\n" + rows)
+    with pytest.raises(CalibrationError, match="above the bound 2 px"):
+        calibrate_from_file(path, cube.mesh.points, W, H)
+    cal = calibrate_from_file(path, cube.mesh.points, W, H, max_error=None)
+    assert cal.max_px > 2.0
+
+
+def test_too_few_clicks(tmp_path):
+    cube = resolve_object("box:0.1x0.1x0.1")
+    X = cube.mesh.points[cube.corner_nodes()[:5]]
+    with pytest.raises(CalibrationError, match="at least 6"):
+        calibrate_camera(X, np.zeros((5, 2)) + np.arange(5)[:, None], W, H)
+    with pytest.raises(CalibrationError, match="at least 4"):
+        calibrate_camera(X[:3], np.zeros((3, 2)), W, H)
+
+
+def test_clicks_csv_forms(tmp_path):
+    pts = resolve_object("plate:0.1x0.1").mesh.points
+    a = tmp_path / "a.csv"
+    a.write_text("# corners\nvertex,u,v\n0,10,20\n20, 30.5,40\n")
+    c = load_clicks_csv(a, pts)
+    assert c.vertices.tolist() == [0, 20] and np.allclose(c.X[1], pts[20])
+    b = tmp_path / "b.csv"
+    b.write_text("x,y,z,u,v\n0.1,0,0,1,2\n")
+    assert np.allclose(load_clicks_csv(b, pts).X, [[0.1, 0, 0]])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("id,u,v\n0,1,2\n")
+    with pytest.raises(CalibrationError, match="vertex,u,v or x,y,z,u,v"):
+        load_clicks_csv(bad, pts)
+    bad.write_text("vertex,u,v\n9999,1,2\n")
+    with pytest.raises(CalibrationError, match="allowed 0 .. 440"):
+        load_clicks_csv(bad, pts)
+
+
+def test_object_forms_and_bad_input(tmp_path):
+    box = resolve_object("box:0.1x0.08x0.05")
+    assert np.allclose(box.mesh.points.max(0), [0.1, 0.08, 0.05])
+    assert len(box.fixed_nodes) == 81 and len(box.corner_nodes()) == 8
+    assert resolve_object("plate:0.1:circle").is_membrane
+    for spec in ("box:0.1x0.1", "box:axbxc", "sphere:1", "nothing.stl", "box:1x1x1:fixed=top"):
+        with pytest.raises(ObserveError, match="--object"):
+            resolve_object(spec)

@@ -1,0 +1,227 @@
+"""The object a field user filmed, from one ``--object`` argument.
+
+Accepted forms (:func:`resolve_object`):
+
+* ``box:LxWxH`` -- a solid block of that size in metres (``box:0.1x0.1x0.05``), base
+  clamped (``box:0.1x0.1x0.05:fixed=none`` for a free block). Its inference mesh is the
+  voxel grid itself, as for the shipped cube scenes (8x8x8 hexahedra).
+* ``plate:LxW`` or ``plate:D:circle`` -- a membrane (drum head) in the plane z = 0, rim
+  clamped; triangulated as the shipped drums are, inference grid 20x20.
+* ``path/to/surface.stl`` (``.obj``, ``.ply``) -- a closed surface in metres,
+  tetrahedralized as the shipped bunny is (:func:`vvtbench.fem.mesh.tet_mesh`), lowest
+  corner moved to the origin, bottom nodes clamped; options ``:up=y``, ``:scale_to=0.1``,
+  ``:fixed=none``.
+* ``path/to/scene.toml`` -- a scene file: its geometry and boundary, never its material.
+
+Every object is in its own frame: metres, lowest corner at the origin, z up. Clicked 3-D
+points (``x,y,z,u,v``) are given in that frame.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
+from ..observe import ObserveError, default_voxel_shape
+
+__all__ = ["SURFACE_SUFFIXES", "FieldObject", "resolve_object"]
+
+SURFACE_SUFFIXES = (".stl", ".obj", ".ply")
+FORMS = ("box:LxWxH", "plate:LxW", "plate:D:circle", "a .stl/.obj/.ply surface",
+         "a scene .toml")
+
+
+@dataclass
+class FieldObject:
+    """What :func:`vvtbench.observe` needs of a real object.
+
+    Attributes
+    ----------
+    spec : the ``--object`` text it was made from.
+    kind : ``"box"``, ``"plate"``, ``"mesh"`` or ``"scene"``.
+    mesh : the inference mesh (metres, lowest corner at the origin).
+    fixed_nodes : clamped node indices of ``mesh``.
+    inference_shape : the voxel grid of the unknowns.
+    source_sha256 : sha256 of the file it was read from (None for a size).
+    """
+
+    spec: str
+    kind: str
+    mesh: Mesh
+    fixed_nodes: np.ndarray
+    inference_shape: tuple[int, ...]
+    source_sha256: str | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def is_membrane(self) -> bool:
+        """True for a drum head or plate (one transverse DOF per node)."""
+        return self.mesh.dofs_per_node == 1
+
+    def corner_nodes(self) -> np.ndarray:
+        """Nodes at the extremes of the mesh: the corners of a box, those of a plate's
+        bounding box (or its extreme rim points), of a surface's bounding box nearest nodes."""
+        pts = self.mesh.points
+        lo, hi = pts.min(0), pts.max(0)
+        dims = [a for a in range(3) if hi[a] - lo[a] > 1e-12]
+        out = []
+        for bits in range(1 << len(dims)):
+            target = lo.copy()
+            for i, a in enumerate(dims):
+                if bits >> i & 1:
+                    target[a] = hi[a]
+            out.append(int(np.argmin(np.sum((pts - target) ** 2, axis=1))))
+        return np.array(sorted(set(out)), dtype=np.int64)
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-serialisable description (for reports and stage keys)."""
+        return {"spec": self.spec, "kind": self.kind, "element": self.mesh.element,
+                "n_nodes": int(self.mesh.n_nodes), "n_elements": int(self.mesh.n_elements),
+                "extent_m": (self.mesh.points.max(0) - self.mesh.points.min(0)).tolist(),
+                "n_fixed": int(len(self.fixed_nodes)),
+                "inference_shape": list(self.inference_shape),
+                "source_sha256": self.source_sha256, **self.info}
+
+
+def _bad(spec: str, why: str) -> ObserveError:
+    return ObserveError(f"--object {spec!r}: {why}; allowed: {', '.join(FORMS)}")
+
+
+def _sizes(spec: str, text: str, n: int) -> tuple[float, ...]:
+    parts = text.lower().split("x")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise _bad(spec, f"size {text!r} is not {n} numbers joined by 'x'") from None
+    if len(values) != n or not all(np.isfinite(v) and v > 0 for v in values):
+        raise _bad(spec, f"size {text!r} must be {n} positive numbers (metres) joined by 'x'")
+    return values
+
+
+def _options(spec: str, items: list[str], allowed: dict[str, tuple[str, ...] | None]
+             ) -> dict[str, str]:
+    out = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in allowed or not value:
+            raise _bad(spec, f"unknown option {item!r} (options: "
+                             f"{', '.join(k + '=...' for k in allowed)})")
+        choices = allowed[key]
+        if choices is not None and value not in choices:
+            raise _bad(spec, f"option {key}={value!r}: allowed {', '.join(choices)}")
+        out[key] = value
+    return out
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
+                   ) -> FieldObject:
+    """The :class:`FieldObject` an ``--object`` argument names (module notes).
+
+    Parameters
+    ----------
+    spec : ``box:LxWxH``, ``plate:LxW``, ``plate:D:circle``, a surface mesh file or a scene.
+    inference_shape : voxel grid of the unknowns (default 8x8x8 solids, 20x20 plates).
+
+    Raises
+    ------
+    ObserveError
+        One line naming the argument and the allowed forms.
+    """
+    text = str(spec).strip()
+    head, _, rest = text.partition(":")
+    if head == "box" and rest:
+        size_text, *items = rest.split(":")
+        size = _sizes(text, size_text, 3)
+        opts = _options(text, items, {"fixed": ("bottom", "none")})
+        shape = tuple(inference_shape or default_voxel_shape("box"))
+        if len(shape) != 3:
+            raise _bad(text, f"a box takes a 3-D inference grid, got {shape}")
+        mesh = box_mesh(shape, size)
+        fixed = mesh.node_sets["bottom"] if opts.get("fixed", "bottom") == "bottom" \
+            else np.zeros(0, np.int64)
+        return FieldObject(text, "box", mesh, fixed, shape)
+    if head == "plate" and rest:
+        size_text, *items = rest.split(":")
+        circle = "circle" in items
+        items = [i for i in items if i != "circle"]
+        opts = _options(text, items, {"cells": None})
+        size = _sizes(text, size_text, 1 if circle else 2)
+        if not circle and abs(size[0] - size[1]) > 1e-9 * max(size):
+            raise _bad(text, "a rectangular plate must be square (LxL) for now")
+        try:
+            cells = int(opts.get("cells", 20))
+        except ValueError:
+            raise _bad(text, "option cells must be an integer >= 2") from None
+        if cells < 2:
+            raise _bad(text, "option cells must be an integer >= 2")
+        shape = tuple(inference_shape or default_voxel_shape("drum"))
+        if len(shape) != 2:
+            raise _bad(text, f"a plate takes a 2-D inference grid, got {shape}")
+        mesh = drum_mesh("circle" if circle else "square", size[0], cells)
+        return FieldObject(text, "plate", mesh, mesh.node_sets["rim"], shape)
+    path_text, *items = text.split(":") if not Path(text).exists() else (text,)
+    path = Path(path_text)
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
+        return _from_scene(text, path, inference_shape)
+    if suffix in SURFACE_SUFFIXES:
+        if not path.is_file():
+            raise _bad(text, f"{path}: no such file")
+        opts = _options(text, items, {"up": ("x", "y", "z"), "scale_to": None,
+                                      "fixed": ("bottom", "none")})
+        scale_to = None
+        if "scale_to" in opts:
+            try:
+                scale_to = float(opts["scale_to"])
+            except ValueError:
+                scale_to = -1.0
+            if not (np.isfinite(scale_to) and scale_to > 0):
+                raise _bad(text, "option scale_to must be a positive length (metres)")
+        try:
+            v, f = load_surface(path, opts.get("up", "z"), scale_to, target_faces=3000)
+            mesh = tet_mesh(v, f, edge_length_fac=0.1, coarsen=True)
+        except (FileNotFoundError, ValueError) as error:
+            raise _bad(text, str(error)) from None
+        fixed = mesh.node_sets["bottom"] if opts.get("fixed", "bottom") == "bottom" \
+            else np.zeros(0, np.int64)
+        shape = tuple(inference_shape or default_voxel_shape("box"))
+        return FieldObject(text, "mesh", mesh, fixed, shape, _sha256(path))
+    raise _bad(text, "not a known form")
+
+
+def _from_scene(text: str, path: Path, inference_shape: tuple[int, ...] | None
+                ) -> FieldObject:
+    from ..scene import load_scene
+    from ..simulate import build_mesh, fixed_nodes
+
+    if not path.is_file():
+        raise _bad(text, f"{path}: no such file")
+    scene = load_scene(path)
+    geom = scene.geometry
+    shape = tuple(inference_shape or default_voxel_shape(geom.kind))
+    if geom.kind == "box":
+        mesh = box_mesh(shape, tuple(geom.size))
+        extra = {}
+        for name, region in scene.boundary.node_sets.items():
+            if region.indices is None:
+                lo, hi = np.asarray(region.box_min), np.asarray(region.box_max)
+                extra[name] = np.flatnonzero(np.all((mesh.points >= lo) & (mesh.points <= hi),
+                                                    axis=1))
+        mesh = mesh.with_node_sets(extra) if extra else mesh
+    else:
+        mesh = build_mesh(scene)
+    return FieldObject(text, "scene", mesh, fixed_nodes(scene, mesh), shape, _sha256(path),
+                       {"geometry": geom.kind})
