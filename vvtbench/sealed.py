@@ -182,8 +182,12 @@ def _link_inputs(work: Path, inputs: Mapping[str, Path], files: Mapping[str, Pat
             shutil.copyfile(src, dst)
 
 
-def _child_env(threads: int | None) -> dict[str, str]:
-    env = {"PATH": "/usr/local/bin:/usr/bin:/bin", "HOME": "/tmp", "LANG": "C.UTF-8",
+MARK = "VVTBENCH_SEALED"  # the environment mark of one sealed child and its descendants
+
+
+def _child_env(threads: int | None, marker: str = "") -> dict[str, str]:
+    env = {MARK: marker, "PATH": "/usr/local/bin:/usr/bin:/bin", "HOME": "/tmp",
+           "LANG": "C.UTF-8",
            "TMPDIR": "/tmp", "MPLCONFIGDIR": "/tmp/matplotlib", "PYTHONFAULTHANDLER": "1",
            "PYTHONDONTWRITEBYTECODE": "1", "PYTHONNOUSERSITE": "1"}
     paths = [p for p in sys.path if p and os.path.isdir(p)]
@@ -239,11 +243,21 @@ def _children_of(pid: int) -> list[int]:
     return out
 
 
-def _reap_escaped(before: set[int]) -> None:
-    """Kill processes re-parented to this (subreaper) process since ``before`` was taken: a
-    plug-in's grandchildren that left its process group."""
+def _marked(pid: int, marker: str) -> bool:
+    """Whether process ``pid`` inherited the environment mark of one sealed child."""
+    try:
+        with open(f"/proc/{pid}/environ", "rb") as f:
+            return f"{MARK}={marker}".encode() in f.read().split(b"\0")
+    except OSError:
+        return False
+
+
+def _reap_escaped(before: set[int], marker: str) -> None:
+    """Kill processes re-parented to this (subreaper) process since ``before`` was taken that
+    carry the child's mark: a plug-in's grandchildren that left its process group (never
+    another task's processes, which carry no mark or another one)."""
     for _ in range(3):
-        stray = [p for p in _children_of(os.getpid()) if p not in before]
+        stray = [p for p in _children_of(os.getpid()) if p not in before and _marked(p, marker)]
         if not stray:
             return
         for pid in stray:
@@ -298,7 +312,7 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
         timed_out = False
         with open(log_path, "wb") as log:
             proc = subprocess.Popen(cmd, cwd=work, stdin=subprocess.DEVNULL, stdout=log,
-                                    stderr=subprocess.STDOUT, env=_child_env(threads),
+                                    stderr=subprocess.STDOUT, env=_child_env(threads, work.name),
                                     start_new_session=True)
             RUNNING[proc.pid] = proc
             try:
@@ -310,7 +324,7 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
                 proc.wait()
                 RUNNING.pop(proc.pid, None)
                 if reaper:
-                    _reap_escaped(before | {proc.pid})
+                    _reap_escaped(before | {proc.pid}, work.name)
         seconds = time.perf_counter() - t0
         tail = _tail(log_path)
         if timed_out:
