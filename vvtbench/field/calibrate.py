@@ -341,3 +341,140 @@ def calibrate_from_file(path: str | Path, points: ArrayLike, width: int, height:
     clicks = load_clicks_csv(path, points)
     return calibrate_camera(clicks.X, clicks.uv, width, height, intrinsics=intrinsics,
                             max_error=max_error, source=str(path))
+
+
+# --------------------------------------------------------------------------- pictures
+
+
+def default_camera(points: ArrayLike, width: int, height: int) -> Camera:
+    """A view of the object from the front right, above (azimuth -50 deg, elevation 35 deg),
+    framing its bounding sphere in the image: the picture shown before any click."""
+    pts = np.asarray(points, dtype=np.float64)
+    centre = (pts.min(0) + pts.max(0)) / 2
+    radius = max(float(np.linalg.norm(pts.max(0) - pts.min(0))) / 2, 1e-6)
+    fov = 30.0
+    f = (min(width, height) / 2) / math.tan(math.radians(fov) / 2)
+    distance = 1.3 * radius / math.sin(math.radians(fov) / 2)
+    az, el = math.radians(-50.0), math.radians(35.0)
+    direction = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    return Camera.look_at(centre + distance * direction, centre, fx=f, width=width,
+                          height=height)
+
+
+def candidate_vertices(points: ArrayLike, surface: ArrayLike, camera: Camera,
+                       corners: ArrayLike, n_extra: int = 12) -> NDArray[np.int64]:
+    """Vertices worth clicking, as seen by ``camera``: the visible ``corners`` first, then up
+    to ``n_extra`` visible vertices spread over the surface (farthest-point order)."""
+    from ..modes.sampling import visible_vertices
+
+    pts = np.asarray(points, dtype=np.float64)
+    visible = visible_vertices(pts, surface, camera)
+    if visible.size == 0:  # a membrane seen from its back: every node in the frame
+        uv, z = camera.project(pts), camera.depth(pts)
+        visible = np.flatnonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1)
+                                 & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1))
+    chosen = [int(c) for c in np.asarray(corners, dtype=np.int64) if c in set(visible.tolist())]
+    pool = visible[~np.isin(visible, chosen)]
+    if pool.size == 0:
+        return np.array(chosen, dtype=np.int64)
+    span = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+    seeds = pts[chosen] if chosen else pts[pool[:1]]
+    dist = np.min(np.linalg.norm(pts[pool][:, None] - seeds[None], axis=2), axis=1)
+    for _ in range(min(n_extra, pool.size)):
+        i = int(np.argmax(dist))
+        if dist[i] < 0.08 * span:
+            break
+        chosen.append(int(pool[i]))
+        dist = np.minimum(dist, np.linalg.norm(pts[pool] - pts[pool[i]], axis=1))
+    return np.array(chosen, dtype=np.int64)
+
+
+def _to_bgr(frame: NDArray, scale: int) -> NDArray[np.uint8]:
+    import cv2
+
+    img = np.asarray(frame, dtype=np.float64)
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    img = np.clip((img - lo) / max(hi - lo, 1e-12), 0, 1)
+    img = (img * 255).astype(np.uint8)
+    img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+
+
+def _draw_view(img: NDArray[np.uint8], camera: Camera, points: NDArray, surface: NDArray,
+               candidates: NDArray, scale: int, clicks: Clicks | None,
+               title: str) -> NDArray[np.uint8]:
+    import cv2
+
+    def px(uv):
+        return np.rint((np.asarray(uv) + 0.5) * scale - 0.5).astype(np.int64)
+
+    p = points[surface]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    facing = np.einsum("ij,ij->i", normal, camera.center - p.mean(1)) > 0
+    if not facing.any():
+        facing[:] = True
+    edges = np.unique(np.sort(np.concatenate(
+        [surface[facing][:, [a, b]] for a, b in ((0, 1), (1, 2), (2, 0))]), axis=1), axis=0)
+    front = camera.depth(points) > 0
+    uv = px(camera.project(np.where(front[:, None], points, points.mean(0))))
+    for a, b in edges:
+        if front[a] and front[b]:
+            cv2.line(img, tuple(int(x) for x in uv[a]), tuple(int(x) for x in uv[b]),
+                     (200, 140, 0), 1, cv2.LINE_AA)
+    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.45
+    for v in candidates:
+        x, y = (int(c) for c in uv[v])
+        cv2.circle(img, (x, y), 4, (0, 220, 255), -1, cv2.LINE_AA)
+        label = str(int(v))
+        for colour, width in (((0, 0, 0), 3), ((0, 220, 255), 1)):
+            cv2.putText(img, label, (x + 6, y - 6), font, size, colour, width, cv2.LINE_AA)
+    if clicks is not None:
+        for X, click in zip(clicks.X, clicks.uv, strict=True):
+            c = px(click)
+            r = px(camera.project(X))
+            cv2.drawMarker(img, (int(c[0]), int(c[1])), (0, 200, 0), cv2.MARKER_CROSS, 14, 2)
+            cv2.circle(img, (int(r[0]), int(r[1])), 6, (0, 0, 255), 1, cv2.LINE_AA)
+    for colour, width in (((0, 0, 0), 3), ((255, 255, 255), 1)):
+        cv2.putText(img, title, (8, 20), font, 0.5, colour, width, cv2.LINE_AA)
+    return img
+
+
+def draw_calibration(path: str | Path, frame: NDArray, camera: Camera, points: ArrayLike,
+                     surface: ArrayLike, candidates: ArrayLike, *, calibrated: bool,
+                     clicks: Clicks | None = None, caption: str = "") -> Path:
+    """A PNG: the video's first frame (left) and the mesh drawn by ``camera`` with the
+    numbered ``candidates`` (right; on the frame too when ``calibrated``), clicked pixels as
+    green crosses and their reprojections as red circles."""
+    import cv2
+
+    from ..io import write_bytes
+
+    pts = np.asarray(points, dtype=np.float64)
+    tri = np.asarray(surface, dtype=np.int64)
+    cand = np.asarray(candidates, dtype=np.int64)
+    h, w = camera.height, camera.width
+    scale = max(1, int(math.ceil(480 / max(h, w))))
+    left = _to_bgr(frame, scale)
+    if calibrated:
+        left = _draw_view(left, camera, pts, tri, cand, scale, clicks,
+                          "first frame + mesh from the clicks")
+    else:
+        left = _draw_view(left, camera, pts, tri[:0], cand[:0], scale, clicks,
+                          "first frame (no clicks yet)")
+    right = np.full_like(left, 40)
+    right = _draw_view(right, camera, pts, tri, cand, scale, clicks,
+                       "mesh, estimated camera" if calibrated else "mesh, default view")
+    gap = np.full((left.shape[0], 8, 3), 255, np.uint8)
+    img = np.hstack([left, gap, right])
+    if caption:
+        bar = np.full((28, img.shape[1], 3), 255, np.uint8)
+        cv2.putText(bar, caption, (8, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1,
+                    cv2.LINE_AA)
+        img = np.vstack([img, bar])
+    ok, data = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"{path}: cannot encode the PNG")
+    write_bytes(path, data.tobytes())
+    return Path(path)
