@@ -325,3 +325,44 @@ def test_extract_command_on_camera_files(tmp_path: Path,
                  "--frames", "9:3"]) == 2
     assert "argument --frames: frames must be START:STOP" in capsys.readouterr().err
     assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
+
+
+def test_photron_cihx_header(tmp_path: Path) -> None:
+    import pyMRAW
+
+    data = _frames(4, 6, 8, 4095, seed=7)
+    mraw, cih = pyMRAW.save_mraw(data, str(tmp_path / "rec.cih"), bit_depth=16)
+    Path(cih).unlink()
+    xml = ("<cih><fileInfo><date>2026/01/01</date></fileInfo>"
+           "<deviceInfo><deviceName>FASTCAM</deviceName></deviceInfo>"
+           "<recordInfo><recordRate>12500</recordRate><shutterSpeed>0.00001</shutterSpeed>"
+           "</recordInfo><frameInfo><totalFrame>4</totalFrame><recordedFrame>4</recordedFrame>"
+           "</frameInfo><imageDataInfo><resolution><width>8</width><height>6</height>"
+           "</resolution><effectiveBit><depth>12</depth><side>Lower</side></effectiveBit>"
+           "<colorInfo><bit>16</bit></colorInfo></imageDataInfo>"
+           "<imageFileInfo><fileFormat>MRaw</fileFormat></imageFileInfo>"
+           "<basicInfo><comment>bench</comment></basicInfo></cih>\n")
+    (tmp_path / "rec.cihx").write_bytes(b"\x00\x01binary prefix\n" + xml.encode())
+    vs = open_video(mraw)  # the header is found next to the .mraw
+    assert vs.fps == 12500 and vs.meta["bits"] == 12 and vs.meta["camera"] == "FASTCAM"
+    np.testing.assert_allclose(_stack(vs), data / 4095, atol=1e-6)
+
+
+def test_lossy_description_of_intra_and_lossless_codecs(tmp_path: Path) -> None:
+    import imageio_ffmpeg
+
+    from vvtbench.video import lossy_description
+
+    frames = _frames(12, 16, 16, 255)
+    for name, codec, fmt in (("m.avi", "mjpeg", "yuvj420p"), ("l.avi", "ffv1", "gray")):
+        w = imageio_ffmpeg.write_frames(str(tmp_path / name), (16, 16), pix_fmt_in="gray",
+                                        pix_fmt_out=fmt, codec=codec, fps=25, quality=None,
+                                        macro_block_size=1, ffmpeg_log_level="error")
+        w.send(None)
+        for f in frames:
+            w.send(np.ascontiguousarray(f))
+        w.close()
+    mjpeg = lossy_description(tmp_path / "m.avi", probe_video(tmp_path / "m.avi"))
+    assert mjpeg is not None and mjpeg["codec"] == "mjpeg" and mjpeg["gop"] == 1
+    assert mjpeg["frames_probed"] == 12 and mjpeg["keyframes"] == list(range(12))
+    assert lossy_description(tmp_path / "l.avi", probe_video(tmp_path / "l.avi")) is None
