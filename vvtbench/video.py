@@ -18,9 +18,13 @@ Frame sources of :func:`open_video`: any container/codec that the ``imageio-ffmp
 decodes (avi, mp4, mkv, ...) is read through ffmpeg's own grayscale conversion (luma): sources
 with more than 8 bits per channel (e.g. ``gray16le``, ``yuv420p10le``, ``rgb48le``) are
 decoded as 16-bit ``gray16le`` and scaled by ``1 / 65535``, the others as 8-bit ``gray``
-scaled by ``1 / 255``.  ``.npy`` files ``(T, H, W)`` or ``(T, H, W, C)`` are memory-mapped;
-arrays and iterables of frames are accepted as they are.  Colour frames given as arrays use
-Rec. 601 luma weights.
+scaled by ``1 / 255``.  Image sequences (a folder, a glob, a printf pattern), Photron
+``.cih``/``.cihx`` + ``.mraw``, Phantom ``.cine`` and ``.npy`` files ``(T, H, W[, C])`` are
+read by :mod:`vvtbench.field.readers` (rate and bit depth from their headers, the ROI and
+frame range read in place, a file cut short refused); arrays and iterables of frames are
+accepted as they are.  Colour frames given as arrays use Rec. 601 luma weights.  A lossy
+compressed video is described in ``meta["lossy"]`` (codec, bit depth, keyframe interval:
+:func:`lossy_description`).
 
 Frame rates.  ffmpeg prints rates of 1000 FPS and more as ``"2k fps"``, so parsing its
 banner (as ``imageio_ffmpeg`` does) reads them as 0.  :func:`probe_video` instead takes the
@@ -61,6 +65,9 @@ __all__ = [
     "average_frames",
     "concat_videos",
     "count_frames",
+    "describe_lossy",
+    "keyframe_positions",
+    "lossy_description",
     "open_video",
     "probe_video",
     "read_frames",
