@@ -198,6 +198,16 @@ def test_container_frame_range_and_roi(tmp_path: Path) -> None:
 
 
 def test_truncated_raw_container_is_not_a_shorter_video(tmp_path: Path) -> None:
+    data = _frames(50, 16, 16, 255)
+    with VideoWriter(tmp_path / "v.mkv", 16, 16, pix_fmt="gray", capture_fps=2000) as w:
+        for f in data:
+            w.write(f)
+    assert probe_video(tmp_path / "v.mkv").n_streams == 1
+    np.testing.assert_allclose(_stack(open_video(tmp_path / "v.mkv")), data / 255, atol=1e-6)
+    raw = (tmp_path / "v.mkv").read_bytes()
+    (tmp_path / "cut.mkv").write_bytes(raw[: int(len(raw) * 0.6)])
+    with pytest.raises(VideoError, match="truncated: the container says 50 frames .* holds 3"):
+        _stack(open_video(tmp_path / "cut.mkv"))
     np.save(tmp_path / "v.npy", _frames(8, 4, 4, 255))
     raw = (tmp_path / "v.npy").read_bytes()
     (tmp_path / "v.npy").write_bytes(raw[:-1])
