@@ -1,10 +1,95 @@
-"""The ``invert`` command (being built: it raises a clear error until it is)."""
+"""The ``invert`` command: from a video, its object and clicks to a material map.
+
+``vvtbench invert VIDEO --object OBJ --clicks CSV [--solver NAME] [--modes N] [--fps F]
+-o OUT`` runs :func:`vvtbench.field.invert.invert` (calibrate, extract, observe, solve,
+report) and prints where ``OUT/report.md`` is. Exit status 0 with a valid estimate, 1 when
+the solver's estimate is invalid (the reason is printed and heads the report), 2 for bad
+input.
+"""
 
 from __future__ import annotations
 
+import argparse
 import sys
+from pathlib import Path
+
+from . import nonnegative_float, positive_float, positive_int
+
+__all__ = ["build_parser", "main_invert"]
+
+
+def build_parser(prog: str = "vvtbench invert") -> argparse.ArgumentParser:
+    """Argument parser of :func:`main_invert`."""
+    ap = argparse.ArgumentParser(
+        prog=prog,
+        description="From your video, object and clicks to a material map: extract -> "
+        "observe -> solve -> a report folder (report.md first). Finished stages are reused "
+        "when their inputs are unchanged (docs/tutorials/your-own-video.md).")
+    ap.add_argument("video", type=Path, help="video or camera file (anything `extract` reads)")
+    ap.add_argument("--object", required=True, metavar="OBJ",
+                    help="box:LxWxH, plate:LxW, plate:D:circle (metres), a .stl/.obj/.ply "
+                         "surface or a scene .toml")
+    ap.add_argument("--clicks", type=Path, required=True, metavar="CSV",
+                    help="clicked points: CSV with header vertex,u,v or x,y,z,u,v")
+    ap.add_argument("--solver", default="vvt", help="solver name or path/file.py:Class "
+                    "(default vvt; `vvtbench solvers` lists them)")
+    ap.add_argument("--set", dest="solver_set", action="append", default=[],
+                    metavar="KEY=VALUE", help="solver configuration override (repeatable)")
+    ap.add_argument("--modes", type=positive_int, default=10, metavar="N",
+                    help="modes the solver uses, the lowest extracted (default 10)")
+    ap.add_argument("--fps", type=positive_float, help="frame rate, when the file states none")
+    ap.add_argument("--fmin", type=positive_float, help="lowest frequency to extract (Hz)")
+    ap.add_argument("--fmax", type=positive_float, help="highest frequency to extract (Hz)")
+    ap.add_argument("--intrinsics", metavar="FX,FY,CX,CY",
+                    help="known intrinsics in pixels (default: estimated from the clicks)")
+    ap.add_argument("--max-error", type=nonnegative_float, default=2.0, metavar="PX",
+                    help="largest reprojection error of the clicks accepted (default 2 px)")
+    ap.add_argument("--nu", type=positive_float, default=0.3, help="Poisson's ratio (0.3)")
+    ap.add_argument("--w0", type=positive_float,
+                    help="initial stiffness (Pa; N/m for plates): default 1e4 / 40")
+    ap.add_argument("--v0", type=positive_float,
+                    help="initial density (kg/m^3; kg/m^2 for plates): default 1000 / 0.5")
+    ap.add_argument("--timeout", type=positive_float, default=1800.0,
+                    help="seconds the solver may take (default 1800)")
+    ap.add_argument("-o", "--out", type=Path, required=True, help="report folder")
+    return ap
 
 
 def main_invert(argv: list[str] | None = None) -> int:
-    print("error: `vvtbench invert` is not built yet", file=sys.stderr)
-    return 2
+    """``vvtbench invert VIDEO --object OBJ --clicks CSV -o OUT``; the exit status."""
+    from ..field.calibrate import parse_intrinsics
+    from ..field.invert import InvertOptions, invert
+    from ..plugins import load_solver, parse_overrides
+
+    args = build_parser().parse_args(argv)
+    if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
+        raise ValueError(f"--fmin {args.fmin:g} must be below --fmax {args.fmax:g}")
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"-o {args.out}: exists and is not a folder")
+    config = {}
+    if args.solver_set:
+        checked = parse_overrides(args.solver_set, load_solver(args.solver).Config)
+        config = {key: getattr(checked, key) for key in
+                  (item.partition("=")[0].strip() for item in args.solver_set)}
+    opts = InvertOptions(solver=args.solver, solver_config=config, n_modes=args.modes,
+                         fps=args.fps, intrinsics=parse_intrinsics(args.intrinsics),
+                         max_error=args.max_error, fmin=args.fmin, fmax=args.fmax,
+                         nu=args.nu, w0=args.w0, v0=args.v0, timeout=args.timeout)
+    from ..sealed import SealedError
+
+    try:
+        result = invert(args.video, args.object, args.clicks, args.out, opts)
+    except SealedError as error:
+        print(f"error: solver {args.solver}: {error}", file=sys.stderr)
+        return 1
+    if result.reused:
+        print(f"reused finished stages: {', '.join(result.reused)}")
+    if result.invalid is not None:
+        print(f"NO RESULT: the estimate of {result.solver} is invalid: {result.invalid} "
+              f"(see {result.report})", file=sys.stderr)
+        return 1
+    print(f"{result.solver}: material map from {result.n_modes} modes; camera reprojection "
+          f"RMS {result.rms_px:.3f} px, max {result.max_px:.3f} px")
+    print(f"read {result.report} first; fields in {args.out / 'fields.npz'} and "
+          f"{args.out / 'fields.png'}")
+    return 0
