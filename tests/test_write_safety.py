@@ -229,3 +229,142 @@ def test_generate_on_a_silent_scheduler_is_one_line(tmp_path, monkeypatch, capsy
                  "--scheduler", silent_server])
     line = _one_line(capsys)
     assert code == 2 and silent_server in line and "no answer" in line, line
+
+
+# --------------------------------------------------------------------------- run killed
+SUITE = """
+name = "tiny"
+scenes = ["jello_cube_defect_top"]
+solvers = ["homogeneous"]
+seeds = [0]
+observations = ["true"]
+
+[defaults]
+"geometry.cells" = [5, 5, 5]
+"simulation.n_modes" = 8
+"simulation.fps" = 400.0
+"simulation.duration" = 0.5
+"camera.resolution" = [64, 64]
+n_modes = 4
+inference_shape = [3, 3, 3]
+"""
+SLEEPER = '''
+import time
+from dataclasses import dataclass
+
+
+@dataclass
+class Config:
+    pass
+
+
+class Sleep:
+    name = "sleep"
+    version = "0.0.1"
+    description = "sleeps"
+    Config = Config
+
+    def __init__(self, config=None):
+        pass
+
+    def solve(self, problem):
+        while True:
+            time.sleep(1)
+'''
+
+
+def _sealed_sleeper(run_pid: int, timeout: float = 120.0) -> int:
+    """The pid of the sealed child solving with the ``Sleep`` plug-in for the run
+    ``run_pid``."""
+    import os
+    import time
+
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        for entry in os.listdir("/proc"):
+            try:
+                argv = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+                if argv[1:3] != [b"-m", b"vvtbench.sealed"]:
+                    continue
+                spec = json.loads(Path(argv[3].decode()).read_text())
+                if spec.get("job") == "solve" and spec.get("target", "").endswith(":Sleep") \
+                        and run_pid in _ancestors(int(entry)):
+                    return int(entry)
+            except (OSError, ValueError, IndexError):
+                continue
+        time.sleep(0.1)
+    raise AssertionError("no sealed child solving with Sleep")
+
+
+def _parent(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+def _ancestors(pid: int) -> list[int]:
+    out = []
+    while pid > 1:
+        pid = _parent(pid)
+        out.append(pid)
+    return out
+
+
+def _pool_worker(pid: int) -> int:
+    """The pool worker (a forkserver child) above ``pid`` (the sandbox sits in between)."""
+    while pid > 1:
+        pid = _parent(pid)
+        if b"multiprocessing.forkserver" in Path(f"/proc/{pid}/cmdline").read_bytes():
+            return pid
+    raise AssertionError("the solve does not run in a pool worker")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ("Z", "X")
+
+
+def _tree_state(folder: Path) -> dict[str, tuple[int, int]]:
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in folder.rglob("*") if not p.is_symlink()}
+
+
+def test_pool_workers_end_when_the_run_is_killed(tmp_path):
+    """SIGKILL of ``vvtbench run --workers 2`` while a solve sleeps: the pool worker and its
+    sealed child end within seconds and nothing more is written into the run folder."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    suite = tmp_path / "tiny.toml"
+    suite.write_text(SUITE)
+    plugin = tmp_path / "sleeper.py"
+    plugin.write_text(SLEEPER)
+    out = tmp_path / "run"
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), *sys.path])}
+    proc = subprocess.Popen([sys.executable, "-m", "vvtbench.cli", "run", str(suite), "-o",
+                             str(out), "--solvers", f"{plugin}:Sleep", "--workers", "2",
+                             "--timeout", "8", "--no-progress"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        child = _sealed_sleeper(proc.pid)
+        worker = _pool_worker(child)
+        assert worker != proc.pid
+        proc.kill()
+        proc.wait(timeout=30)
+        t0 = time.time()
+        while (_alive(worker) or _alive(child)) and time.time() - t0 < 20:
+            time.sleep(0.2)
+        assert not _alive(worker) and not _alive(child)
+        before = _tree_state(out)
+        time.sleep(10)  # longer than the solve's timeout: a live worker would write its row
+        assert _tree_state(out) == before
+        assert not list((out / "cache").rglob("*.tmp-*"))
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)

@@ -104,9 +104,41 @@ class _Inline:
         pass
 
 
-def _worker_init():
-    """Pool workers: Ctrl-C is the parent's business; SIGTERM (the parent stopping the run)
-    ends the solve child and removes the half-written task folder before exiting."""
+def _end_with_run(run_pid: int) -> None:
+    """SIGTERM this process when the run's process ``run_pid`` ends, even by SIGKILL: a pool
+    worker's parent is the forkserver, which outlives a killed run, so the worker watches the
+    run itself (a pidfd where Linux has one, else its pid twice a second)."""
+    import threading
+
+    main_thread = threading.main_thread().ident
+
+    def watch() -> None:
+        try:
+            fd = os.pidfd_open(run_pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            import select
+
+            select.select([fd], [], [])
+        else:
+            while True:
+                try:
+                    os.kill(run_pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:
+                    pass
+                time.sleep(0.5)
+        signal.pthread_kill(main_thread, signal.SIGTERM)  # interrupts a blocking wait
+
+    threading.Thread(target=watch, name="vvtbench-run-watch", daemon=True).start()
+
+
+def _worker_init(run_pid: int | None = None):
+    """Pool workers: Ctrl-C is the parent's business; SIGTERM (the parent stopping the run, or
+    the run's process ending, even killed) ends the solve child and removes the half-written
+    task folder before exiting, so nothing is written into the run folder after the run."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def on_term(signum, frame):
@@ -121,6 +153,8 @@ def _worker_init():
         os._exit(128 + signum)
 
     signal.signal(signal.SIGTERM, on_term)
+    if run_pid is not None:
+        _end_with_run(run_pid)
 
 
 class _Pool:
@@ -134,7 +168,7 @@ class _Pool:
 
         ctx = mp.get_context("spawn" if sys.platform == "darwin" else "forkserver")
         self.ex = ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx,
-                                      initializer=_worker_init)
+                                      initializer=_worker_init, initargs=(os.getpid(),))
 
     def submit(self, fn, *args):
         return self.ex.submit(fn, *args)
