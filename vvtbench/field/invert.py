@@ -2,7 +2,7 @@
 
 Stages, each cached in the output folder and keyed by the sha256 of its inputs and its
 options (``stages.json``); a rerun with the same inputs reuses every finished stage, a changed
-input redoes that stage and those after it:
+input redoes that stage and the solve (whose key holds the keys of the first two):
 
 1. ``calibrate`` -- the object (:func:`~vvtbench.field.objects.resolve_object`) and the camera
    from the clicks (:func:`~vvtbench.field.calibrate.calibrate_camera`): ``camera.json``;
@@ -147,10 +147,6 @@ class _Stages:
         self.records[stage] = {"key": key, "inputs": jsonable(dict(inputs))}
         write_json(self.path, self.records, sort_keys=True)
 
-    def forget_after(self, stage: str) -> None:
-        for later in STAGES[STAGES.index(stage) + 1:]:
-            self.records.pop(later, None)
-
 
 def _replace_dir(tmp: Path, final: Path) -> None:
     if final.exists():
@@ -259,7 +255,6 @@ def _invert(video, object_spec, clicks, out: Path, opts: InvertOptions, log) -> 
     if stages.done("calibrate", cal_key, out / "camera.json"):
         reused.append("calibrate")
     else:
-        stages.forget_after("calibrate")
         write_json(out / "camera.json", {**cal.to_dict(), "clicks": str(clicks),
                                          "object": obj.describe()})
         stages.finish("calibrate", cal_key, cal_inputs)
@@ -274,7 +269,6 @@ def _invert(video, object_spec, clicks, out: Path, opts: InvertOptions, log) -> 
         reused.append("extract")
         modes = ModeSet.load(out / "extract")
     else:
-        stages.forget_after("extract")
         log(f"extracting modes from {video} at {fps:g} fps ...")
         modes = extract_step(video, fps, out / "extract", **extract_options)
         stages.finish("extract", ext_key, ext_inputs)
