@@ -35,6 +35,34 @@ def test_the_history_check_can_fail():
     assert not HISTORY.search(ALLOWED.sub("", "bwrap --new-session"))
 
 
+def history_lines(pages: list[Path], root: Path = ROOT) -> list[str]:
+    """`file:line: text` of every line that speaks of how the product was built."""
+    found = []
+    for page in pages:
+        for number, line in enumerate(page.read_text().splitlines(), 1):
+            if HISTORY.search(ALLOWED.sub("", line)):
+                found.append(f"{page.relative_to(root)}:{number}: {line.strip()}")
+    return found
+
+
+def test_no_page_speaks_of_how_the_product_was_built():
+    found = history_lines(_pages())
+    assert not found, "\n".join(found)
+
+
+def test_the_history_check_lists_file_and_line(tmp_path):
+    page = tmp_path / "docs" / "probe.md"
+    page.parent.mkdir()
+    page.write_text("fine\nmeasured in the ninth session\nbwrap --new-session\n")
+    assert history_lines([page], tmp_path) == ["docs/probe.md:2: measured in the ninth session"]
+
+
+def test_the_results_columns_of_provenance_are_documented():
+    text = (ROOT / "docs" / "results.md").read_text()
+    for column in ("`estimate_sha256`", "`observation_sha256`", "`sandbox`"):
+        assert column in text, column
+
+
 @pytest.mark.skipif(not (ROOT / "mkdocs.yml").is_file(), reason="no site configuration")
 def test_the_site_builds_strictly(tmp_path):
     pytest.importorskip("mkdocs")
