@@ -368,3 +368,58 @@ def test_pool_workers_end_when_the_run_is_killed(tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+# --------------------------------------------------------------------------- mesh cache
+def _star_tetrahedralize(vertices, faces, **settings):
+    """A valid tetrahedralization of a convex closed surface: its centroid joined to every
+    face (stands in for fTetWild, which takes seconds)."""
+    import numpy as np
+
+    pts = np.vstack([vertices, np.mean(vertices, axis=0)])
+    return pts, np.column_stack([faces, np.full(len(faces), len(vertices))])
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "wrong_indices", "link"])
+def test_a_damaged_mesh_cache_is_rebuilt(tmp_path, monkeypatch, damage):
+    import numpy as np
+    import pytetwild
+    import trimesh
+
+    from vvtbench.fem.mesh import mesh_cache_dir, tet_mesh
+
+    monkeypatch.setenv("VVTBENCH_CACHE", str(tmp_path / "cache"))
+    box = trimesh.creation.box(extents=(0.05, 0.04, 0.03))
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return _star_tetrahedralize(*args)
+
+    monkeypatch.setattr(pytetwild, "tetrahedralize", counted)
+    tet_mesh(box.vertices, box.faces)
+    (cache,) = mesh_cache_dir().glob("tetwild-*.npz")
+    tet_mesh(box.vertices, box.faces)
+    assert len(calls) == 1  # a sound cache is used
+    data = cache.read_bytes()
+    victim = tmp_path / "victim.npz"
+    if damage == "truncate":
+        cache.write_bytes(data[: len(data) // 2])
+    elif damage == "garbage":
+        cache.write_bytes(b"\0" * len(data))
+    elif damage == "wrong_indices":
+        with np.load(cache) as z:
+            pts, tets = z["points"], z["tets"]
+        np.savez(cache, points=pts, tets=tets + len(pts))
+    else:
+        victim.write_bytes(data)
+        cache.unlink()
+        cache.symlink_to(victim)
+    mesh = tet_mesh(box.vertices, box.faces)
+    assert len(calls) == 2  # rebuilt, not used and not fatal
+    assert len(mesh.cells) == 12 and mesh.cells.max() < len(mesh.points)
+    assert not cache.is_symlink()
+    with np.load(cache) as z:  # the healed cache is sound again
+        assert z["tets"].max() < len(z["points"])
+    assert [p.name for p in mesh_cache_dir().iterdir()] == [cache.name]
+    assert not victim.exists() or victim.read_bytes() == data

@@ -17,6 +17,7 @@ import importlib.resources
 import json
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -351,10 +352,19 @@ def tet_mesh(
     shipped = shipped_mesh_dir() / f"tetwild-{digest.hexdigest()[:24]}.npz"
     digest.update(getattr(pytetwild, "__version__", "").encode())
     cache = mesh_cache_dir() / f"tetwild-{digest.hexdigest()[:24]}.npz"
-    found = next((c for c in (shipped, cache) if c.is_file()), None)
-    if found is not None:
-        with np.load(found) as z:
-            pts, tets = z["points"], z["tets"]
+    loaded = None
+    if shipped.is_file():
+        loaded = _load_tets(shipped)
+        if isinstance(loaded, str):
+            raise ValueError(f"{shipped}: the shipped tetrahedralization is damaged ({loaded}); "
+                             "reinstall vvtbench")
+    elif cache.is_file() or cache.is_symlink():
+        loaded = _load_tets(cache)
+        if isinstance(loaded, str):  # truncated or damaged: rebuilt below
+            cache.unlink(missing_ok=True)
+            loaded = None
+    if loaded is not None:
+        pts, tets = loaded
     else:
         with _scratch_cwd():  # fTetWild writes __tracked_surface.stl into the working directory
             pts, tets = pytetwild.tetrahedralize(vertices, faces, quiet=True, **settings)
@@ -362,11 +372,30 @@ def tet_mesh(
         used, tets = np.unique(tets, return_inverse=True)
         tets = tets.reshape(-1, 4)
         pts = np.asarray(pts, dtype=float)[used]
+        from ..io import write_npz
+
         cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, points=pts, tets=tets)
-        os.replace(tmp, cache)
+        write_npz(cache, {"points": pts, "tets": tets}, compressed=False)
     return tets_to_mesh(pts, tets, order=order, bottom_tol=bottom_tol)
+
+
+def _load_tets(path: Path) -> tuple[np.ndarray, np.ndarray] | str:
+    """The points and tets of a cached tetrahedralization, or what is wrong with the file
+    (unreadable, truncated, a link, arrays of the wrong shape or indices out of range)."""
+    if path.is_symlink():
+        return "a symbolic link"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            pts, tets = np.asarray(z["points"]), np.asarray(z["tets"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+        return f"unreadable: {type(error).__name__}: {error}"
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 4 or not np.isfinite(pts).all():
+        return f"points of shape {pts.shape} (allowed: (n >= 4, 3), finite)"
+    if tets.ndim != 2 or tets.shape[1] != 4 or not len(tets) or tets.dtype.kind not in "iu":
+        return f"tets of shape {tets.shape} and dtype {tets.dtype} (allowed: (m >= 1, 4) ints)"
+    if tets.min() < 0 or tets.max() >= len(pts):
+        return f"tets index nodes outside 0..{len(pts) - 1}"
+    return pts, tets
 
 
 @contextlib.contextmanager
