@@ -50,7 +50,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
               solver_config: dict | None = None, progress: bool = True,
               until: str = "evaluate", threads: int | None = None,
               timeout: float | None = None, memory_gb: float | None = None,
-              wait: bool = False, isolate: bool = True):
+              wait: bool = False):
     """Run a suite; return the results table (a pandas DataFrame).
 
     ``solvers``: names or ``path/file.py:Class`` (default: the suite's ``solvers``);
@@ -58,9 +58,10 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
     ``[solver.NAME]`` tables; ``workers`` local processes; ``scheduler``: a Dask scheduler
     address (or a ``distributed.Client``) to run on instead; ``until``: last stage to run.
 
-    Every solve runs in a child process (``isolate``) limited to ``timeout`` seconds (default:
-    the suite's ``timeout``, else 3600) and ``memory_gb`` of address space (default: the
-    suite's ``memory_gb``, else 75 % of the machine's memory / workers). The run folder is
+    Every solve runs in a sealed child process (:mod:`vvtbench.sealed`) limited to
+    ``timeout`` seconds (default: the suite's ``timeout``, else 3600) and ``memory_gb`` of
+    address space (default: the suite's ``memory_gb``, else 75 % of the machine's memory /
+    workers). The run folder is
     locked for the run: a second run on it raises :class:`~vvtbench.bench.lock.RunLocked`
     (or waits, ``wait=True``). Ctrl-C raises :class:`~vvtbench.bench.executors.Interrupted`.
 
@@ -79,7 +80,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         memory_gb = suite.memory_gb
     memory_bytes = (int(memory_gb * 2**30) if memory_gb is not None
                     else default_memory_bytes(workers if scheduler is None else 1))
-    limits = {"timeout": float(timeout), "memory_bytes": memory_bytes, "isolate": isolate}
+    limits = {"timeout": float(timeout), "memory_bytes": memory_bytes}
     tasks, runs = build_graph(suite, solvers, solver_config, until, timeout=float(timeout))
     out_dir.mkdir(parents=True, exist_ok=True)
     lock = RunLock(out_dir, wait=wait,
