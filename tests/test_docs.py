@@ -77,5 +77,8 @@ def test_the_site_builds_strictly(tmp_path):
 
     for command in COMMANDS:
         assert f"vvtbench {command}" in cli, command
+    for sub in ("build", "verify", "freeze"):
+        assert f"vvtbench release {sub}" in cli, sub
     api = (tmp_path / "site" / "reference" / "api" / "index.html").read_text()
     assert "InverseProblem" in api and "solve_sealed" in api
+    assert ":func:" not in api and ":class:" not in api

@@ -1,24 +1,31 @@
-"""mkdocs hook: the command-line reference is generated from vvtbench's own parsers at build
-time (``vvtbench COMMAND --help`` of every command), so it cannot drift from the code."""
+"""mkdocs hooks: the command-line reference is generated from vvtbench's own parsers at build
+time (``vvtbench COMMAND --help`` of every command and sub-command), so it cannot drift from
+the code; Sphinx roles left in docstrings (``:func:`x```) render as plain code."""
 
 from __future__ import annotations
 
 import contextlib
 import io
+import re
 
 MARKER = "<!-- cli-reference -->"
+SUBCOMMANDS = re.compile(r"^usage: vvtbench [\w-]+ \[-h\] \{([\w,-]+)\}")
+SPHINX_ROLE = re.compile(r":(?:func|class|mod|meth|attr|data|exc|obj):(?=<code>)")
 
 
-def _help(command: str) -> str:
+def _help(*args: str) -> str:
     from vvtbench.cli import main
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
-            main([command, "--help"])
+            main([*args, "--help"])
         except SystemExit:
             pass
-    return (out.getvalue() or err.getvalue()).rstrip()
+    text = (out.getvalue() or err.getvalue()).rstrip()
+    if not text:
+        raise RuntimeError(f"vvtbench {' '.join(args)} --help printed nothing")
+    return text
 
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
@@ -29,7 +36,12 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
     parts = []
     for command in COMMANDS:
         text = _help(command)
-        if not text:
-            raise RuntimeError(f"vvtbench {command} --help printed nothing")
         parts.append(f"## `vvtbench {command}`\n\n```text\n{text}\n```\n")
+        found = SUBCOMMANDS.match(text)
+        for sub in found.group(1).split(",") if found else ():
+            parts.append(f"### `vvtbench {command} {sub}`\n\n```text\n{_help(command, sub)}\n```\n")
     return markdown.replace(MARKER, "\n".join(parts))
+
+
+def on_page_content(html: str, page, config, files) -> str:
+    return SPHINX_ROLE.sub("", html)
