@@ -1,0 +1,5 @@
+"""Physical yardsticks of the benchmark's scores.
+
+* :mod:`vvtbench.scoring.crb`: the Cramér-Rao bound of image motion in a sample's video and
+  the detectability of its true modes by it.
+"""
