@@ -258,6 +258,9 @@ def test_verify_exported_dataset(sample, tmp_path, capsys):
     chunk.write_bytes(b"garbage")
     capsys.readouterr()
     assert cli.main(["verify", str(out)]) == 1
+    assert f"{chunk}: sha256 differs" in capsys.readouterr().out
+    (out / "SHA256SUMS").unlink()  # without the list the arrays are still read
+    assert cli.main(["verify", str(out)]) == 1
     assert "unreadable" in capsys.readouterr().out
 
 

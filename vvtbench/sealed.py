@@ -9,7 +9,8 @@ a plug-in's name, version and configuration -- runs in a child process started b
   it may write) and a scrubbed environment: no cache path on its argv, in its environment or in
   its working folder.
 * Where bubblewrap (``bwrap``) works, the child runs in a filesystem sandbox: the system and
-  the Python installation read-only, its own ``/tmp``, the working folder, no network, its own
+  the Python installation read-only, its own ``/tmp`` (a scratch folder on disk, so that what
+  a bounded-memory extraction spills stays on disk), the working folder, no network, its own
   PID namespace (every process it starts ends with it), and every path the caller names as
   secret (the run folder, the sample folder, the output folder) hidden even where it lies
   inside a visible tree. Where bubblewrap is missing or cannot create namespaces (macOS,
@@ -115,7 +116,8 @@ def _inside(path: Path, root: Path) -> bool:
 def _bwrap_argv(work: Path, inputs: Mapping[str, Path], extra_ro: Sequence[Path],
                 secrets: Sequence[Path], files: Mapping[str, Path] = {}) -> list[str]:
     argv = [shutil.which("bwrap") or "bwrap", "--unshare-all", "--die-with-parent",
-            "--new-session", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp"]
+            "--new-session", "--dev", "/dev", "--proc", "/proc",
+            "--bind", str(work / "scratch"), "/tmp"]  # on disk: spills stay out of memory
     for p in _SYSTEM:
         if os.path.islink(p):
             argv += ["--symlink", os.readlink(p), p]
@@ -278,19 +280,22 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
                secrets: Sequence[Path] = (), extra_ro: Sequence[Path] = (),
                timeout: float | None = DEFAULT_TIMEOUT, memory_bytes: int | None = None,
                threads: int | None = None, accept: Sequence[str] | None = None,
-               files: Mapping[str, Path] = {}) -> dict:
+               files: Mapping[str, Path] = {}, scratch: str | Path | None = None) -> dict:
     """Run the child job ``spec`` (``{"job": "solve"|"extract"|"describe", ...}``) sealed.
 
     ``inputs``: name -> file or folder shown read-only as ``in/<name>``; ``dest``: the folder
     the files the child wrote into ``out/`` are copied to (regular files only; ``accept``
-    limits their names); ``secrets``: paths hidden from the child. Returns the child's result
-    dict with ``"sandbox"`` and ``"seconds"``, or raises :class:`SealedError`.
+    limits their names); ``secrets``: paths hidden from the child; ``scratch``: the folder its
+    working folder (and its ``/tmp``) is made in (default: the system's temporary folder).
+    Returns the child's result dict with ``"sandbox"`` and ``"seconds"``, or raises
+    :class:`SealedError`.
     """
     kind = sandbox_kind()
-    work = Path(tempfile.mkdtemp(prefix="vvtbench-sealed-"))
+    work = Path(tempfile.mkdtemp(prefix="vvtbench-sealed-", dir=scratch))
     try:
         (work / "out").mkdir()
         (work / "in").mkdir()
+        (work / "scratch").mkdir()
         doc = {**spec, "memory_bytes": memory_bytes}
         (work / "spec.json").write_text(json.dumps(doc))
         cmd = [sys.executable, "-m", "vvtbench.sealed", str(work / "spec.json")]
@@ -482,22 +487,37 @@ def solve_sealed(target: str, config: Mapping[str, Any] | None, problem, *, trut
     return estimate, float(result.get("wall_s", result["seconds"])), info
 
 
-def extract_sealed(video: Path, fps: float | None, options: Mapping[str, Any], dest: Path, *,
-                   timeout: float | None = DEFAULT_TIMEOUT, memory_bytes: int | None = None,
-                   threads: int | None = None, secrets: Sequence[Path] = ()) -> dict:
+def extract_sealed(video: Path | str, fps: float | None, options: Mapping[str, Any],
+                   dest: Path, *, timeout: float | None = DEFAULT_TIMEOUT,
+                   memory_bytes: int | None = None, threads: int | None = None,
+                   secrets: Sequence[Path] = (), folder: bool = False,
+                   scratch: str | Path | None = None) -> dict:
     """Extract modes from ``video`` with :func:`vvtbench.modes.extract_modes` (``options``:
     its keyword arguments, the extractor plug-in among them) in a sealed child; the modes are
     saved into ``dest``. Returns the child's summary (``n_modes``, ``frequencies_hz``,
-    ``sandbox``)."""
+    ``sandbox``).
+
+    The child sees the video file alone (a sample's video: its truth beside it stays hidden),
+    or with ``folder=True`` the folder that holds it (a camera's files: a Photron ``.cih``
+    beside its ``.mraw``, an image sequence given by a glob or printf pattern); a folder of
+    images is shown whole."""
     video = Path(video)
-    name = "video" + "".join(video.suffixes[-1:])
+    if video.is_dir():
+        name, shown, source = video.name or "frames", video, video.name or "frames"
+    elif folder:
+        name = video.parent.resolve().name or "files"
+        shown, source = video.parent, f"{name}/{video.name}"
+    else:
+        name = "video" + "".join(video.suffixes[-1:])
+        shown, source = video, name
     extractor = options.get("extractor")
     extra = _extra(extractor) if isinstance(extractor, str) else []
-    return run_sealed({"job": "extract", "video": name, "fps": fps,
+    hidden = [*secrets] if folder or video.is_dir() else [*secrets, video.parent]
+    return run_sealed({"job": "extract", "video": source, "fps": fps,
                        "options": _jsonable_options(options)},
-                      {name: video}, Path(dest), secrets=[*secrets, video.parent],
-                      extra_ro=extra, timeout=timeout, memory_bytes=memory_bytes,
-                      threads=threads)
+                      {name: shown}, Path(dest), secrets=hidden, extra_ro=extra,
+                      timeout=timeout, memory_bytes=memory_bytes, threads=threads,
+                      scratch=scratch)
 
 
 def _jsonable_options(options: Mapping[str, Any]) -> dict:
@@ -618,7 +638,7 @@ def _job_extract(spec: dict, work: Path) -> dict:
     options = dict(spec["options"])
     if isinstance(options.get("roi"), list):
         options["roi"] = tuple(options["roi"])
-    ms = extract_modes(work / "in" / spec["video"], spec["fps"], **options)
+    ms = extract_modes(str(work / "in" / spec["video"]), spec["fps"], **options)
     ms.save(work / "out")
     return {"n_modes": len(ms), "frequencies_hz": [float(f) for f in ms.frequencies_hz]}
 

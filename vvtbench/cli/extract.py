@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..modes.extract import extract_modes
+from ..modes.modeset import ModeSet
 from ..video import VIDEO_SUFFIXES, open_video
 from . import bounded, nonnegative_float, positive_float, positive_int
 
@@ -220,10 +220,45 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
                     "below this fraction of its energy on all pixels (default: off; "
                     "docs/modes.md, 'Reliable pixels')")
     ap.add_argument("--memory-budget-mb", type=positive_float, default=1024.0)
-    ap.add_argument("--tmpdir", default=None, help="where displacements spill to disk")
+    ap.add_argument("--tmpdir", default=None, help="where the extraction's scratch space is "
+                    "made (displacements spill there; default: the system's temporary folder)")
     ap.add_argument("--no-plots", action="store_true")
-    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--quiet", action="store_true", help="no progress line")
+    ap.add_argument("--timeout", type=positive_float, default=3600.0,
+                    help="seconds the extraction may run (default 3600); it runs sealed: the "
+                    "extractor sees the video and nothing else of yours")
     return ap
+
+
+_USER_ERRORS = ("ValueError", "VideoError", "FileNotFoundError", "DatasetError",
+                "PluginError", "NotADirectoryError", "IsADirectoryError", "PermissionError")
+
+
+def _extract_sealed(args, src: Path, fps, options: dict) -> int:
+    """The one extraction of ``extract``: :func:`vvtbench.modes.extract_modes` in a sealed
+    child (:func:`vvtbench.sealed.extract_sealed`) that sees the video (or the camera's
+    folder) and the output only; 0, or the exit status after one line."""
+    from ..sealed import SealedError, extract_sealed
+
+    sample = _sample_of(Path(args.video))
+    secrets = [args.out, *([sample] if sample is not None else [])]
+    if not args.quiet:
+        print(f"extracting modes from {src} ...", file=sys.stderr, flush=True)
+    try:
+        extract_sealed(src, fps, options, args.out, secrets=secrets,
+                       folder=sample is None, timeout=args.timeout, scratch=args.tmpdir)
+    except SealedError as error:
+        from . import explain
+
+        text = str(error)
+        kind = text.partition(":")[0]
+        if error.kind == "error" and kind in _USER_ERRORS:
+            msg = explain(text.partition(": ")[2])
+            print(f"error: {msg if str(src) in msg else f'{src}: {msg}'}", file=sys.stderr)
+            return 2
+        print(f"error: {src}: the extraction failed: {text}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def main_extract(argv: list[str] | None = None) -> int:
@@ -250,49 +285,25 @@ def main_extract(argv: list[str] | None = None) -> int:
     fps = args.fps if args.fps is not None else _sample_fps(args.video)
     if args.fps is None:
         _note_fps(args.video, src, fps, read)
-    try:
-        ms = extract_modes(
-            src,
-            fps,
-            fmin=args.fmin,
-            fmax=args.fmax,
-            prominence=args.prominence,
-            min_separation_hz=args.min_sep,
-            max_modes=args.max_modes,
-            min_power_ratio=args.min_power_ratio,
-            n_scales=args.scales,
-            n_orientations=args.orientations,
-            sigma=args.sigma,
-            batch=args.batch,
-            workers=args.workers,
-            average=args.average,
-            roi=args.roi,
-            max_frames=args.max_frames,
-            weighting=args.weighting,
-            window=args.window,
-            keep_camera_shake=args.keep_shake,
-            reject_distortion=not args.keep_distortion,
-            memory_budget=int(args.memory_budget_mb * (1 << 20)),
-            tmpdir=args.tmpdir,
-            progress=not args.quiet,
-            line_fit=args.line_fit,
-            product_roughness=args.product_roughness,
-            faint_product_ratio=args.faint_product_ratio,
-            product_scaling=args.product_scaling,
-            shape_attenuation=args.shape_attenuation,
-            shape_fill=args.shape_fill,
-            roughness_weighting=args.roughness_weighting,
-            min_reliable_fraction=args.min_reliable_fraction,
-            extractor=args.extractor,
-            extractor_config=extractor_config,
-            **read,
-        )
-    except (ValueError, FileNotFoundError) as e:
-        from . import explain
-
-        msg = explain(e)
-        print(f"error: {msg if str(src) in msg else f'{src}: {msg}'}", file=sys.stderr)
-        return 2
+    options = dict(
+        fmin=args.fmin, fmax=args.fmax, prominence=args.prominence,
+        min_separation_hz=args.min_sep, max_modes=args.max_modes,
+        min_power_ratio=args.min_power_ratio, n_scales=args.scales,
+        n_orientations=args.orientations, sigma=args.sigma, batch=args.batch,
+        workers=args.workers, average=args.average, roi=args.roi, max_frames=args.max_frames,
+        weighting=args.weighting, window=args.window, keep_camera_shake=args.keep_shake,
+        reject_distortion=not args.keep_distortion,
+        memory_budget=int(args.memory_budget_mb * (1 << 20)), progress=False,
+        line_fit=args.line_fit, product_roughness=args.product_roughness,
+        faint_product_ratio=args.faint_product_ratio, product_scaling=args.product_scaling,
+        shape_attenuation=args.shape_attenuation, shape_fill=args.shape_fill,
+        roughness_weighting=args.roughness_weighting,
+        min_reliable_fraction=args.min_reliable_fraction, extractor=args.extractor,
+        extractor_config=extractor_config, **read)
+    code = _extract_sealed(args, src, fps, options)
+    if code:
+        return code
+    ms = ModeSet.load(args.out)
     if ms.lossy is not None:
         from ..video import describe_lossy
 

@@ -170,10 +170,7 @@ def verify_dataset(path: Path) -> Iterator[str]:
     readable."""
     from ..packed import FORMAT_VERSION, ExportError, open_dataset
 
-    damaged = list(verify_dataset_files(path))
-    yield from damaged
-    if damaged:
-        return
+    yield from verify_dataset_files(path)
 
     try:
         ds = open_dataset(path)
