@@ -423,3 +423,43 @@ def test_a_damaged_mesh_cache_is_rebuilt(tmp_path, monkeypatch, damage):
         assert z["tets"].max() < len(z["points"])
     assert [p.name for p in mesh_cache_dir().iterdir()] == [cache.name]
     assert not victim.exists() or victim.read_bytes() == data
+
+
+# --------------------------------------------------------------------------- atomic_file
+def test_a_figure_saved_through_atomic_file_replaces_a_planted_link(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vvtbench.io import atomic_file
+
+    victim = tmp_path / "victim.png"
+    victim.write_bytes(b"mine")
+    out = tmp_path / "plot.png"
+    out.symlink_to(victim)
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    with atomic_file(out) as f:
+        fig.savefig(f, format="png")
+    plt.close(fig)
+    assert victim.read_bytes() == b"mine" and not out.is_symlink()
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plot.png", "victim.png"]
+
+
+def test_a_full_disk_inside_atomic_file_leaves_the_old_file(tmp_path):
+    import pandas as pd
+
+    from vvtbench.io import atomic_file
+
+    out = tmp_path / "results.parquet"
+    with atomic_file(out) as f:
+        pd.DataFrame({"a": [1, 2]}).to_parquet(f)
+    before = out.read_bytes()
+    with pytest.raises(OSError) as error, atomic_file(out) as f:
+        f.write(b"PAR1 half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    assert error.value.errno == errno.ENOSPC
+    assert out.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == [out.name]
+    assert pd.read_parquet(out)["a"].tolist() == [1, 2]
