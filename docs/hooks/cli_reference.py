@@ -10,7 +10,9 @@ import re
 
 MARKER = "<!-- cli-reference -->"
 SUBCOMMANDS = re.compile(r"^usage: vvtbench [\w-]+ \[-h\] \{([\w,-]+)\}")
-SPHINX_ROLE = re.compile(r":(?:func|class|mod|meth|attr|data|exc|obj):(?=<code>)")
+ROLES = r":(?:func|class|mod|meth|attr|data|exc|obj):"
+SPHINX_ROLE = re.compile(ROLES + r"(?=<code>)")
+SPHINX_ROLE_RAW = re.compile(ROLES + r"`~?([^`<]+)`")
 
 
 def _help(*args: str) -> str:
@@ -44,4 +46,4 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
 
 
 def on_page_content(html: str, page, config, files) -> str:
-    return SPHINX_ROLE.sub("", html)
+    return SPHINX_ROLE_RAW.sub(r"\1", SPHINX_ROLE.sub("", html))
