@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -17,6 +20,7 @@ from vvtbench.observe import ObserveError
 from vvtbench.render.camera import Camera
 
 W, H = 640, 480
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _plate_points(rng, n):
@@ -116,3 +120,48 @@ def test_object_forms_and_bad_input(tmp_path):
     for spec in ("box:0.1x0.1", "box:axbxc", "sphere:1", "nothing.stl", "box:1x1x1:fixed=top"):
         with pytest.raises(ObserveError, match="--object"):
             resolve_object(spec)
+
+
+def test_surface_and_scene_objects(tmp_path):
+    import trimesh
+
+    stl = tmp_path / "block.stl"
+    trimesh.creation.box(extents=(0.04, 0.03, 0.02)).export(stl)
+    obj = resolve_object(str(stl))
+    assert obj.kind == "mesh" and obj.mesh.element == "tet4"
+    assert np.allclose(obj.mesh.points.min(0), 0) and np.allclose(
+        obj.mesh.points.max(0), (0.04, 0.03, 0.02), atol=1e-3)
+    assert len(obj.fixed_nodes) > 0 and len(obj.source_sha256) == 64
+    scene = resolve_object(str(ROOT / "scenes" / "jello_cube_defect_top.toml"))
+    assert scene.mesh.element == "hex8" and scene.inference_shape == (8, 8, 8)
+    assert np.allclose(scene.mesh.points[scene.fixed_nodes, 2], 0)
+
+
+def test_calibrate_command(tmp_path, capsys):
+    from vvtbench.cli import main
+
+    true = Camera.look_at((0.30, -0.25, 0.28), (0.05, 0.05, 0.05), fx=300, width=160,
+                          height=120)
+    rng = np.random.default_rng(5)
+    video = tmp_path / "clip.npy"
+    np.save(video, rng.random((3, 120, 160)).astype(np.float32))
+    args = ["calibrate", str(video), "--object", "box:0.1x0.1x0.1", "-o", str(tmp_path / "c")]
+    assert main(args) == 0
+    assert (tmp_path / "c" / "calibration.png").stat().st_size > 1000
+    assert "candidate vertices" in capsys.readouterr().out
+    cube = resolve_object("box:0.1x0.1x0.1")
+    ids = cube.corner_nodes()
+    uv = true.project(cube.mesh.points[ids]) + rng.normal(0, 0.5, (len(ids), 2))
+    clicks = tmp_path / "clicks.csv"
+    clicks.write_text("vertex,u,v\n" + "".join(
+        f"{i},{u},{v}\n" for i, (u, v) in zip(ids, uv, strict=True)))
+    assert main([*args, "--clicks", str(clicks)]) == 0
+    cal = json.loads((tmp_path / "c" / "calibration.json").read_text())
+    assert cal["method"] == "DLT" and cal["rms_px"] < 1.0
+    uv[2] += 9.0
+    clicks.write_text("vertex,u,v\n" + "".join(
+        f"{i},{u},{v}\n" for i, (u, v) in zip(ids, uv, strict=True)))
+    assert main([*args, "--clicks", str(clicks)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--max-error" in err
+    assert not (tmp_path / "c" / "calibration.json").exists()
