@@ -1,6 +1,7 @@
 """Recall over the true modes detectable in a video: the per-mode amplitudes a sample's truth
-implies (:func:`true_mode_amplitudes`), the detectable set and the ``recall`` /
-``recall_all`` keys of :func:`score_extraction` and :func:`score_sample_extraction`."""
+implies (:func:`true_mode_amplitudes`), the detectable set (by the Cramér-Rao ruler's SNR or
+the amplitude floor) and the ``recall`` / ``recall_all`` keys of :func:`score_extraction`
+and :func:`score_sample_extraction`."""
 
 from __future__ import annotations
 
@@ -168,6 +169,53 @@ def test_score_sample_extraction_keys_and_detectable_set() -> None:
         bare = _FakeSample()
         del bare.data["transient/displacements"]
         true_mode_amplitudes(bare)
+
+
+def test_crb_snr_defines_detectability() -> None:
+    """With the Cramér-Rao ruler the SNR, not the amplitude floor, decides what is expected."""
+    from vvtbench.scoring.crb import detection_snr_threshold
+
+    truth = _truth()
+    f, z = [5.0, 8.0, 12.0], [0.0, 0.0, 0.0]
+    amps = [0.01, 0.01, 1e-4]  # above, above, below the 0.001 px floor
+    th = detection_snr_threshold(200)
+    snr = [50.0, 0.5 * th, 2.0 * th]  # the 8 Hz mode is below the limit, 12 Hz above
+    one = _ms([5.0], truth[:1])
+    r = score_extraction(one, f, z, truth, 2.0, 20.0, amplitudes_px=amps, crb_snr=snr,
+                         crb_threshold=th)
+    assert r["detectability"] == "crb" and r["crb_threshold"] == th
+    assert r["n_detectable"] == 2 and r["n_below_limit"] == 1
+    assert r["recall"] == pytest.approx(0.5) and r["recall_all"] == pytest.approx(1 / 3)
+    assert np.isnan(r["amplitude_floor_px"])
+    missed = {tuple(m["true"]): m for m in r["missed"]}
+    assert not missed[(1,)]["detectable"] and missed[(2,)]["detectable"]
+    assert missed[(1,)]["crb_snr"] == pytest.approx(0.5 * th)
+    old = score_extraction(one, f, z, truth, 2.0, 20.0, amplitudes_px=amps)
+    assert old["detectability"] == "amplitude_floor" and old["n_detectable"] == 2
+    assert old["recall"] == pytest.approx(0.5) and old["n_below_limit"] == 0
+    assert score_extraction(one, f, z, truth, 2.0, 20.0)["detectability"] == "all"
+    with pytest.raises(ValueError, match="crb_threshold"):
+        score_extraction(one, f, z, truth, 2.0, 20.0, crb_snr=snr)
+
+
+def test_score_sample_extraction_uses_the_ruler_when_the_sample_has_it() -> None:
+    from vvtbench.scoring.crb import detection_snr_threshold
+
+    s = _FakeSample(a=(1e-3, 1e-4), zeta=(0.0, 0.3))
+    truth = _truth()
+    old = score_sample_extraction(s, _ms([5.0], truth[:1]), fmax=None)
+    assert old["detectability"] == "amplitude_floor"
+    s.info["video"]["frames"] = s.T
+    th = detection_snr_threshold(s.T)
+    s.data["modes/crb_snr"] = np.array([2 * th, 1.01 * th])
+    r = score_sample_extraction(s, _ms([5.0], truth[:1]), fmax=None)
+    assert r["detectability"] == "crb" and r["crb_threshold"] == pytest.approx(th)
+    assert r["n_detectable"] == 2 and r["recall"] == pytest.approx(0.5)
+    s.data["modes/crb_snr"] = np.array([2 * th, 0.99 * th])
+    r = score_sample_extraction(s, _ms([5.0], truth[:1]), fmax=None)
+    assert r["n_detectable"] == 1 and r["recall"] == 1.0 and r["n_below_limit"] == 1
+    r = score_sample_extraction(s, _ms([5.0], truth[:1]), fmax=None, use_crb=False)
+    assert r["detectability"] == "amplitude_floor"
 
 
 # --------------------------------------------------------------------------- shoulders

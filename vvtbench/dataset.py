@@ -160,6 +160,20 @@ class Sample(SampleView):
             raise DatasetError(f"{zpath}: no array {name!r}: {why}; {fix}")
         return self[name]
 
+    @property
+    def crb_snr(self) -> np.ndarray | None:
+        """``(n,)`` CRB-limited SNR of each true mode in the video (``modes/crb_snr``,
+        docs/dataset.md "The Cramér-Rao ruler"); ``None`` for a modes-only sample or one
+        written before the ruler existed."""
+        return self["modes/crb_snr"] if "modes/crb_snr" in self else None
+
+    @property
+    def crb_detection_snr(self) -> float | None:
+        """The SNR a true mode needs to count as detectable (``truth.json`` ``crb``); ``None``
+        without the ruler."""
+        ruler = self.info.get("crb")
+        return None if not isinstance(ruler, dict) else float(ruler["detection_snr"])
+
     def array(self, name: str):
         """The lazy Zarr array ``name`` (slice it to read part of it)."""
         return self.truth[name]

@@ -121,6 +121,8 @@ def score_extraction(
     uv: ArrayLike | Sequence[ArrayLike] | None = None,
     amplitudes_px: ArrayLike | None = None,
     floor_px: float = DEFAULT_FLOOR_PX,
+    crb_snr: ArrayLike | None = None,
+    crb_threshold: float | None = None,
 ) -> dict[str, Any]:
     """Detected modes against the true ones: precision, recall, frequency/damping/MAC errors.
 
@@ -156,6 +158,14 @@ def score_extraction(
         cluster in the band is detectable (``recall == recall_all``).
     floor_px : float, default :data:`DEFAULT_FLOOR_PX` (0.001 px)
         Detectability floor for ``amplitudes_px``.
+    crb_snr : array_like, optional
+        ``(n,)`` CRB-limited SNR of each true mode (``modes/crb_snr`` of a sample,
+        :mod:`vvtbench.scoring.crb`).  Given, it defines detectability instead of
+        ``amplitudes_px``: a cluster is detectable when one of its modes reaches
+        ``crb_threshold``.
+    crb_threshold : float, optional
+        The SNR of detection (:func:`vvtbench.scoring.crb.detection_snr_threshold`); needed
+        with ``crb_snr``.
 
     Returns
     -------
@@ -165,13 +175,17 @@ def score_extraction(
         ``recall_all`` (matched clusters / clusters in band; NaN if none in band),
         ``recall_modes`` (true modes in matched clusters / true modes in band), ``f1`` (of
         ``precision`` and ``recall``), ``n_detectable`` (detectable clusters),
-        ``n_detectable_modes``, ``n_matched_detectable``, ``amplitude_floor_px`` (NaN
-        without ``amplitudes_px``), ``mean_abs_freq_error_hz``,
+        ``n_detectable_modes``, ``n_matched_detectable``, ``detectability`` (``"crb"``,
+        ``"amplitude_floor"`` or ``"all"``: the definition used), ``n_below_limit`` (true
+        modes in band below the CRB detection SNR; 0 without ``crb_snr``),
+        ``crb_threshold`` (NaN without ``crb_snr``), ``amplitude_floor_px`` (NaN
+        unless the amplitude floor defined detectability), ``mean_abs_freq_error_hz``,
         ``mean_rel_freq_error``, ``mean_abs_damping_error``, ``mean_rel_damping_error``,
         ``mean_mac``, ``n_detected``, ``n_matched``, ``n_true_in_band``,
         ``n_clusters_in_band``, ``frequency_resolution_hz``, ``band_hz``, ``min_mac``,
         ``missed``: one dict per unmatched cluster (``true`` indices, ``frequencies_hz``,
-        ``detectable``, ``amplitude_px``: the largest member amplitude or NaN), and
+        ``detectable``, ``amplitude_px``: the largest member amplitude or NaN, ``crb_snr``:
+        the largest member SNR or NaN), and
         ``matching``: one dict per match (``set``, ``detected``, ``kind``: ``"mode"`` for a
         detection matched to one true mode, ``"cluster"`` for one matched to an unresolved
         cluster (docs/modes.md, "Matching"), ``true`` (indices of the cluster),
@@ -201,17 +215,27 @@ def score_extraction(
     df = 1.0 / float(duration_s)
     band = np.flatnonzero((ft > fmin) & (ft <= fmax))
     clusters = [[int(band[i]) for i in c] for c in clusters_by_resolution(ft[band], df)]
-    if amplitudes_px is None:
-        amp = None
-        detectable = [True] * len(clusters)
-    else:
-        amp = np.atleast_1d(np.asarray(amplitudes_px, dtype=np.float64))
-        if amp.shape != ft.shape:
-            raise ValueError(f"amplitudes_px {amp.shape} and true_frequencies_hz {ft.shape} "
-                             "differ")
+    amp = None if amplitudes_px is None else np.atleast_1d(
+        np.asarray(amplitudes_px, dtype=np.float64))
+    if amp is not None and amp.shape != ft.shape:
+        raise ValueError(f"amplitudes_px {amp.shape} and true_frequencies_hz {ft.shape} differ")
+    snr = None if crb_snr is None else np.atleast_1d(np.asarray(crb_snr, dtype=np.float64))
+    if snr is not None:
+        if snr.shape != ft.shape:
+            raise ValueError(f"crb_snr {snr.shape} and true_frequencies_hz {ft.shape} differ")
+        if crb_threshold is None or not crb_threshold >= 0:
+            raise ValueError(f"crb_snr needs crb_threshold >= 0, got {crb_threshold}")
+        definition = "crb"
+        above = snr >= float(crb_threshold)
+    elif amp is not None:
         if not floor_px >= 0:
             raise ValueError(f"floor_px must be >= 0, got {floor_px}")
-        detectable = [bool(np.any(amp[c] >= floor_px)) for c in clusters]
+        definition = "amplitude_floor"
+        above = amp >= floor_px
+    else:
+        definition = "all"
+        above = np.ones(ft.shape, dtype=bool)
+    detectable = [bool(np.any(above[c])) for c in clusters]
     modes = [int(x) for x in band]
     cluster_of = {t: j for j, c in enumerate(clusters) for t in c}
     matched_clusters: set[int] = set()
@@ -294,6 +318,7 @@ def score_extraction(
         "frequencies_hz": [float(ft[x]) for x in c],
         "detectable": detectable[j],
         "amplitude_px": float("nan") if amp is None else float(amp[c].max()),
+        "crb_snr": float("nan") if snr is None else float(snr[c].max()),
     } for j, c in enumerate(clusters) if j not in matched_clusters]
     recall_modes = (sum(len(clusters[j]) for j in matched_clusters) / band.size
                     if band.size else float("nan"))
@@ -319,10 +344,12 @@ def score_extraction(
         "n_true_in_band": int(band.size),
         "n_clusters_in_band": int(n_cl),
         "n_detectable": n_det_cl,
-        "n_detectable_modes": (int(band.size) if amp is None
-                               else int(np.count_nonzero(amp[band] >= floor_px))),
+        "n_detectable_modes": int(np.count_nonzero(above[band])),
         "n_matched_detectable": int(n_hit_det),
-        "amplitude_floor_px": float("nan") if amp is None else float(floor_px),
+        "detectability": definition,
+        "n_below_limit": 0 if snr is None else int(np.count_nonzero(~above[band])),
+        "crb_threshold": float("nan") if snr is None else float(crb_threshold),
+        "amplitude_floor_px": float(floor_px) if definition == "amplitude_floor" else float("nan"),
         "frequency_resolution_hz": df,
         "band_hz": [float(fmin), float(fmax)],
         "min_mac": float(min_mac),
@@ -457,8 +484,16 @@ def score_sample_extraction(
     min_mac: float = 0.5,
     floor_px: float = DEFAULT_FLOOR_PX,
     amplitudes: dict[str, Any] | None = None,
+    use_crb: bool = True,
 ) -> dict[str, Any]:
     """Score detections against an opened sample, recall over the modes detectable in it.
+
+    A sample written with the Cramér-Rao ruler (``modes/crb_snr``, docs/dataset.md "The
+    Cramér-Rao ruler") defines detectability by it: a true mode is expected when its
+    CRB-limited SNR reaches the detection SNR of the video's length
+    (:func:`vvtbench.scoring.crb.detection_snr_threshold`), and the score's
+    ``detectability`` is ``"crb"``.  An older sample falls back to the amplitude floor
+    below (``"amplitude_floor"``).
 
     :func:`score_extraction` of the sample's true modes (``frequencies_hz``,
     ``damping_ratios``, ``image/modes``) with ``amplitudes_px`` the true modes' spectral-line
@@ -479,10 +514,12 @@ def score_sample_extraction(
     fmin, min_mac : float
         See :func:`score_extraction`.
     floor_px : float, default 0.001
-        Detectability floor (px).
+        Detectability floor (px) of a sample without the ruler (or with ``use_crb=False``).
     amplitudes : dict, optional
         A precomputed :func:`true_mode_amplitudes` of the sample (it reads the whole
         transient).
+    use_crb : bool, default True
+        False: the amplitude floor even when the sample holds the ruler.
 
     Returns
     -------
@@ -501,9 +538,16 @@ def score_sample_extraction(
     top = float(freqs.max())
     band = top if not fmax else min(float(fmax), top)
     amps = true_mode_amplitudes(sample) if amplitudes is None else amplitudes
+    snr = threshold = None
+    if use_crb and "modes/crb_snr" in sample:
+        from .scoring.crb import detection_snr_threshold
+
+        snr = np.asarray(sample["modes/crb_snr"], dtype=np.float64)
+        threshold = detection_snr_threshold(int(sample.info["video"]["frames"]))
     sc = score_extraction(sets, freqs, sample.damping_ratios, sample["image/modes"],
                           sets[0].n_frames / sets[0].fps, band, fmin=fmin, min_mac=min_mac,
-                          amplitudes_px=amps["line_px"], floor_px=floor_px)
+                          amplitudes_px=amps["line_px"], floor_px=floor_px, crb_snr=snr,
+                          crb_threshold=threshold)
     sc["amplitudes_px"] = [float(a) for a in amps["line_px"]]
     sc["amplitude_fit_residual"] = float(amps["fit_residual"])
     return sc

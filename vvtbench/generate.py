@@ -537,9 +537,42 @@ def _write_truth(ctx: _Context, view: dict, bar: StageProgress) -> dict:
             dense[m] = interpolate(raster, tris, img_modes[m]).astype(np.float32)
     bar.advance()
     peak_px = _write_transient(ctx, root, put, J[vis_idx], vis_idx) if ctx.opts.video else None
+    ruler = _write_crb(ctx, root, put, view["rest"]) if ctx.opts.video else None
     bar.advance()
     return {"vmap": vmap, "grid_shape": grid_shape, "n_visible": int(len(vis_idx)),
-            "n_occupied": int((voxel_volume > 0).sum()), "peak_px": peak_px}
+            "n_occupied": int((voxel_volume > 0).sum()), "peak_px": peak_px, "crb": ruler}
+
+
+def _write_crb(ctx: _Context, root, put, rest_img: np.ndarray) -> dict:
+    """The Cramér-Rao ruler (:mod:`vvtbench.scoring.crb`): ``crb/*`` block bounds of the
+    rest render and ``modes/crb_*`` per mode; returns the summary ``truth.json`` reports."""
+    from .scoring import crb
+
+    rs = ctx.scene.render
+    intensity = np.asarray(rest_img, dtype=np.float64)
+    var = crb.noise_variance_dn2(intensity, ctx.bit_depth, rs.read_noise_dn, rs.shot_noise,
+                                 ctx.opts.full_well, ctx.frame_average)
+    fisher_px = crb.pixel_fisher(intensity * float(2**ctx.bit_depth - 1), var)
+    blocks = crb.block_crb(fisher_px, crb.BLOCK_PX)
+    put("crb/fisher", blocks["fisher"])
+    put("crb/std_px", blocks["std_px"])
+    put("crb/std_min_px", blocks["std_min_px"])
+    dense = root["image/modes"]
+    info, gain = crb.mode_information(fisher_px, (dense[m] for m in range(dense.shape[0])),
+                                      rs.motion_scale)
+    energy = crb.modal_energy(root["transient/displacements"], root["modes/surface"]) * gain**2
+    snr = crb.mode_snr(info, energy)
+    threshold = crb.detection_snr_threshold(ctx.n_frames)
+    put("modes/crb_snr", snr)
+    put("modes/crb_information", info)
+    put("modes/crb_energy_px2", energy)
+    summary = {"block_px": crb.BLOCK_PX, "detection_snr": threshold,
+               "false_alarm": crb.EXTRACTOR_FALSE_ALARM, "n_bins": max(1, ctx.n_frames // 2),
+               "n_detectable": int(np.count_nonzero(snr >= threshold)),
+               "derivative_taps": crb.DERIVATIVE_TAPS.tolist(),
+               "noise_model": "(I D^2/F [shot] + r^2)/A + 1/12 DN^2"}
+    root["crb"].attrs.update(summary)
+    return {**summary, "snr": snr}
 
 
 def _write_transient(ctx: _Context, root, put, J_vis: np.ndarray, vis_idx: np.ndarray) -> float:
@@ -607,7 +640,10 @@ def _write_info(ctx: _Context, truth: dict) -> None:
                  "node_sets": sorted(mesh.node_sets)},
         "modes": {"n": len(result.modes), "frequencies_hz": result.frequencies_hz.tolist(),
                   "damping_ratios": [float(z) for z in result.damping_ratios],
-                  "rayleigh_alpha": result.alpha, "rayleigh_beta": result.beta},
+                  "rayleigh_alpha": result.alpha, "rayleigh_beta": result.beta,
+                  **({} if truth.get("crb") is None else
+                     {"crb_snr": [float(x) for x in truth["crb"].pop("snr")]})},
+        **({} if truth.get("crb") is None else {"crb": truth["crb"]}),
         "voxels": {**truth["vmap"].grid.to_dict(), "shape": list(truth["grid_shape"]),
                    "n_active": int(truth["vmap"].n_params), "n_occupied": truth["n_occupied"]},
         "peak_image_motion_px": (None if truth["peak_px"] is None
