@@ -38,6 +38,12 @@ window.addEventListener('error',function(e){var t=e.target;
 window.addEventListener('load',function(){
  found.images=[].map.call(document.images,function(i){
   return {src:i.getAttribute('src'),ok:i.complete&&i.naturalWidth>0,w:i.naturalWidth};});
+ found.viewport=document.documentElement.clientWidth;
+ found.overflow=[].filter.call(document.querySelectorAll('table'),function(t){
+  var box=t.parentElement.getBoundingClientRect(),r=t.getBoundingClientRect();
+  return r.right>box.right+1||r.left<box.left-1||r.right>found.viewport+1;}).map(function(t){
+  return (t.previousElementSibling||t.parentElement.previousElementSibling||{}).textContent+
+  ': '+Math.round(t.getBoundingClientRect().width)+' px';});
  found.external=[].map.call(document.querySelectorAll('[src],[href]'),function(e){
   return e.getAttribute('src')||e.getAttribute('href');}).filter(function(u){
   return /^[a-z]+:/i.test(u)&&!/^(data|file):/i.test(u);});
@@ -45,20 +51,22 @@ window.addEventListener('load',function(){
  document.body.appendChild(p);});})();</script>"""
 
 
-def load_in_chromium(page, tmp_path, screenshot=None):
-    """(findings of the probe, chromium console lines) of ``page`` (an HTML file)."""
+def load_in_chromium(page, tmp_path, screenshot=None, width=1280):
+    """(findings of the probe, chromium console lines) of ``page`` (an HTML file) in a window
+    ``width`` pixels wide."""
     probe = page.with_name(".probe-" + page.name)
     text = page.read_text()
     probe.write_text(text.replace("<head>", "<head>" + PROBE, 1) if "<head>" in text
                      else PROBE + text)
     try:
         common = [CHROMIUM, *FLAGS, f"--user-data-dir={tmp_path / 'chromium-profile'}",
-                  "--virtual-time-budget=10000"]
+                  "--virtual-time-budget=10000", f"--window-size={width},1000"]
         r = subprocess.run([*common, "--dump-dom", probe.as_uri()], capture_output=True,
                            text=True, timeout=180)
         if screenshot is not None:
-            subprocess.run([*common, f"--screenshot={screenshot}", "--window-size=1280,2400",
-                            page.as_uri()], capture_output=True, text=True, timeout=180)
+            subprocess.run([*common, f"--screenshot={screenshot}",
+                            f"--window-size={width},2400", page.as_uri()],
+                           capture_output=True, text=True, timeout=180)
     finally:
         probe.unlink(missing_ok=True)
     m = re.search(r'<pre id="vvt-probe">(.*?)</pre>', r.stdout, re.S)
@@ -94,3 +102,23 @@ def test_leaderboard_page_in_headless_chromium(tmp_path):
     if keep:
         os.makedirs(keep, exist_ok=True)
         shutil.copy(shot, os.path.join(keep, "leaderboard.png"))
+
+
+@pytest.mark.parametrize("width", [900, 1400])
+def test_no_table_overflows_its_container(tmp_path, width):
+    """At 900 and 1400 px every table fits inside its container and the window: cells wrap,
+    nothing hides behind a horizontal scroll bar."""
+    run = make_run(tmp_path / "run")
+    out = build(run / "results.csv", tmp_path / "lb")
+    found, _ = load_in_chromium(out / "index.html", tmp_path, width=width)
+    assert found["viewport"] <= width and found["viewport"] > width - 40, found["viewport"]
+    assert not found["overflow"], found["overflow"]
+
+
+def test_overflow_probe_catches_a_wide_table(tmp_path):
+    page = tmp_path / "wide.html"
+    cells = "".join(f"<td>{'x' * 30}</td>" for _ in range(40))
+    page.write_text("<!doctype html><html><head></head><body><div><table style="
+                    f"'white-space:nowrap'><tr>{cells}</tr></table></div></body></html>")
+    found, _ = load_in_chromium(page, tmp_path, width=900)
+    assert len(found["overflow"]) == 1

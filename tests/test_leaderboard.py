@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from vvtbench.bench.results import METRIC_COLUMNS
 from vvtbench.cli.leaderboard import main_leaderboard
 from vvtbench.io import write_npz
 from vvtbench.leaderboard import LeaderboardError, build, ranking, summary
@@ -35,15 +36,19 @@ def _truth(shape=(4, 4, 4)):
 
 def _row(track, scene, variation, options, solver, obs, nc, *, seed=0, status="ok",
          est=None, reference=False):
+    """A results row that passes check_results: every metric NaN unless the row is scored."""
+    scored = status == "ok"
+    metrics = {c: np.nan for c in METRIC_COLUMNS}
+    if scored:
+        metrics |= dict(nc_w=nc, nc_v=nc / 2, nc_w_uncentered=0.5, nc_v_uncentered=0.5,
+                        sigma_star_w=1.0, sigma_star_v=1.0, nc_at_sigma_star_w=0.5,
+                        nc_at_sigma_star_v=0.5, mode_mac=0.9, freq_err_raw=0.01,
+                        freq_err_scaled=0.01)
     return dict(track=track, solver=solver, solver_version="1.0.0", config_hash="0" * 16,
                 config="{}", scene=scene, variation=variation,
                 variation_options=json.dumps(options), seed=seed, observation=obs,
-                n_modes=options.get("n_modes", 10), n_modes_observed=10,
-                nc_w=nc if status == "ok" else np.nan, nc_v=nc / 2 if status == "ok" else np.nan,
-                nc_w_uncentered=0.5, nc_v_uncentered=0.5, sigma_star_w=1.0,
-                sigma_star_v=1.0, nc_at_sigma_star_w=0.5, nc_at_sigma_star_v=0.5,
-                mode_mac=0.9, freq_err_raw=0.01, freq_err_scaled=0.01, runtime_s=1.0,
-                status=status, error="" if status == "ok" else "non-finite w",
+                n_modes=options.get("n_modes", 10), n_modes_observed=10, **metrics,
+                runtime_s=1.0, status=status, error="" if scored else "non-finite w",
                 vvtbench_version="0.1.0", dataset_revision="0" * 16, estimate_path=est,
                 traceback_path=None, reference=reference)
 
@@ -62,7 +67,7 @@ def make_run(root):
     def fields(w_true, v_true, scale):
         nonlocal k
         k += 1
-        rel = f"cache/evaluate/{k:04d}/fields.npz"
+        rel = f"evaluations/{k:04d}/fields.npz"  # no cache/: scores not recomputed
         (root / rel).parent.mkdir(parents=True)
         w = w_true ** scale * 9000 ** (1 - scale) * (1 + 0.02 * rng.standard_normal(w_true.shape))
         v = v_true ** scale * 1270 ** (1 - scale)
@@ -72,7 +77,7 @@ def make_run(root):
     wt, vt = _truth()
     for scene in ("cube_top", "cube_bottom"):
         for n in (8, 12, 16):
-            for seed in (0, 1):
+            for seed in (0, 1, 2):
                 for solver in SOLVERS:
                     for obs in ("true", "extracted"):
                         nc = {"oracle": 0.9, "vvt": 0.5, "sensitivity": 0.2,
@@ -154,13 +159,16 @@ def test_ranking_keeps_suite_order_and_never_ranks_references_or_invalid(table):
     t = dict(((tr, obs), t) for tr, obs, t in groups)[("zeta_first", "true")]
     for variation, cell in t.groupby("variation", sort=False):
         assert cell.solver.iloc[-1] == "oracle" and cell.reference.iloc[-1]
-        # sensitivity answered 3 of 4 runs at n_modes=16 (< MIN_VALID_FRACTION): not ranked
+        # sensitivity answered 5 of 6 runs at n_modes=16 (< MIN_VALID_FRACTION): not ranked
         ranks = [1, 2, None] if variation == "n_modes=16" else [1, 2, 3]
         assert cell["rank"].iloc[-1] is None and list(cell["rank"].iloc[:-1]) == ranks
     sens = t[t.solver == "sensitivity"].set_index("variation")
     assert sens.loc["n_modes=16", "invalid"] == 1 and sens.loc["n_modes=8", "invalid"] == 0
-    assert sens.loc["n_modes=16", "n"] == 3 and sens.loc["n_modes=16", "runs"] == 4
-    assert sens.loc["n_modes=16", "note"] == "not ranked: valid on 3 of 4 runs"
+    assert sens.loc["n_modes=16", "n"] == 5 and sens.loc["n_modes=16", "runs"] == 6
+    assert sens.loc["n_modes=16", "note"] == "not ranked: valid on 5 of 6 runs"
+    drums = dict(((tr, obs), t) for tr, obs, t in groups)[("drums", "true")]
+    assert drums["rank"].isna().all()  # one instance: too few to rank
+    assert set(drums.note[~drums.reference]) == {"too few instances to rank (n=1, fewer than 5)"}
     s = {r["track"]: r for r in summary(df)}
     assert s["zeta_first"]["best"]["solver"] == "vvt"
     assert s["zeta_first"]["best"]["variation"] == "n_modes=16"  # a cell, not a pooled mean
@@ -176,7 +184,7 @@ def test_sweep_values_are_never_averaged(table):
     for _, r in vvt.iterrows():
         d = df[(df.track == "zeta_first") & (df.observation == "extracted")
                & (df.solver == "vvt") & (df.variation == r.variation)]
-        assert r.n == 4 and np.isclose(r.nc_w_mean, d.nc_w.mean())
+        assert r.n == 6 and np.isclose(r.nc_w_mean, d.nc_w.mean())
     a = dict(((tr, obs), t) for tr, obs, t in ranking(df))[("alpha", "true")]
     assert len(a) == 3 and a.variation.nunique() == 3
 
@@ -223,8 +231,9 @@ def test_ci_cell_is_the_bootstrap_interval_over_instances(tmp_path):
         lo, hi = bootstrap_ci(x, seed=SEED)
         mlo, mhi = bootstrap_ci(x, np.median, seed=SEED)
         cell = f"{x.mean():.2f} [{lo:.2f}, {hi:.2f}]"
-        line = next(ln for ln in md.splitlines() if f"| {solver} |" in ln)
-        assert cell in line and f"{np.median(x):.2f} [{mlo:.2f}, {mhi:.2f}]" in line
+        line, detail = [ln for ln in md.splitlines() if ln.startswith("| base |")
+                        and f"| {solver} |" in ln]
+        assert cell in line and f"{np.median(x):.2f} [{mlo:.2f}, {mhi:.2f}]" in detail
         assert cell in page
         r = rec[solver]  # machine-readable: numbers
         assert r["nc_w_n"] == 10 and r["n"] == 10
@@ -232,7 +241,7 @@ def test_ci_cell_is_the_bootstrap_interval_over_instances(tmp_path):
         assert np.isclose(r["nc_w_mean"], x.mean())
         assert r["runtime_median_s"] == 3.5 and r["runtime_q25_s"] == 2.25
     assert rec["a"]["rank"] == 1 and rec["b"]["rank"] == 2 and rec["oracle"]["rank"] is None
-    line = next(ln for ln in md.splitlines() if "| a |" in ln)
+    line = [ln for ln in md.splitlines() if ln.startswith("| base |") and "| a |" in ln][1]
     assert "3.50 (2.25–4.75)" in line  # runtime: median (IQR)
     # paired: a vs b only (the reference is no competitor), on the 10 shared instances
     (p,) = manifest["tracks"][0]["paired"]["nc_w"]
@@ -255,9 +264,9 @@ def test_undefined_metrics_are_counted_never_shown_as_numbers(tmp_path):
     rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
     assert rec["a"]["n"] == 10 and rec["a"]["nc_w_n"] == 8 and rec["a"]["nc_v_n"] == 8
     assert rec["a"]["false_contrast_w_n"] == 2 and rec["a"]["false_contrast_w_mean"] == 0.2
-    line = next(ln for ln in md.splitlines() if "| a |" in ln)
-    assert line.count("(n=8)") == 4  # NC w and v, mean and median: over 8 of 10 instances
-    assert "false contrast w (constant truth)" in md and "0.200 (n=2)" in line
+    line, detail = [ln for ln in md.splitlines() if ln.startswith("| base |") and "| a |" in ln]
+    assert line.count("(n=8)") == 2 and detail.count("(n=8)") == 2  # over 8 of 10 instances
+    assert "false contrast w (constant truth)" in md and "0.200 (n=2)" in detail
     assert "nan" not in md.lower() and "nan" not in page.lower()
     assert manifest["tracks"][0]["paired"]["nc_w"][0]["n"] == 8
 
@@ -267,10 +276,11 @@ def test_paired_comparison_only_on_shared_instances_and_failures_counted(tmp_pat
         for r in rows:
             if r["solver"] == "b" and r["scene"] in ("fam-test-00001", "fam-test-00002") \
                     and r["seed"] == 0:
-                r.update(status="error", error="solve: RuntimeError: boom", nc_w=np.nan,
-                         nc_v=np.nan)
+                r.update({c: np.nan for c in METRIC_COLUMNS}, status="error",
+                         error="solve: RuntimeError: boom")
             if r["solver"] == "a" and r["scene"] == "fam-test-00004" and r["seed"] == 1:
-                r.update(status="invalid", error="non-finite w", nc_w=np.nan, nc_v=np.nan)
+                r.update({c: np.nan for c in METRIC_COLUMNS}, status="invalid",
+                         error="non-finite w")
 
     src = _instances_table(tmp_path, holes)
     md, page, manifest = _board(src, tmp_path / "lb")
@@ -418,3 +428,166 @@ def test_sweep_curve_has_a_gap_where_a_run_is_not_valid(tmp_path, monkeypatch):
                       Styles(["vvt"], ["true"]))
     x, y = drawn[0]
     assert x.tolist() == [8, 10, 12] and y[0] == 0.2 and np.isnan(y[1]) and y[2] == 0.4
+
+
+# ------------------------------------------------------------------ ranks that cannot mislead
+def test_tied_solvers_share_a_rank_and_the_page_says_so(tmp_path):
+    """b is a's score minus 0.02, plus or minus 0.1 per instance: their paired interval
+    includes 0, so they share rank 1; the reference stays apart and unranked."""
+    def close(rows):
+        a = {(r["scene"], r["seed"]): r["nc_w"] for r in rows if r["solver"] == "a"}
+        for i, r in enumerate(x for x in rows if x["solver"] == "b"):
+            r.update(nc_w=min(1.0, a[(r["scene"], r["seed"])] - 0.02 + (0.1 if i % 2 else -0.1)))
+
+    md, page, manifest = _board(_instances_table(tmp_path, close), tmp_path / "lb")
+    rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
+    p = manifest["tracks"][0]["paired"]["nc_w"][0]
+    assert p["ci_low"] < 0 < p["ci_high"]
+    assert rec["a"]["rank"] == rec["b"]["rank"] == 1 and rec["oracle"]["rank"] is None
+    assert "| base | 1= | a |" in md and "| base | 1= | b |" in md
+    assert "tie group" in md.lower() and "includes 0" in page
+    summary_line = next(ln for ln in md.splitlines() if ln.startswith("| [t](#t)"))
+    assert "| b |" in summary_line  # the summary names who shares first place
+    assert md.index("## Summary") < md.index("## Method") and "Tie groups" in md
+
+
+def test_fewer_than_five_instances_no_rank_and_no_interval(tmp_path):
+    def four_instances(rows):
+        rows[:] = [r for r in rows if r["scene"] in ("fam-test-00000", "fam-test-00001")
+                   and not (r["scene"] == "fam-test-00001" and r["seed"] == 1)]
+
+    md, page, manifest = _board(_instances_table(tmp_path, four_instances), tmp_path / "lb")
+    rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
+    assert rec["a"]["nc_w_n"] == 3 and rec["a"]["rank"] is None and rec["b"]["rank"] is None
+    line = next(ln for ln in md.splitlines() if ln.startswith("| base | – | a"))
+    assert "too few instances to rank (n=3, fewer than 5)" in line and "[" not in line.split("|")[4]
+    assert "too few instances to rank" in page and "Below 5 instances there is no interval" in md
+    assert manifest["statistics"]["min_rank_n"] == 5
+
+
+@pytest.mark.parametrize("edit", ["no rows", "all failed"])
+def test_an_empty_table_is_one_line_exit_2_nothing_written(tmp_path, capsys, edit):
+    def empty(rows):
+        if edit == "no rows":
+            rows[:] = rows[:0]
+        for r in rows:
+            r.update({c: np.nan for c in METRIC_COLUMNS}, status="error", error="boom")
+
+    src = _instances_table(tmp_path, empty)
+    if edit == "no rows":  # a header without rows
+        src.write_text(",".join(_row("t", "s", "v", {}, "a", "true", 0.1)) + "\n")
+    out = tmp_path / "lb"
+    assert main_leaderboard([str(src), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(src) in err
+    assert ("no rows" in err) if edit == "no rows" else ("no valid scored row" in err)
+    assert not out.exists()
+
+
+def test_a_table_failing_its_check_or_its_rescore_is_refused(tmp_path, capsys):
+    def out_of_range(rows):
+        rows[3]["nc_w"] = 1.7
+
+    src = _instances_table(tmp_path, out_of_range)
+    assert main_leaderboard([str(src), "-o", str(tmp_path / "lb")]) == 2
+    err = capsys.readouterr().err
+    assert "row 3" in err and "nc_w" in err and not (tmp_path / "lb").exists()
+    run = tmp_path / "run"
+    run.mkdir()
+    src = _instances_table(run)
+    (run / "cache").mkdir()  # a run's cache beside the table: its scores are recomputed
+    assert main_leaderboard([str(src), "-o", str(tmp_path / "lb2")]) == 2
+    err = capsys.readouterr().err
+    assert "does not stand when recomputed" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "lb2").exists()
+
+
+def test_a_table_without_cache_says_first_that_scores_were_not_recomputed(tmp_path):
+    md, page, manifest = _board(_instances_table(tmp_path), tmp_path / "lb")
+    assert md.splitlines()[2].startswith("**Scores not recomputed")
+    body = page[page.index("<body>"):]
+    assert body.index("Scores not recomputed") < body.index("<h2>")
+    assert manifest["recomputed"] is False
+
+
+def test_cells_are_escaped_in_markdown_and_html(tmp_path):
+    from vvtbench.leaderboard import md_cell
+
+    evil = "base | <b>bold</b> | fake"
+
+    def rename(rows):
+        for r in rows:
+            r["variation"] = evil
+
+    md, page, _ = _board(_instances_table(tmp_path, rename), tmp_path / "lb")
+    assert "<b>bold" not in md and "<b>bold" not in page and "&lt;b&gt;bold" in page
+    header = next(ln for ln in md.splitlines() if ln.startswith("| variation | rank |"))
+    rows = [ln for ln in md.splitlines() if ln.startswith("| base \\| &lt;b&gt;")]
+    assert len(rows) == 6  # ranking and details of a, b, oracle; no row made by the name
+    ranking_row = next(ln for ln in rows if "| a |" in ln and "| 1 |" in ln)
+    assert ranking_row.replace("\\|", "").count("|") == header.count("|")
+    assert md_cell("a\n| fake | row |\r\nb") == "a \\| fake \\| row \\| b"
+    assert md_cell("x\\|y") == "x\\\\\\|y"  # a backslash cannot unescape the pipe
+
+
+# ------------------------------------------------------------------ figures a person reads
+def _saved_figures(monkeypatch):
+    """Figures handed to save_figure, inspected before they are written and closed."""
+    import vvtbench.plots as plots
+
+    seen = []
+    save = plots.save_figure
+
+    def spy(fig, path, dpi=100):
+        fig.canvas.draw()
+        seen.append({"title": fig._suptitle.get_text() if fig._suptitle else "",
+                     "xticks": [t.get_text() for ax in fig.axes
+                                for t in ax.get_xticklabels() if t.get_text()],
+                     })
+        return save(fig, path, dpi=dpi)
+
+    monkeypatch.setattr(plots, "save_figure", spy)
+    return seen
+
+
+def test_solve_figure_is_titled_with_scene_observation_solver_and_score(tmp_path, monkeypatch):
+    seen = _saved_figures(monkeypatch)
+    wt, vt = _truth((3, 3, 2))
+
+    class Problem:
+        n_params, kind = 18, "solid"
+
+        def to_grid(self, x):
+            return np.asarray(x, float).reshape(3, 3, 2)
+
+    class Truth:
+        w, v = wt.ravel(), vt.ravel()
+
+    plot_fields(tmp_path / "slices.png", Problem(), {"vvt": (wt.ravel(), vt.ravel())}, Truth(),
+                scene="cube_top", observation="extracted", solver="vvt",
+                score={"NC w": 0.412, "NC v": float("nan")})
+    assert seen[0]["title"].startswith("vvt on cube_top (extracted modes): NC w 0.41, "
+                                       "NC v undefined")
+
+
+def test_count_axes_have_integer_ticks(tmp_path, monkeypatch):
+    from vvtbench.plots import plot_sweep
+
+    seen = _saved_figures(monkeypatch)
+    rows = [{"scene": "s", "solver": "vvt", "observation": "true", "status": "ok",
+             "variation_options": json.dumps({"n_modes": n}), "nc_w": 0.1 * i, "nc_v": 0.1}
+            for i, n in enumerate((6, 7, 8))]
+    assert plot_sweep(tmp_path / "f.png", pd.DataFrame(rows), "n_modes",
+                      Styles(["vvt"], ["true"]))
+    ticks = seen[0]["xticks"]
+    assert ticks and all(t.lstrip("−-").isdigit() for t in ticks), ticks
+
+
+def test_contrast_view_first_when_the_truth_dwarfs_the_estimates():
+    from vvtbench.plots import contrast_first
+
+    wt, _ = _truth()  # 9000 to 5e6: a x556 contrast
+    flat = 9000.0 * (1 + 0.1 * np.random.default_rng(1).random(wt.shape))
+    assert contrast_first(wt, [flat, flat * 1.01])
+    assert not contrast_first(wt, [wt * 0.9, flat])  # one estimate shows the structure
+    assert not contrast_first(None, [flat])

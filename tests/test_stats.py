@@ -10,6 +10,7 @@ from vvtbench.stats import (
     paired_comparison,
     paired_table,
     summarize,
+    tie_groups,
     track_statistics,
 )
 
@@ -96,3 +97,30 @@ def test_paired_table_pairs_shared_instances_higher_mean_first_and_failed_cells(
     assert (b.n, b.failed, b.nc_w_n) == (5, 1, 5)
     none = track_statistics(t.assign(status="error", nc_w=np.nan), metrics=["nc_w"])
     assert (none.n == 0).all() and none.nc_w_mean.isna().all() and (none.nc_w_n == 0).all()
+
+
+def _wide(**columns):
+    return pd.DataFrame({k: np.asarray(v, dtype=float) for k, v in columns.items()})
+
+
+def test_tie_groups_clear_winner_tie_and_chain():
+    """Constructed per-instance scores: the paired differences are known exactly."""
+    swing = np.tile([0.2, -0.2], 10)  # 20 instances, mean 0, sd 0.2: CI of a mean ~ +-0.09
+    base = np.linspace(0.3, 0.5, 20)
+    clear = tie_groups(_wide(a=base + 0.3 + swing, b=base))
+    assert [(s, r) for s, r, _ in clear] == [("a", 1), ("b", 2)]
+    assert clear[1][2]["ci_low"] > 0  # the difference a - b excludes 0
+    tie = tie_groups(_wide(a=base + 0.05 + swing, b=base))
+    assert [(s, r) for s, r, _ in tie] == [("a", 1), ("b", 1)]
+    assert tie[1][2]["ci_low"] < 0 < tie[1][2]["ci_high"]
+    # a = b and b = c, yet a - c = 0.10 on every instance: one group by the chain rule
+    chain = tie_groups(_wide(c=base, b=base + 0.05 - swing, a=base + 0.10, d=base - 0.5))
+    assert [(s, r) for s, r, _ in chain] == [("a", 1), ("b", 1), ("c", 1), ("d", 4)]
+    direct = paired_comparison(base + 0.10, base)
+    assert direct["ci_low"] > 0  # a and c differ, but not adjacently
+    # fewer than MIN_RANK_N pairs never separate (no ranking from 3 instances)
+    few = tie_groups(_wide(a=[0.9, 0.9, 0.9], b=[0.1, 0.1, 0.1]))
+    assert [r for _, r, _ in few] == [1, 1]
+    # only shared instances are paired: b's missing instances are left out
+    holes = _wide(a=base + 0.3 + swing, b=np.where(np.arange(20) < 17, np.nan, base))
+    assert [r for _, r, _ in tie_groups(holes)] == [1, 1] and tie_groups(holes)[1][2]["n"] == 3

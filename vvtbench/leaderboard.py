@@ -25,13 +25,24 @@ from __future__ import annotations
 import html
 import json
 import os
+import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ._version import __version__
-from .stats import LEVEL, N_BOOT, SEED, paired_table, track_statistics
+from .stats import (
+    LEVEL,
+    MIN_RANK_N,
+    N_BOOT,
+    SEED,
+    TIE_RULE,
+    instance_ids,
+    paired_table,
+    tie_groups,
+    track_statistics,
+)
 
 #: ranked metrics, each as mean and median with their bootstrap intervals over instances
 RANK_METRICS = [("nc_w", "NC w"), ("nc_v", "NC v")]
@@ -55,12 +66,14 @@ LEGEND = (
     "and variation: a sweep value (n_modes, alpha_v, ...) is never pooled with another. "
     f"`mean [low, high]`: the mean and its {_PCT} percentile bootstrap interval over "
     f"instances ({N_BOOT} resamples, numpy default_rng seed {SEED}); the median likewise. "
-    "With few instances the interval is too narrow (the percentile bootstrap under-covers "
-    "below about 10): read it with n. "
+    f"Below {MIN_RANK_N} instances there is no interval and no rank, only the mean and n "
+    "(too few instances to rank: the percentile bootstrap under-covers badly on a handful of "
+    "values); between 5 and about 10 the interval is still somewhat too narrow. "
     "n: instances with a valid run; a metric undefined on an instance (NC where the truth is "
     "constant: the false contrast is given instead) is left out, and its cell then says over "
-    "how many instances it is (n=k). –: no value; a mean without an interval is over one "
-    "instance. Runtime: median (interquartile range) of the valid runs, in seconds. "
+    "how many instances it is (n=k). –: no value; a mean without an interval is over fewer "
+    f"than {MIN_RANK_N} instances. Runtime: median (interquartile range) of the valid runs, "
+    "in seconds. "
     "failed / invalid: runs that raised / estimates that were not scored; a solver valid on "
     f"fewer than {MIN_VALID_FRACTION:.0%} of its runs in a cell is not ranked there (–). "
     "Interval coverage "
@@ -69,7 +82,19 @@ LEGEND = (
     "per track, source and variation, between ranked solvers on the instances both solved "
     "validly: A − B, the mean of the per-instance differences with its bootstrap interval, "
     "the win rate of A (ties count half) and the number of pairs; A is the one with the higher "
-    "mean.")
+    "mean. Tie groups: " + TIE_RULE.format(min_n=MIN_RANK_N) + " A shared rank is written "
+    "1=.")
+
+SCORE_SENTENCE = (
+    "Score: NC w, the centered normalized correlation between the estimated and the true "
+    "stiffness field (Young's modulus) over the voxels: 1 is the true spatial pattern, 0 no "
+    "relation to it, higher is better; NC v is the same for density.")
+
+NOT_RECOMPUTED = (
+    "Scores not recomputed: this table was given without its run's cache, so its scores are "
+    "shown as written, not recomputed from the estimates and the truth.")
+RECOMPUTED = ("Scores recomputed: every scored row was recomputed from the estimate and the "
+              "truth in the run's cache and agreed with the table.")
 
 
 def _plt():
@@ -104,18 +129,20 @@ def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
     """Per track (first-appearance order: the suite's) and observation source, one table
     with a row per variation and solver (:func:`vvtbench.stats.track_statistics`).
 
-    Within a variation the solvers are ranked by mean NC of w (ties: NC of v) over their
-    valid instances; a solver without a valid NC w, or valid on fewer than
-    :data:`MIN_VALID_FRACTION` of its runs in the cell, is not ranked (its mean would be
-    over the instances it chose to answer) and follows the ranked ones. Reference solvers
-    (``reference``: they saw the truth) are never ranked: they follow the ranked ones, with a
-    note when a ranked solver of the same variation is above them.
+    Within a variation the solvers are ranked by mean NC of w over their valid instances,
+    with ties (:func:`vvtbench.stats.tie_groups`: a solver whose paired interval against the
+    one above it includes 0 shares its rank). Not ranked, and listed after the ranked ones: a
+    solver without a valid NC w; one valid on fewer than :data:`MIN_VALID_FRACTION` of its
+    runs in the cell (its mean would be over the instances it chose to answer); one over
+    fewer than :data:`vvtbench.stats.MIN_RANK_N` instances (too few to rank). Reference
+    solvers (``reference``: they saw the truth) are never ranked: they come last, with a note
+    when a ranked solver of the same variation is above them. Invalid rows are never scored.
 
     Returns
     -------
     list of (track, observation, pandas.DataFrame)
-        The table has the track_statistics columns, ``rank`` (int, or None when not ranked)
-        and ``note``.
+        The table has the track_statistics columns, ``rank`` (int, or None when not ranked),
+        ``tied`` (the number of solvers sharing the rank, 0 when not ranked) and ``note``.
     """
     import pandas as pd
 
@@ -124,24 +151,46 @@ def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
     if st.empty:
         return []
     few = st.n < MIN_VALID_FRACTION * st.runs
-    st = _page_order(st, df).assign(
-        _unranked=lambda t: t.reference | ~np.isfinite(t.nc_w_mean.astype(float)) | few)
-    st = st.sort_values(["reference", "_unranked", "nc_w_mean", "nc_v_mean"],
-                        ascending=[True, True, False, False], na_position="last",
+    too_few = st.nc_w_n < MIN_RANK_N
+    st = st.assign(_unranked=st.reference | ~np.isfinite(st.nc_w_mean.astype(float)) | few
+                   | too_few)
+    cell = ["track", "observation", "variation"]
+    ok = df[(df.status == "ok") & ~df["reference"].fillna(False).astype(bool)]
+    ok = ok.assign(_inst=instance_ids(ok))
+    ranks: dict[tuple, int] = {}
+    for key, t in st[~st._unranked].groupby(cell, sort=False):
+        rows = ok[(ok.track == key[0]) & (ok.observation == key[1]) & (ok.variation == key[2])
+                  & ok.solver.isin(t.solver)]
+        wide = rows.pivot_table(index="_inst", columns="solver", values="nc_w",
+                                aggfunc="first", dropna=False)
+        for solver, rank, _ in tie_groups(wide, seed=seed):
+            ranks[(*key, solver)] = rank
+    st["rank"] = pd.Series([ranks.get(k) for k in zip(*(st[c] for c in [*cell, "solver"]),
+                                                      strict=True)],
+                           index=st.index, dtype=object)
+    st["_sort"] = [r if r is not None else np.inf for r in st["rank"]]
+    st = st.sort_values(["reference", "_unranked", "_sort", "nc_w_mean", "nc_v_mean"],
+                        ascending=[True, True, True, False, False], na_position="last",
                         kind="stable")
     st = _page_order(st, df)
-    cell = ["track", "observation", "variation"]
-    rank = (~st._unranked).astype(int).groupby([st[c] for c in cell], sort=False).cumsum()
-    st["rank"] = pd.Series([None if u else int(r) for u, r in
-                            zip(st._unranked, rank, strict=True)], index=st.index, dtype=object)
+    shared = st.groupby([*cell, "_sort"], sort=False).solver.transform("size")
+    st["tied"] = [int(k) if r is not None else 0 for k, r in zip(shared, st["rank"],
+                                                                 strict=True)]
     best = st.nc_w_mean.where(~st._unranked).groupby([st[c] for c in cell]).transform("max")
-    st["note"] = [f"below a ranked solver (NC w {b:.2f})" if ref and np.isfinite(b)
-                  and np.isfinite(m) and m < b
-                  else f"not ranked: valid on {n} of {runs} runs" if not ref and n < runs
-                  * MIN_VALID_FRACTION else ""
-                  for ref, m, b, n, runs in zip(st.reference, st.nc_w_mean, best, st.n,
-                                                st.runs, strict=True)]
-    st = st.drop(columns=["_unranked"]).reset_index(drop=True)
+    notes = []
+    for ref, m, b, n, runs, nw in zip(st.reference, st.nc_w_mean, best, st.n, st.runs,
+                                      st.nc_w_n, strict=True):
+        if ref:
+            notes.append(f"below a ranked solver (NC w {b:.2f})" if np.isfinite(b)
+                         and np.isfinite(m) and m < b else "")
+        elif n < runs * MIN_VALID_FRACTION:
+            notes.append(f"not ranked: valid on {n} of {runs} runs")
+        elif 0 < nw < MIN_RANK_N:
+            notes.append(f"too few instances to rank (n={nw}, fewer than {MIN_RANK_N})")
+        else:
+            notes.append("")
+    st["note"] = notes
+    st = st.drop(columns=["_unranked", "_sort"]).reset_index(drop=True)
     return [(track, obs, t.reset_index(drop=True))
             for (track, obs), t in st.groupby(["track", "observation"], sort=False)]
 
@@ -159,12 +208,14 @@ def _num(x, digits: int = 2, sign: bool = False) -> str:
 def ci_cell(value, low, high, n: int | None = None, of: int | None = None,
             sign: bool = False, digits: int = 2) -> str:
     """``0.41 [0.33, 0.49]``: a value with its interval (the interval left out when there is
-    none), ``(n=k)`` appended when the value is over fewer instances ``n`` than the row's
+    none or when ``n`` is below :data:`vvtbench.stats.MIN_RANK_N`), ``(n=k)`` appended when
+    the value is over fewer instances ``n`` than the row's
     ``of``; "–" when there is no value."""
     if n == 0 or not np.isfinite(float(value)):
         return "–"
     text = _num(value, digits, sign)
-    if np.isfinite(float(low)) and np.isfinite(float(high)):
+    if (np.isfinite(float(low)) and np.isfinite(float(high))
+            and (n is None or n >= MIN_RANK_N)):
         text += f" [{_num(low, digits, sign)}, {_num(high, digits, sign)}]"
     if n is not None and of is not None and n < of:
         text += f" (n={n})"
@@ -182,36 +233,54 @@ def _runtime_cell(r) -> str:
             f"{_seconds(r['runtime_q75_s'])})")
 
 
+def _rank_label(r) -> str:
+    if r["reference"]:
+        return "ref"
+    if r["rank"] is None:
+        return "–"
+    return f"{r['rank']}=" if r["tied"] > 1 else str(r["rank"])
+
+
 def _ranking_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
-    """The header and the rows (cells, HTML class) of a ranking table."""
-    optional = [(c, label) for c, label in UNDEFINED_NC_COLUMNS
-                if f"{c}_n" in t and (t[f"{c}_n"] > 0).any()]
+    """The header and the rows (cells, HTML class) of a ranking table: rank, mean NC of w
+    and v with their intervals, n, failed and invalid."""
     head = ["variation", "rank", "solver"]
-    for _, label in RANK_METRICS:
-        head += [f"{label} mean [{_PCT} CI]", f"{label} median [{_PCT} CI]"]
-    head += ["n", *[label for _, label in MEAN_COLUMNS + optional], "runtime s: median (IQR)",
-             "failed", "invalid"]
+    head += [f"{label} mean [{_PCT} CI]" for _, label in RANK_METRICS]
+    head += ["n", "failed", "invalid"]
     rows, last = [], None
     for _, r in t.iterrows():
-        if r["reference"]:
-            label, shown = f"{r['solver']} (reference)", "ref"
-        else:
-            label, shown = str(r["solver"]), "–" if r["rank"] is None else str(r["rank"])
+        label = f"{r['solver']} (reference)" if r["reference"] else str(r["solver"])
         if r["note"]:
             label += f" -- {r['note']}"
-        cells = [str(r["variation"]), shown, label]
-        for m, _ in RANK_METRICS:
-            for stat in ("mean", "median"):
-                cells.append(ci_cell(r[f"{m}_{stat}"], r[f"{m}_{stat}_ci_low"],
-                                     r[f"{m}_{stat}_ci_high"], r[f"{m}_n"], r["n"]))
-        cells.append(str(int(r["n"])))
+        cells = [str(r["variation"]), _rank_label(r), label]
+        cells += [ci_cell(r[f"{m}_mean"], r[f"{m}_mean_ci_low"], r[f"{m}_mean_ci_high"],
+                          r[f"{m}_n"], r["n"]) for m, _ in RANK_METRICS]
+        cells += [str(int(r["n"])), str(int(r["failed"])), str(int(r["invalid"]))]
+        cls = " ".join(filter(None, ["ref" if r["reference"] else "",
+                                     "group" if r["variation"] != last else ""]))
+        last = r["variation"]
+        rows.append((cells, cls))
+    return head, rows
+
+
+def _detail_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
+    """The header and rows of a ranking table's details: medians, the mean-only columns and
+    the runtime."""
+    optional = [(c, label) for c, label in UNDEFINED_NC_COLUMNS
+                if f"{c}_n" in t and (t[f"{c}_n"] > 0).any()]
+    head = ["variation", "solver"]
+    head += [f"{label} median [{_PCT} CI]" for _, label in RANK_METRICS]
+    head += [*[label for _, label in MEAN_COLUMNS + optional], "runtime s: median (IQR)"]
+    rows, last = [], None
+    for _, r in t.iterrows():
+        label = f"{r['solver']} (reference)" if r["reference"] else str(r["solver"])
+        cells = [str(r["variation"]), label]
+        cells += [ci_cell(r[f"{m}_median"], r[f"{m}_median_ci_low"], r[f"{m}_median_ci_high"],
+                          r[f"{m}_n"], r["n"]) for m, _ in RANK_METRICS]
         for c, _ in MEAN_COLUMNS + optional:
-            if f"{c}_mean" not in r:
-                cells.append("–")
-                continue
-            cells.append(ci_cell(r[f"{c}_mean"], np.nan, np.nan, r[f"{c}_n"], r["n"],
-                                 digits=3))
-        cells += [_runtime_cell(r), str(int(r["failed"])), str(int(r["invalid"]))]
+            cells.append(ci_cell(r[f"{c}_mean"], np.nan, np.nan, r[f"{c}_n"], r["n"], digits=3)
+                         if f"{c}_mean" in r else "–")
+        cells.append(_runtime_cell(r))
         cls = " ".join(filter(None, ["ref" if r["reference"] else "",
                                      "group" if r["variation"] != last else ""]))
         last = r["variation"]
@@ -235,10 +304,17 @@ def _paired_rows(p) -> tuple[list[str], list[tuple[list[str], str]]]:
     return head, rows
 
 
+def md_cell(x) -> str:
+    """``x`` as one Markdown table cell: ``|`` escaped, ``<``, ``>`` and ``&`` as entities,
+    line breaks as spaces, so no text can end the cell, open a tag or start a row."""
+    text = re.sub(r"\s*[\r\n\v\f\x1c-\x1e\x85\u2028\u2029]\s*", " ", str(x))
+    return (text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+            .replace("\\", "\\\\").replace("|", "\\|"))
+
+
 def _md(head: list[str], rows) -> str:
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
-              for cells, _ in rows]
+    lines = ["| " + " | ".join(md_cell(h) for h in head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(md_cell(c) for c in cells) + " |" for cells, _ in rows]
     return "\n".join(lines)
 
 
@@ -303,9 +379,10 @@ def _nc_note(r) -> str:
 def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles) -> list:
     """For the first :data:`MAX_FIELD_SCENES` scenes of ``track`` whose true w is not
     constant (so NC is defined): the truth and every solver × observation source of the
-    shown variation and first seed, values and contrast views. Returns [(caption, rel
-    path)]."""
-    from .plots import plot_field_grids
+    shown variation and first seed, values and contrast views; the contrast view first when
+    the truth's span dwarfs the estimates' (:func:`vvtbench.plots.contrast_first`). Returns
+    [(caption, rel path)]."""
+    from .plots import CONTRAST_FIRST_RATIO, contrast_first, plot_field_grids
 
     d = df[(df.track == track) & (df.status == "ok")]
     if d.empty or "estimate_path" not in d:
@@ -340,13 +417,20 @@ def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles
         stem = f"{_slug(track)}_slices" + ("" if drawn == 0 else f"_{_slug(scene)}")
         drawn += 1
         seed = ds.seed.iloc[0]
-        for normalized, suffix, what in ((False, "", "values"),
-                                         (True, "_normalized", "contrast to the matrix")):
+        views = [(False, "", "values, one colour scale shared with the truth"),
+                 (True, "_normalized", "contrast to each field's matrix value")]
+        first = contrast_first(truth[0], [w for w, _ in estimates.values()])
+        if first:  # a shared scale would flatten every estimate
+            views.reverse()
+        for normalized, suffix, what in views:
             rel = f"{rel_dir}/{stem}{suffix}.png"
             plot_field_grids(folder / Path(rel).name, truth[0], truth[1], estimates,
                              normalized=normalized, notes=notes,
-                             title=f"{track}: {scene} [{variation}, seed {seed}]")
-            out.append((f"{scene} [{variation}]: fields, {what}", rel))
+                             title=f"{track}: {scene} [{variation}, seed {seed}]; rows: "
+                                   "solver, observation source, NC")
+            why = (f" (shown first: the truth's span of w is over {CONTRAST_FIRST_RATIO:g}x "
+                   "every estimate's)" if first and normalized else "")
+            out.append((f"{scene} [{variation}]: fields, {what}{why}", rel))
     return out
 
 
@@ -507,9 +591,9 @@ def _fmt_best(b) -> str:
 
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1400px;margin:auto;padding:1em;
-color:#222}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em}
-td,th{border:1px solid #ccc;padding:3px 7px;text-align:right;white-space:nowrap}
-th{background:#eee;white-space:normal}td.l,th.l{text-align:left}
+color:#222}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em;max-width:100%}
+td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;overflow-wrap:anywhere}
+th{background:#eee}td.l,th.l{text-align:left}p.trust{background:#fff6d8;padding:.4em}
 tr.group td{border-top:2px solid #888}
 tr.ref td{color:#666;font-style:italic;background:#f7f7f7}.scroll{overflow-x:auto}
 img{max-width:100%;display:block;margin:.3em 0 1em;border:1px solid #eee}
@@ -524,7 +608,6 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     ``overwrite``; then writes and removes only its own files."""
     import tempfile
 
-    from .bench import check_results, read_results
     from .io import write_json, write_text
     from .plots import Styles
 
@@ -532,14 +615,14 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     source = results / "results.parquet" if results.is_dir() else results
     out = Path(out)
     owned = prepare_output(out, source, overwrite)
-    df = read_results(results)
-    if "reference" not in df.columns:
-        df = df.assign(reference=False)
+    df, run_dir = checked_table(results)
     base = results if results.is_dir() else results.parent
-    problems = check_results(df)
     styles = Styles(df.solver.unique(), df.observation.unique())
     tracks = suite_track_order(results, list(dict.fromkeys(df.track)))
 
+    groups = ranking(df)
+    rows = summary(df, groups)
+    paired = {m: _page_order(paired_table(df, m, seed=SEED), df) for m, _ in RANK_METRICS}
     out.mkdir(parents=True, exist_ok=True)
     (out / "figures").mkdir(exist_ok=True)
     figs: dict[str, list] = {}
@@ -559,95 +642,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                 os.replace(tmp / Path(rel).name, out / rel)  # atomic, replaces a link itself
                 written.add(rel)
 
-    groups = ranking(df)
-    rows = summary(df, groups)
-    paired = {m: _page_order(paired_table(df, m, seed=SEED), df) for m, _ in RANK_METRICS}
-    n_failed = int((df.status == "error").sum())
-    n_invalid = int((df.status == "invalid").sum())
-    intro = (f"Generated by vvtbench {__version__} from `{results}`: {len(df)} runs "
-             f"({n_failed} failed, {n_invalid} invalid), {df.solver.nunique()} solvers, "
-             f"{len(tracks)} tracks. Solvers are ranked per track, observation source and "
-             "variation by mean NC of the stiffness field w over the valid instances "
-             "(centered normalized correlation, docs/metrics.md). Reference solvers (they saw "
-             "the truth: an upper bound) are marked `ref` and not ranked; failed and invalid "
-             "runs are counted and never ranked.")
-    md = ["# vvtbench leaderboard\n", intro + "\n", f"**Statistics.** {LEGEND}\n"]
-    if problems:
-        md.append("**Schema problems:** " + "; ".join(problems[:5]) + "\n")
-    md.append("## Summary\n")
-    md.append(f"| track | best ranked: NC w mean [{_PCT} CI] | reference: NC w mean "
-              f"[{_PCT} CI] | runs | failed | invalid |")
-    md.append("|---|---|---|---|---|---|")
-    for r in rows:
-        md.append(f"| [{r['track']}](#{_slug(r['track'])}) | {_fmt_best(r['best'])} | "
-                  f"{_fmt_best(r['reference'])} | {r['runs']} | {r['failed']} | "
-                  f"{r['invalid']} |")
-    md.append("")
-    body = []
-    tracks_json = []
-    for track in tracks:
-        md.append(f'<a id="{_slug(track)}"></a>\n\n## {track}\n')
-        body.append(f'<section id="{_slug(track)}"><h2>{html.escape(track)}</h2>')
-        ranked = []
-        for tr, obs, t in groups:
-            if tr != track:
-                continue
-            head, trows = _ranking_rows(t)
-            md.append(f"### {track} — {obs} modes\n\n" + _md(head, trows) + "\n")
-            body.append(f"<h3>{html.escape(track)} — {html.escape(obs)} modes</h3>"
-                        + _html(head, trows, left=3))
-            ranked.append(t)
-        p = paired["nc_w"][paired["nc_w"].track == track]
-        if len(p):
-            head, prows = _paired_rows(p)
-            title = f"{track} — paired comparisons, NC w (same instances)"
-            md.append(f"### {title}\n\n" + _md(head, prows) + "\n")
-            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, prows, left=4))
-        tracks_json.append({
-            "track": track,
-            "ranking": [rec for t in ranked for rec in t.to_dict("records")],
-            "paired": {m: paired[m][paired[m].track == track].to_dict("records")
-                       for m in paired}})
-        for title, frame in (
-                ("extractors ranked on the same videos", extractor_ranking(df, track)),
-                ("extraction (detected modes against the true ones)",
-                 extraction_table(df, track))):
-            if frame is not None:
-                md.append(f"### {track} — {title}\n\n" + _md_frame(frame) + "\n")
-                body.append(f"<h3>{html.escape(track)} — {html.escape(title)}</h3>"
-                            + frame.to_html(index=False, float_format=lambda x: f"{x:.3f}",
-                                            na_rep="–", border=0))
-        for caption, rel in figs[track]:
-            md.append(f"**{track}: {caption}**\n\n![{track}: {caption}]({rel})\n")
-            body.append(f"<figure><figcaption>{html.escape(track)}: {html.escape(caption)}"
-                        f"</figcaption><img src=\"{html.escape(rel)}\" alt=\""
-                        f"{html.escape(track)}: {html.escape(caption)}\">"
-                        "</figure>")
-        body.append("</section>")
-    summary_html = ("<table><tr><th class=\"l\">track</th><th class=\"l\">best ranked: NC w "
-                    f"mean [{_PCT} CI]</th><th class=\"l\">reference: NC w mean [{_PCT} CI]</th>"
-                    "<th>runs</th><th>failed</th><th>invalid</th></tr>"
-                    + "".join(f"<tr><td class=\"l\"><a href=\"#{_slug(r['track'])}\">"
-                              f"{html.escape(r['track'])}</a></td>"
-                              f"<td class=\"l\">{html.escape(_fmt_best(r['best']))}</td>"
-                              f"<td class=\"l\">{html.escape(_fmt_best(r['reference']))}</td>"
-                              f"<td>{r['runs']}</td><td>{r['failed']}</td>"
-                              f"<td>{r['invalid']}</td></tr>" for r in rows) + "</table>")
-    schema = ("<p class=\"note\"><b>Schema problems:</b> "
-              + html.escape("; ".join(problems[:5])) + "</p>") if problems else ""
-    nav = "".join(f"<a href=\"#{_slug(t)}\">{html.escape(t)}</a>" for t in tracks)
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>vvtbench leaderboard</title><link rel="icon" href="data:,">
-<style>{_CSS}</style></head><body>
-<h1>vvtbench leaderboard</h1>
-<p>{html.escape(intro).replace("`", "")} Data: <a href="results.csv">results.csv</a>.</p>
-<p class="note"><b>Statistics.</b> {html.escape(LEGEND).replace("`", "")}</p>
-{schema}<nav>{nav}</nav><h2>Summary</h2>{summary_html}
-{''.join(body)}
-</body></html>
-"""
+    md, page, tracks_json = _pages(df, results, run_dir, tracks, groups, rows, paired, figs)
     write_text(out / "README.md", "\n".join(md))
     write_text(out / "index.html", page)
     write_text(out / "results.csv", df.to_csv(index=False))
@@ -664,9 +659,168 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                        "cell": ["track", "observation", "variation", "solver"],
                        "track_order": "the suite file's (run.json beside the table), else "
                                       "first appearance in the results table",
-                       "legend": LEGEND},
+                       "legend": LEGEND, "min_rank_n": MIN_RANK_N,
+                       "ties": TIE_RULE.format(min_n=MIN_RANK_N)},
+        "recomputed": run_dir is not None,
         "tracks": tracks_json})
     return out
+
+
+def checked_table(results: str | Path):
+    """The results table of ``results`` (a table or a run folder) and its run folder when
+    its scores were recomputed from the run's cache (None when there is no cache beside it).
+
+    Raises
+    ------
+    LeaderboardError
+        The table fails :func:`vvtbench.bench.check_results` (the first problem is named), has
+        no valid scored row (``status`` ok with a finite ``nc_w``), or a score recomputed
+        from the cache (:func:`vvtbench.bench.rescore.rescore`) differs from the table's.
+    """
+    from .bench import check_results, read_results
+    from .bench.rescore import has_cache, rescore
+
+    results = Path(results)
+    source = results / "results.parquet" if results.is_dir() else results
+    try:
+        df = read_results(results)
+    except (OSError, ValueError) as error:
+        raise LeaderboardError(f"{source}: cannot read the results table: {error}") from None
+    problems = check_results(df)
+    if problems:
+        more = (f" (and {len(problems) - 1} more: `vvtbench check-results {source}` lists "
+                "them)") if len(problems) > 1 else ""
+        raise LeaderboardError(f"{source}: {problems[0]}{more}")
+    if "reference" not in df.columns:
+        df = df.assign(reference=False)
+    scored = (df.status == "ok") & np.isfinite(df.nc_w.astype(float))
+    if not scored.any():
+        raise LeaderboardError(f"{source}: no valid scored row (status ok with a finite "
+                               f"nc_w) among its {len(df)} rows: nothing to rank")
+    run_dir = has_cache(results)
+    if run_dir is not None:
+        problems = rescore(run_dir, df)
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            raise LeaderboardError(f"{source}: a score does not stand when recomputed from "
+                                   f"{run_dir / 'cache'}: {problems[0]}{more}")
+    return df, run_dir
+
+
+def _tied_with(groups, b) -> list[str]:
+    """The other solvers sharing the rank of the summary cell ``b``."""
+    for track, obs, t in groups:
+        if obs != b["observation"]:
+            continue
+        row = t[(t.variation == b["variation"]) & (t.solver == b["solver"])]
+        if len(row) and row["rank"].iloc[0] is not None:
+            same = t[(t.variation == b["variation"]) & (t["rank"] == row["rank"].iloc[0])
+                     & (t.solver != b["solver"])]
+            if len(same) and track == row.track.iloc[0]:
+                return [str(x) for x in same.solver]
+    return []
+
+
+def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
+    """(README.md lines, index.html text, the tracks' statistics for leaderboard.json)."""
+    n_failed = int((df.status == "error").sum())
+    n_invalid = int((df.status == "invalid").sum())
+    trust = RECOMPUTED if run_dir is not None else NOT_RECOMPUTED
+    intro = (f"{len(df)} runs ({n_failed} failed, {n_invalid} invalid: counted, never "
+             f"ranked or scored) of {df.solver.nunique()} solvers on {len(tracks)} tracks, "
+             f"from {results}, by vvtbench {__version__}. {SCORE_SENTENCE} Solvers are "
+             "ranked per track, observation source and variation by mean NC w over the "
+             "valid instances; a solver whose paired interval against the one above it "
+             "includes 0 shares its rank (1=); with fewer than "
+             f"{MIN_RANK_N} instances a solver shows its mean and n only: too few instances "
+             "to rank. Reference solvers (they saw the truth: an upper bound) are shown "
+             "apart, last, and never ranked. The method is at the end of the page.")
+    md = ["# vvtbench leaderboard\n", f"**{trust}**\n", intro + "\n", "## Summary\n",
+          f"| track | ranked first: NC w mean [{_PCT} CI] | tied with | reference: NC w mean "
+          f"[{_PCT} CI] | runs | failed | invalid |", "|---|---|---|---|---|---|---|"]
+    summary_rows = []
+    for r in rows:
+        tied = ", ".join(_tied_with(groups, r["best"])) if r["best"] else ""
+        cells = [_fmt_best(r["best"]), tied or "–", _fmt_best(r["reference"]),
+                 str(r["runs"]), str(r["failed"]), str(r["invalid"])]
+        md.append(f"| [{md_cell(r['track'])}](#{_slug(r['track'])}) | "
+                  + " | ".join(md_cell(c) for c in cells) + " |")
+        summary_rows.append((r["track"], cells))
+    md.append("")
+    body, tracks_json = [], []
+    for track in tracks:
+        md.append(f'<a id="{_slug(track)}"></a>\n\n## {md_cell(track)}\n')
+        body.append(f'<section id="{_slug(track)}"><h2>{html.escape(track)}</h2>')
+        ranked = []
+        for tr, obs, t in groups:
+            if tr != track:
+                continue
+            title = f"{track} — {obs} modes: ranking by mean NC w"
+            head, trows = _ranking_rows(t)
+            md.append(f"### {md_cell(title)}\n\n" + _md(head, trows) + "\n")
+            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, trows, left=3))
+            ranked.append((obs, t))
+        p = paired["nc_w"][paired["nc_w"].track == track]
+        if len(p):
+            head, prows = _paired_rows(p)
+            title = f"{track} — paired comparisons, NC w (same instances)"
+            md.append(f"### {md_cell(title)}\n\n" + _md(head, prows) + "\n")
+            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, prows, left=4))
+        for obs, t in ranked:
+            head, drows = _detail_rows(t)
+            title = f"{track} — {obs} modes: medians, other metrics, runtime"
+            md.append(f"### {md_cell(title)}\n\n" + _md(head, drows) + "\n")
+            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, drows, left=2))
+        tracks_json.append({
+            "track": track,
+            "ranking": [rec for _, t in ranked for rec in t.to_dict("records")],
+            "paired": {m: paired[m][paired[m].track == track].to_dict("records")
+                       for m in paired}})
+        for title, frame in (
+                ("extractors ranked on the same videos", extractor_ranking(df, track)),
+                ("extraction (detected modes against the true ones)",
+                 extraction_table(df, track))):
+            if frame is not None:
+                md.append(f"### {md_cell(track)} — {title}\n\n" + _md_frame(frame) + "\n")
+                body.append(f"<h3>{html.escape(track)} — {html.escape(title)}</h3>"
+                            + '<div class="scroll">'
+                            + frame.to_html(index=False, float_format=lambda x: f"{x:.3f}",
+                                            na_rep="–", border=0) + "</div>")
+        for caption, rel in figs[track]:
+            md.append(f"**{md_cell(track)}: {md_cell(caption)}**\n\n"
+                      f"![{md_cell(track)}: {md_cell(caption)}]({rel})\n")
+            body.append(f"<figure><figcaption>{html.escape(track)}: {html.escape(caption)}"
+                        f"</figcaption><img src=\"{html.escape(rel)}\" alt=\""
+                        f"{html.escape(track)}: {html.escape(caption)}\">"
+                        "</figure>")
+        body.append("</section>")
+    method = (f"{LEGEND} Solvers are ranked by mean NC of w; a solver valid on fewer than "
+              f"{MIN_VALID_FRACTION:.0%} of its runs in a cell, or without a valid NC w, is "
+              "not ranked (–).")
+    md += ["## Method\n", method.replace("|", "\\|") + "\n"]
+    summary_html = _html(["track", f"ranked first: NC w mean [{_PCT} CI]", "tied with",
+                          f"reference: NC w mean [{_PCT} CI]", "runs", "failed", "invalid"],
+                         [([track, *cells], "") for track, cells in summary_rows], left=4)
+    for track, _ in summary_rows:  # link each track's name to its section
+        cell = f'<td class="l">{html.escape(track)}</td>'
+        summary_html = summary_html.replace(
+            cell, f'<td class="l"><a href="#{_slug(track)}">{html.escape(track)}</a></td>', 1)
+    nav = "".join(f"<a href=\"#{_slug(t)}\">{html.escape(t)}</a>" for t in tracks)
+    page = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>vvtbench leaderboard</title><link rel="icon" href="data:,">
+<style>{_CSS}</style></head><body>
+<h1>vvtbench leaderboard</h1>
+<p class="trust"><b>{html.escape(trust)}</b></p>
+<p>{html.escape(intro)} Data: <a href="results.csv">results.csv</a>.</p>
+<nav>{nav} <a href="#method">method</a></nav><h2>Summary</h2>{summary_html}
+{''.join(body)}
+<section id="method"><h2>Method</h2><p class="note">{html.escape(method).replace("`", "")}
+</p></section>
+</body></html>
+"""
+    return md, page, tracks_json
 
 
 def suite_track_order(results: str | Path, tracks: list[str]) -> list[str]:
@@ -689,8 +843,9 @@ def _md_frame(t) -> str:
         return f"{x:.3f}" if isinstance(x, float) and np.isfinite(x) else (
             "–" if isinstance(x, float) else str(x))
 
-    lines = ["| " + " | ".join(map(str, t.columns)) + " |", "|" + "---|" * len(t.columns)]
-    lines += ["| " + " | ".join(cell(x) for x in row) + " |" for row in t.itertuples(index=False)]
+    lines = ["| " + " | ".join(map(md_cell, t.columns)) + " |", "|" + "---|" * len(t.columns)]
+    lines += ["| " + " | ".join(md_cell(cell(x)) for x in row) + " |"
+              for row in t.itertuples(index=False)]
     return "\n".join(lines)
 
 

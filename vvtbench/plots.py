@@ -56,12 +56,13 @@ def _mpl():
 
 def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
     """Save ``fig`` atomically (temp file + rename; a symlink at ``path`` is replaced, not
-    followed) and close it."""
+    followed) and close it. The saved area is grown to hold every label (``bbox_inches=
+    "tight"``), so no title or colour-bar label is clipped at the edge."""
     _, plt = _mpl()
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
     try:
-        fig.savefig(tmp, dpi=dpi)
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", pad_inches=0.08)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -341,10 +342,59 @@ def _colourbar(fig, im, cax, label: str, extend: str, ticks) -> None:
         bar.ax.yaxis.set_minor_formatter(mticker.NullFormatter())
 
 
+#: a field's values view flattens the estimates when the truth's span (max - min) is more than
+#: this many times the widest estimate's span: the contrast view is then shown first
+CONTRAST_FIRST_RATIO = 10.0
+
+
+def contrast_first(truth: np.ndarray | None, estimates: Iterable[np.ndarray],
+                   ratio: float = CONTRAST_FIRST_RATIO) -> bool:
+    """Whether the contrast view (each field against its own matrix value) should come before
+    the values view (one colour scale shared with the truth): True when the truth's span
+    (max - min over finite voxels) exceeds ``ratio`` times the largest span of ``estimates``.
+
+    >>> contrast_first(np.array([1.0, 186.0]), [np.array([1.0, 3.0])])
+    True
+    >>> contrast_first(np.array([1.0, 5.0]), [np.array([1.0, 3.0])])
+    False
+    """
+    if truth is None:
+        return False
+    t = _finite([np.asarray(truth, float)])
+    spans = [np.ptp(e) for e in (_finite([np.asarray(g, float)]) for g in estimates) if e.size]
+    if t.size == 0 or not spans:
+        return False
+    widest = max(spans)
+    return bool(np.ptp(t) > ratio * widest) if widest > 0 else bool(np.ptp(t) > 0)
+
+
+def solve_title(scene: str | None = None, observation: str | None = None,
+                solver: str | None = None, score: Mapping[str, float] | None = None) -> str:
+    """``vvt on cube_top (true modes): NC w 0.41, NC v 0.12``: what a figure shows and how it
+    scored; the parts not given are left out."""
+    head = solver or "estimate"
+    if scene:
+        head += f" on {scene}"
+    if observation:
+        head += f" ({observation} modes)"
+    parts = []
+    for name, value in (score or {}).items():
+        ok = isinstance(value, (int, float)) and np.isfinite(value)
+        parts.append(f"{name} {value:.2f}" if ok else f"{name} undefined")
+    return head + (": " + ", ".join(parts) if parts else "")
+
+
 def plot_fields(path: str | Path, problem, estimates: Mapping[str, tuple], truth=None,
-                title: str | None = None, *, normalized: bool = False) -> Path:
+                title: str | None = None, *, normalized: bool = False,
+                scene: str | None = None, observation: str | None = None,
+                solver: str | None = None,
+                score: Mapping[str, float] | None = None) -> Path:
     """Voxel fields of ``estimates`` (label -> (w, v) per parameter) beside ``truth`` (an
-    object with ``w`` and ``v`` per parameter), drawn by :func:`plot_field_grids`."""
+    object with ``w`` and ``v`` per parameter), drawn by :func:`plot_field_grids`.
+
+    ``scene``, ``observation``, ``solver`` and ``score`` (e.g. ``{"NC w": 0.41, "NC v":
+    0.12}``) make the title when ``title`` is not given (:func:`solve_title`).
+    """
     grids = {}
     for label, (w, v) in estimates.items():
         w, v = np.asarray(w, dtype=float), np.asarray(v, dtype=float)
@@ -354,6 +404,8 @@ def plot_fields(path: str | Path, problem, estimates: Mapping[str, tuple], truth
     tw = problem.to_grid(truth.w) if truth is not None else None
     tv = problem.to_grid(truth.v) if truth is not None else None
     kind = "membrane" if getattr(problem, "kind", "solid") == "membrane" else "solid"
+    if title is None and any(x is not None for x in (scene, observation, solver, score)):
+        title = solve_title(scene, observation, solver, score)
     return plot_field_grids(path, tw, tv, grids, kind, normalized=normalized, title=title)
 
 
@@ -489,8 +541,11 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
     """NC of each field against the sweep value ``key`` of ``variation_options``: one panel
     per scene and field, one colour per solver, one line style per observation source; mean
     over instances (seeds) with a 95 % bootstrap band when a point has several. Only rows with
-    status ok are drawn. Returns False when there is nothing to draw."""
+    status ok are drawn. Returns False when there is nothing to draw. A swept value that is
+    a whole number everywhere (a count: modes, cameras) gets integer ticks only."""
     _, plt = _mpl()
+    from matplotlib.ticker import MaxNLocator
+
     d = df.copy()
     d["_x"] = [_option(t, key) for t in d["variation_options"]]
     d = d[np.isfinite(d["_x"])]
@@ -504,6 +559,7 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
                              squeeze=False, sharex=True, sharey=True)
     xs = d["_x"].to_numpy()
     log = bool(xs.min() > 0 and xs.max() / xs.min() >= 100)
+    counts = bool(np.all(xs == np.round(xs)))  # a count (modes, cameras): integer ticks
     for i, scene in enumerate(scenes):
         ds = d[d.scene == scene]
         for j, field in enumerate(fields):
@@ -519,6 +575,8 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
                             f"{solver}{ref}, {obs} modes")
             if log:
                 ax.set_xscale("log")
+            elif counts:
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
             ax.axhline(0, color="k", lw=0.5, alpha=0.4)
             ax.grid(alpha=0.3)
             sub = f"{scene}: NC of {field}".replace("+", " + ")

@@ -16,13 +16,17 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["GROUP", "LEVEL", "N_BOOT", "SEED", "bootstrap_ci", "instance_ids",
-           "paired_comparison", "paired_table", "summarize", "track_statistics"]
+__all__ = ["GROUP", "LEVEL", "MIN_RANK_N", "N_BOOT", "SEED", "bootstrap_ci", "instance_ids",
+           "paired_comparison", "paired_table", "summarize", "TIE_RULE", "tie_groups",
+           "track_statistics"]
 
 #: the cell of a statistic: one track, observation source, variation (sweep value) and solver
 GROUP = ["track", "observation", "variation", "solver"]
 #: bootstrap resamples, interval level and seed used unless told otherwise
 N_BOOT, LEVEL, SEED = 2000, 0.95, 0
+#: below this many instances a solver is neither ranked nor given an interval (the percentile
+#: bootstrap under-covers badly on a handful of values): its mean and n only
+MIN_RANK_N = 5
 #: the columns naming an instance (those present in a table are used)
 INSTANCE = ("scene", "seed", "instance")
 
@@ -228,3 +232,52 @@ def paired_table(df, metric: str = "nc_w", seed: int = SEED, n_boot: int = N_BOO
                 rows.append({**dict(zip(GROUP[:-1], key, strict=True)), "a": a, "b": b,
                              "metric": metric, **c})
     return pd.DataFrame(rows, columns=cols)
+
+
+TIE_RULE = (
+    "Solvers are sorted by mean; going down that order, a solver joins the tie group of the "
+    "one just above it when the paired bootstrap interval of their difference (on the "
+    "instances both scored validly) includes 0 or is over fewer than {min_n} pairs; otherwise "
+    "it opens a new group. Every member of a group has the rank of the group's first solver "
+    "(so a chain of ties A = B, B = C is one group even when A and C differ).")
+
+
+def tie_groups(wide, seed: int = SEED, n_boot: int = N_BOOT, level: float = LEVEL,
+               min_n: int = MIN_RANK_N) -> list[tuple[str, int, dict | None]]:
+    """Ranks with ties of the solvers (columns) of ``wide`` (rows: instances), by :data:`TIE_RULE`.
+
+    Parameters
+    ----------
+    wide : pandas.DataFrame
+        One column per solver, one row per instance, NaN where a solver has no valid score.
+    seed, n_boot, level : int, int, float
+        The paired bootstrap's seed, resamples and level.
+    min_n : int
+        Fewer pairs than this never separate two solvers.
+
+    Returns
+    -------
+    list of (solver, rank, comparison)
+        Sorted by mean (highest first, ties by name); ``rank`` is the 1-based position of
+        the first solver of its tie group; ``comparison`` is the :func:`paired_comparison` of
+        the solver above minus this one (None for the first).
+
+    >>> import pandas as pd
+    >>> wide = pd.DataFrame({"a": [0.9, 0.8, 0.9, 0.85, 0.95], "b": [0.1, 0.2, 0.15, 0.1, 0.2]})
+    >>> [(s, r) for s, r, _ in tie_groups(wide)]
+    [('a', 1), ('b', 2)]
+    """
+    mean = wide.mean()
+    names = sorted(wide.columns, key=lambda s: (-mean[s] if np.isfinite(mean[s]) else np.inf,
+                                                str(s)))
+    out: list[tuple[str, int, dict | None]] = []
+    for i, name in enumerate(names):
+        if i == 0:
+            out.append((name, 1, None))
+            continue
+        c = paired_comparison(wide[names[i - 1]], wide[name], seed=seed, n_boot=n_boot,
+                              level=level)
+        tied = (c["n"] < min_n or not np.isfinite(c["ci_low"])
+                or c["ci_low"] <= 0.0 <= c["ci_high"])
+        out.append((name, out[-1][1] if tied else i + 1, c))
+    return out
