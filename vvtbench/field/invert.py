@@ -159,18 +159,30 @@ def _replace_dir(tmp: Path, final: Path) -> None:
         os.replace(tmp, final)
 
 
-def extract_step(video: str | Path, fps: float | None, dest: Path, **options: Any):
-    """The one call of :func:`vvtbench.modes.extract_modes` of ``invert``: the modes of
-    ``video`` saved into ``dest`` (written beside it, then moved into place)."""
-    from ..modes import extract_modes
+def extract_step(video: str | Path, fps: float | None, dest: Path, *,
+                 timeout: float | None = None, **options: Any):
+    """The one extraction of ``invert``: :func:`vvtbench.modes.extract_modes` in a sealed child
+    (:func:`vvtbench.sealed.extract_sealed`: the extractor sees the camera's files and its
+    output only); the modes of ``video`` saved into ``dest`` (written beside it, then moved
+    into place)."""
+    from ..modes import ModeSet
+    from ..sealed import SealedError, extract_sealed
+    from ..video import VideoError
 
-    modes = extract_modes(str(video), fps, **{k: v for k, v in options.items()
-                                              if v is not None})
     tmp = dest.with_name(dest.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
-    modes.save(tmp)
+    try:
+        extract_sealed(video, fps, {k: v for k, v in options.items() if v is not None}, tmp,
+                       secrets=[dest.parent], folder=True,
+                       **({} if timeout is None else {"timeout": timeout}))
+    except SealedError as error:
+        shutil.rmtree(tmp, ignore_errors=True)
+        text = str(error)
+        if error.kind == "error" and text.partition(":")[0] in ("ValueError", "VideoError"):
+            raise VideoError(f"{video}: {text.partition(': ')[2]}") from None
+        raise VideoError(f"{video}: the extraction failed: {text}") from None
     _replace_dir(tmp, dest)
-    return modes
+    return ModeSet.load(dest)
 
 
 def solve_step(target: str, config: Mapping[str, Any], problem, dest: Path, *,
