@@ -134,3 +134,17 @@ def test_block_crb_shapes_and_textureless_blocks():
     assert np.allclose(out["std_px"][0, 0], [1 / 8, 1 / 16])
     assert out["std_min_px"][0, 0] == pytest.approx(1 / 16)
     assert np.all(np.isinf(out["std_px"][1:, :])) and np.isinf(out["std_min_px"][2, 2])
+
+
+def test_sample_check_requires_the_ruler_arrays_only_when_reported(tmp_path):
+    from vvtbench.dataset import RULER_ARRAYS, check_sample
+
+    listed = {f"truth.zarr/{name}/zarr.json": {"sha256": "0" * 64} for name in RULER_ARRAYS}
+    older = check_sample(tmp_path, {"files": {}}, {"video": {}})
+    assert not [p for p in older if "Cramér-Rao" in p]
+    missing = check_sample(tmp_path, {"files": {}}, {"video": {}, "crb": {"detection_snr": 4.7}})
+    assert sum("Cramér-Rao" in p for p in missing) == len(RULER_ARRAYS)
+    whole = check_sample(tmp_path, {"files": listed}, {"video": {}, "crb": {"detection_snr": 4.7}})
+    assert not [p for p in whole if "reports the Cramér-Rao" in p]
+    bad = check_sample(tmp_path, {"files": listed}, {"video": {}, "crb": {"n_bins": 3}})
+    assert any("detection_snr" in p for p in bad)

@@ -303,7 +303,26 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
     for rel in dict.fromkeys(wanted):
         check(rel)
     problems += [f"{rel}: not in the manifest" for rel in extra]
+    problems += _check_ruler(info, listed)
     return problems
+
+
+#: The arrays of the Cramér-Rao ruler (docs/dataset.md) a sample with ``truth.json`` ``crb``
+#: holds.
+RULER_ARRAYS = ("crb/fisher", "crb/std_px", "crb/std_min_px", "modes/crb_snr",
+                "modes/crb_information", "modes/crb_energy_px2")
+
+
+def _check_ruler(info: dict, listed: dict) -> list[str]:
+    """A sample that reports the Cramér-Rao ruler in ``truth.json`` lists all its arrays."""
+    ruler = info.get("crb")
+    if ruler is None:
+        return []  # written before the ruler, or modes-only
+    if not isinstance(ruler, dict) or not isinstance(ruler.get("detection_snr"), (int, float)):
+        return ["truth.json: 'crb' has no number 'detection_snr' (docs/dataset.md, "
+                "'The Cramér-Rao ruler')"]
+    return [f"truth.zarr/{name}: missing (truth.json reports the Cramér-Rao ruler)"
+            for name in RULER_ARRAYS if f"truth.zarr/{name}/zarr.json" not in listed]
 
 
 def _check_video(path: Path, name: str, video: dict, listed: dict, full: bool) -> list[str]:

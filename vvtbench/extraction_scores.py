@@ -8,7 +8,10 @@ extraction".  Only NumPy/SciPy and the true arrays are needed: a sample holds th
 
 :func:`true_mode_amplitudes` measures, from a sample's truth alone, how large each true mode
 actually is in its video (px), and :func:`score_sample_extraction` scores detections against
-a sample with the headline recall over the modes that are detectable in that video.
+a sample with the headline recall over the modes that are detectable in that video: those
+whose Cramér-Rao-limited SNR (``modes/crb_snr``, :mod:`vvtbench.scoring.crb`) reaches the
+detection SNR of the extractor's false-alarm probability, or, for a sample written before
+that ruler, those whose line amplitude reaches :data:`DEFAULT_FLOOR_PX`.
 """
 
 from __future__ import annotations
@@ -31,8 +34,8 @@ __all__ = [
     "true_mode_amplitudes",
 ]
 
-#: Smallest true image-space amplitude (px) a mode must have in the video to be expected
-#: (the smallest amplitude of issue 17's targets).
+#: Smallest true image-space amplitude (px) a mode must have in the video to be expected in a
+#: sample without the Cramér-Rao ruler (the smallest amplitude of the extraction targets).
 DEFAULT_FLOOR_PX = 1e-3
 
 
