@@ -69,14 +69,17 @@ class Crash:
 
 
 PEEK = '''
-import os
+import json
+import types
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from truth_search import dump
+from truth_search import leaves, truth_in
 from vvtbench.problem import Estimate
+
+TARGETS = Path(__file__).with_name("peek_targets.npz")
 
 
 @dataclass
@@ -84,8 +87,22 @@ class Config:
     pass
 
 
+def search(problem):
+    """Every path reachable from the problem that holds a true material, a true 3-D mode
+    or a secret string; the targets sit beside this file (the test wrote them there)."""
+    found = list(leaves(problem))
+    hits = []
+    with np.load(TARGETS) as z:
+        secrets = json.loads(str(z["secrets"]))
+        for k in sorted({n.split("_")[0] for n in z.files if n != "secrets"}):
+            truth = types.SimpleNamespace(w=z[k + "_w"], v=z[k + "_v"], modes_3d=z[k + "_u"])
+            hits += truth_in(found, truth, secrets)
+    return {"hits": json.dumps(sorted(set(hits))), "n_leaves": len(found)}
+
+
 class Peek:
-    """Writes everything it can reach in the problem it gets to $PEEK_DIR/<n>/."""
+    """Searches everything it can reach in the problem it gets for the truth, and reports
+    what it found in its estimate (it can write nowhere else)."""
 
     name = "peek"
     version = "0.0.1"
@@ -95,17 +112,11 @@ class Peek:
     def __init__(self, config=None):
         pass
 
-    def record(self, problem, *rest):
-        root = Path(os.environ["PEEK_DIR"])
-        dump(problem, root / f"{self.name}-{len(list(root.glob(self.name + '-*')))}")
-        if rest:
-            assert len(rest) == 1 and rest[0].modes_3d.shape[1] == problem.n_modes
-
     def solve(self, problem):
-        """Record and return the prior."""
-        self.record(problem)
+        """Search and return the prior."""
         m = problem.n_params
-        return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0))
+        return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0),
+                        extra=search(problem))
 
 
 class PeekReference(Peek):
@@ -113,10 +124,9 @@ class PeekReference(Peek):
     uses_truth = True
 
     def solve(self, problem, truth):
-        """Record; a reference solver receives the truth explicitly."""
-        self.record(problem, truth)
-        m = problem.n_params
-        return Estimate(w=np.full(m, problem.w_mean), v=np.full(m, problem.v0))
+        """Search the problem; a reference solver receives the truth explicitly."""
+        assert truth.modes_3d.shape[1] == problem.n_modes
+        return super().solve(problem)
 '''
 
 
@@ -190,45 +200,48 @@ def test_crashing_solver_is_an_error_row(micro, tmp_path):
     assert check_results(df) == []
 
 
-def test_no_truth_reaches_a_solver_through_run_or_solve(micro, tmp_path, monkeypatch):
-    """A plug-in that records everything reachable from its problem (attributes, __dict__,
+def test_no_truth_reaches_a_solver_through_run_or_solve(micro, tmp_path):
+    """A plug-in that searches everything reachable from its problem (attributes, __dict__,
     nested dicts and arrays) finds no material, no true 3-D mode, no scene name or sample
     path, through `vvtbench run` and through `vvtbench solve`; a reference solver gets the
     truth as an argument and its rows are marked as references."""
-    from truth_search import load_dump, truth_in
+    import json
+    from pathlib import Path
 
     from vvtbench.bench import load_observation
     from vvtbench.cli.solve import main_solve
+    from vvtbench.observe import observe
 
     suite_file, out, _ = micro
+    truths = [load_observation(out / "cache", f"observe/{d.name}", truth=True)[1]
+              for d in (out / "cache" / "observe").iterdir() if (d / "truth.npz").is_file()]
+    truths.append(observe("jello_cube_defect_top", inference_shape=(3, 3, 3), n_modes=4)[1])
+    sample = next((out / "cache" / "generate").glob("*/sample"))
+    secrets = ["jello_cube_defect_top", str(sample), str(out)]
+    targets = {"secrets": np.array(json.dumps(secrets))}
+    for i, t in enumerate(truths):
+        targets |= {f"t{i}_w": t.w, f"t{i}_v": t.v, f"t{i}_u": t.modes_3d}
+    np.savez(tmp_path / "peek_targets.npz", **targets)
     plugin = tmp_path / "peek_solver.py"
     plugin.write_text(PEEK)
-    peek = tmp_path / "peek"
-    peek.mkdir()
-    monkeypatch.setenv("PEEK_DIR", str(peek))
     df = run_suite(str(suite_file), [f"{plugin}:Peek", f"{plugin}:PeekReference"], out,
                    progress=False)
     assert len(df) == 4 and (df.status == "ok").all(), df[["solver", "observation", "error"]]
     assert df.set_index("solver").reference.to_dict() == {"peek": False, "peekref": True}
-    truths = [load_observation(out / "cache", f"observe/{d.name}", truth=True)[1]
-              for d in (out / "cache" / "observe").iterdir() if (d / "truth.npz").is_file()]
-    sample = next((out / "cache" / "generate").glob("*/sample"))
-    secrets = ["jello_cube_defect_top", str(sample), str(out)]
+    reports = [json.loads((out / Path(p).parent / "task.json").read_text())["deps"][0]
+               for p in df.estimate_path]
+    reports = [json.loads((out / "cache" / k / "estimate.json").read_text())["extra"]
+               for k in reports]
     # vvtbench solve on the sample (extracted and true modes) and on the scene
     for i, argv in enumerate([[str(sample)], [str(sample), "--observation", "true"],
                               ["jello_cube_defect_top", "--grid", "3", "3", "3"]]):
         assert main_solve([f"{plugin}:Peek", *argv, "--modes", "4", "--no-mode-match",
                            "-o", str(tmp_path / f"solve{i}")]) == 0
-    _, t_scene = __import__("vvtbench.observe", fromlist=["observe"]).observe(
-        "jello_cube_defect_top", inference_shape=(3, 3, 3), n_modes=4)
-    dumps = sorted(peek.iterdir())
-    assert len(dumps) == 4 + 3  # run: 2 observations x 2 solvers; solve: 3
-    for d in dumps:
-        found = load_dump(d)
-        assert len(found) > 20
-        for truth in [*truths, t_scene]:
-            if truth.w.size == 27:
-                assert truth_in(found, truth, secrets) == [], d.name
+        reports.append(json.loads((tmp_path / f"solve{i}" / "estimate.json").read_text())
+                       ["extra"])
+    assert len(reports) == 4 + 3  # run: 2 observations x 2 solvers; solve: 3
+    for r in reports:
+        assert r["n_leaves"] > 20 and json.loads(r["hits"]) == [], r
 
 
 def test_check_results_rejects_broken_tables(micro, tmp_path, capsys):
