@@ -318,8 +318,9 @@ def _md(head: list[str], rows) -> str:
     return "\n".join(lines)
 
 
-def _html(head: list[str], rows, left: int = 1) -> str:
-    """A table; the first ``left`` columns are text (left-aligned)."""
+def _html(head: list[str], rows, left: int = 1, wide: bool = False) -> str:
+    """A table; the first ``left`` columns are text (left-aligned); ``wide``: its headers may
+    break inside a word so that many columns fit a narrow window."""
     def td(i, x, tag="td"):
         cls = ' class="l"' if i < left else ""
         return f"<{tag}{cls}>{html.escape(str(x))}</{tag}>"
@@ -328,7 +329,8 @@ def _html(head: list[str], rows, left: int = 1) -> str:
     for cells, cls in rows:
         out.append((f'<tr class="{cls}">' if cls else "<tr>")
                    + "".join(td(i, x) for i, x in enumerate(cells)) + "</tr>")
-    return '<div class="scroll"><table>' + "".join(out) + "</table></div>"
+    table = '<table class="wide">' if wide else "<table>"
+    return '<div class="scroll">' + table + "".join(out) + "</table></div>"
 
 
 # --------------------------------------------------------------------------- figures
@@ -586,14 +588,16 @@ def _fmt_best(b) -> str:
     if b is None:
         return "–"
     return (f"{b['solver']} ({b['observation']} modes, {b['variation']}): "
-            + ci_cell(b["nc_w_mean"], b["nc_w_mean_ci_low"], b["nc_w_mean_ci_high"])
+            + ci_cell(b["nc_w_mean"], b["nc_w_mean_ci_low"], b["nc_w_mean_ci_high"],
+                      int(b["nc_w_n"]))
             + f", n={int(b['nc_w_n'])}")
 
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1400px;margin:auto;padding:1em;
 color:#222}table{border-collapse:collapse;margin:.4em 0 1.2em;font-size:.85em;max-width:100%}
-td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;overflow-wrap:anywhere}
-th{background:#eee}td.l,th.l{text-align:left}p.trust{background:#fff6d8;padding:.4em}
+td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;overflow-wrap:break-word}
+th{background:#eee}table.wide th,table.dataframe th,table.dataframe td{overflow-wrap:anywhere}
+td.l,th.l{text-align:left}p.trust{background:#fff6d8;padding:.4em}
 tr.group td{border-top:2px solid #888}
 tr.ref td{color:#666;font-style:italic;background:#f7f7f7}.scroll{overflow-x:auto}
 img{max-width:100%;display:block;margin:.3em 0 1em;border:1px solid #eee}
@@ -601,11 +605,29 @@ nav a{margin-right:.8em}.note{color:#555;font-size:.9em;max-width:75em}
 figure{margin:0}figcaption{font-size:.85em;color:#444}"""
 
 
-def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool = False) -> Path:
+KEPT = " (kept from the earlier build: the run's cache it was drawn from is not here)"
+
+
+def _earlier_figures(out: Path, owned: set[str]) -> list[tuple[str, str, str]]:
+    """(track, caption, rel path) of the figures an earlier build listed in ``out``'s manifest
+    that are still there as plain files it wrote."""
+    try:
+        listed = json.loads((out / MANIFEST).read_text()).get("figures", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [(str(t), str(c), str(r)) for t, c, r in
+            (x for x in listed if isinstance(x, list) and len(x) == 3)
+            if str(r) in owned and (out / str(r)).is_file() and not (out / str(r)).is_symlink()]
+
+
+def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool = False,
+          keep_figures: bool = False) -> Path:
     """Write the leaderboard of ``results`` (a table or a run folder) into ``out``.
 
     Refuses an ``out`` holding files it did not write (see :func:`prepare_output`) unless
-    ``overwrite``; then writes and removes only its own files."""
+    ``overwrite``; then writes and removes only its own files. ``keep_figures``: figures an
+    earlier build of ``out`` drew that this one cannot (their run's cache is not beside the
+    table) are kept and shown, their caption saying so; otherwise they are removed."""
     import tempfile
 
     from .io import write_json, write_text
@@ -640,6 +662,12 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
         for track in tracks:
             for _, rel in figs[track]:
                 os.replace(tmp / Path(rel).name, out / rel)  # atomic, replaces a link itself
+                written.add(rel)
+    if keep_figures:
+        for track, caption, rel in _earlier_figures(out, owned):
+            if track in figs and rel not in written:
+                figs[track].append((caption if caption.endswith(KEPT) else caption + KEPT,
+                                    rel))
                 written.add(rel)
 
     md, page, tracks_json = _pages(df, results, run_dir, tracks, groups, rows, paired, figs)
@@ -741,7 +769,9 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
     summary_rows = []
     for r in rows:
         tied = ", ".join(_tied_with(groups, r["best"])) if r["best"] else ""
-        cells = [_fmt_best(r["best"]), tied or "–", _fmt_best(r["reference"]),
+        first = (_fmt_best(r["best"]) if r["best"] else
+                 f"none ranked (fewer than {MIN_RANK_N} instances or valid runs)")
+        cells = [first, tied or "–", _fmt_best(r["reference"]),
                  str(r["runs"]), str(r["failed"]), str(r["invalid"])]
         md.append(f"| [{md_cell(r['track'])}](#{_slug(r['track'])}) | "
                   + " | ".join(md_cell(c) for c in cells) + " |")
@@ -770,7 +800,7 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
             head, drows = _detail_rows(t)
             title = f"{track} — {obs} modes: medians, other metrics, runtime"
             md.append(f"### {md_cell(title)}\n\n" + _md(head, drows) + "\n")
-            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, drows, left=2))
+            body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, drows, left=2, wide=True))
         tracks_json.append({
             "track": track,
             "ranking": [rec for _, t in ranked for rec in t.to_dict("records")],
