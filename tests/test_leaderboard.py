@@ -14,7 +14,7 @@ import pytest
 from vvtbench.bench.results import METRIC_COLUMNS
 from vvtbench.cli.leaderboard import main_leaderboard
 from vvtbench.io import write_npz
-from vvtbench.leaderboard import LeaderboardError, build, ranking, summary
+from vvtbench.leaderboard import KEPT, LeaderboardError, build, ranking, summary
 from vvtbench.plots import (  # noqa: I001  (scale rules)
     Styles,
     _ratio_limit,
@@ -591,3 +591,31 @@ def test_contrast_view_first_when_the_truth_dwarfs_the_estimates():
     assert contrast_first(wt, [flat, flat * 1.01])
     assert not contrast_first(wt, [wt * 0.9, flat])  # one estimate shows the structure
     assert not contrast_first(None, [flat])
+
+
+def test_keep_figures_keeps_what_a_table_without_its_cache_cannot_redraw(tmp_path):
+    wt, vt = _truth()
+
+    def with_fields(rows):
+        for k, r in enumerate(rows):
+            rel = f"evaluations/{k:04d}/fields.npz"
+            (tmp_path / rel).parent.mkdir(parents=True)
+            write_npz(tmp_path / rel, {"w": wt * (1 + 0.01 * k), "v": vt, "w_true": wt,
+                                       "v_true": vt})
+            r["estimate_path"] = rel
+
+    out = tmp_path / "lb"
+    build(_instances_table(tmp_path, with_fields), out)
+    drawn = json.loads((out / "leaderboard.json").read_text())["figures"]
+    slices = [rel for _, _, rel in drawn if "slices" in rel]
+    assert slices
+    bare = tmp_path / "elsewhere"
+    bare.mkdir()
+    (bare / "results.csv").write_bytes((tmp_path / "results.csv").read_bytes())
+    build(bare / "results.csv", out, keep_figures=True)  # its fields are not beside it
+    kept = json.loads((out / "leaderboard.json").read_text())["figures"]
+    assert [rel for _, _, rel in kept if "slices" in rel] == slices
+    assert all(c.endswith(KEPT) for _, c, rel in kept if rel in slices)
+    assert all((out / rel).is_file() for rel in slices) and KEPT in (out / "README.md").read_text()
+    build(bare / "results.csv", out)  # not kept: an earlier build's own files are removed
+    assert not any((out / rel).exists() for rel in slices)
