@@ -204,7 +204,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
     forget_descriptions()
     # a plug-in whose import hangs becomes an error row within the suite's time limit
     limit = timeout if timeout is not None else suite.timeout
-    describe_timeout = min(float(limit), 600.0) if limit else 600.0
+    # at least 30 s: starting a child and importing numpy takes seconds on a loaded machine
+    describe_timeout = min(max(float(limit), 30.0), 600.0) if limit else 600.0
 
     def info(spec: str, extra: dict | None = None):
         ck = (spec, json.dumps(_canon(extra or {}), sort_keys=True))
