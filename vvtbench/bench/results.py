@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
 import re
-import uuid
 from pathlib import Path
 
 import numpy as np
@@ -110,14 +108,15 @@ def _coerce(df):
 
 def write_results(df, out_dir: Path) -> tuple[Path, Path]:
     """results.parquet and results.csv in ``out_dir`` (atomic writes)."""
+    from ..io import atomic_file
+
     out_dir = Path(out_dir)
     pq = out_dir / "results.parquet"
     csv = out_dir / "results.csv"
-    tmp = out_dir / f".results.{uuid.uuid4().hex[:8]}"
-    df.to_parquet(f"{tmp}.parquet", index=False)
-    os.replace(f"{tmp}.parquet", pq)
-    df.to_csv(f"{tmp}.csv", index=False)
-    os.replace(f"{tmp}.csv", csv)
+    with atomic_file(pq) as f:  # never through a link planted at either name
+        df.to_parquet(f, index=False)
+    with atomic_file(csv, "w") as f:
+        df.to_csv(f, index=False)
     return pq, csv
 
 

@@ -93,7 +93,8 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
 
 
 EXTRACTION_KEYS = ("precision", "recall", "recall_all", "n_detectable", "mean_rel_freq_error",
-                   "mean_abs_damping_error", "mean_mac", "n_detected", "n_true_in_band")
+                   "mean_abs_damping_error", "mean_mac", "n_detected", "n_true_in_band",
+                   "detectability", "n_below_limit", "crb_threshold")
 
 
 def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:
@@ -105,7 +106,7 @@ def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:
 
     sc = score_sample_extraction(s, [ModeSet.load(m) for m in modes],
                                  float(fmax) if fmax else None)
-    return {k: sc[k] for k in EXTRACTION_KEYS}
+    return {k: sc[k] for k in EXTRACTION_KEYS if k in sc}
 
 
 def load_observation(cache: Path, observe_key: str, truth: bool = False):

@@ -118,7 +118,10 @@ def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out = Path(path)
-    fig.savefig(out)
+    from ..io import atomic_file
+
+    with atomic_file(out) as f:  # never through a link at ``out``
+        fig.savefig(f, format=out.suffix[1:] or "png")
     plt.close(fig)
     return out
 
@@ -156,7 +159,10 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
         + ("  [camera shake]" if ms.camera_shake[i] else "")
     )
     out = Path(path)
-    fig.savefig(out)
+    from ..io import atomic_file
+
+    with atomic_file(out) as f:  # never through a link at ``out``
+        fig.savefig(f, format=out.suffix[1:] or "png")
     plt.close(fig)
     return out
 
