@@ -7,6 +7,11 @@ interval per solver and view count, and the paired difference against one view.
 
     python benchmarks/bench_views.py --family cube_defects --split test --n 12 \\
         --views 1 2 3 4 --solvers sensitivity vvt --modes 20
+
+or, from the cache of a `vvtbench run views` (finished or not: every cached solve is scored
+against its observation's truth):
+
+    python benchmarks/bench_views.py --cache runs/views/cache --solvers sensitivity vvt oracle
 """
 
 from __future__ import annotations
@@ -28,7 +33,6 @@ def main(argv: list[str] | None = None) -> int:
     from vvtbench.metrics import evaluate, invalid_reason
     from vvtbench.observe import observe
     from vvtbench.sealed import solve_sealed
-    from vvtbench.stats import paired_comparison, summarize
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--family", default="cube_defects")
@@ -41,7 +45,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--samples", type=Path, default=None,
                    help="a folder of generated samples of the split (default: generated now)")
     p.add_argument("--json", type=Path, default=None, help="write the rows here")
+    p.add_argument("--cache", type=Path, default=None,
+                   help="score the cached solves of a `vvtbench run views` instead")
     args = p.parse_args(argv)
+    if args.cache is not None:
+        rows = rows_from_cache(args.cache)
+        args.views = sorted({r["views"] for r in rows})
+        table(rows, args, f"{len({r['instance'] for r in rows})} instances from {args.cache}")
+        return 0
     config: dict[str, dict] = {}
     for item in args.set:
         key, _, value = item.partition("=")
@@ -75,16 +86,47 @@ def main(argv: list[str] | None = None) -> int:
                       + (f" invalid: {reason}" if reason else ""), flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
-    print(f"\n{len(samples)} instances of {args.family} {args.split}, {args.modes} true modes, "
-          f"{time.perf_counter() - t0:.0f} s\n")
-    print("| solver | views | DOFs observed | mean NC w [95 % CI] | valid | paired vs 1 view "
-          "[95 % CI] | win rate |")
-    print("|---|---|---|---|---|---|---|")
-    for solver in args.solvers:
-        base = {r["instance"]: r["nc_w"] for r in rows
-                if r["solver"] == solver and r["views"] == args.views[0]}
+    table(rows, args, f"{len(samples)} instances of {args.family} {args.split}, {args.modes} "
+          f"true modes, {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+def rows_from_cache(cache: Path) -> list[dict]:
+    """One row per cached solve of a views run: its NC w against its observation's truth."""
+    from vvtbench.bench.stages import load_estimate_arrays, load_observation
+    from vvtbench.metrics import invalid_reason, normalized_correlation
+
+    rows = []
+    for task in sorted((cache / "solve").glob("*/task.json")):
+        info = json.loads(task.read_text())
+        observe_key = info["deps"][0]
+        inference = json.loads((cache / observe_key / "task.json").read_text())["payload"][
+            "inference"]
+        problem, truth = load_observation(cache, observe_key, truth=True)
+        w, v, _ = load_estimate_arrays(task.parent / "estimate.npz")
+        reason = invalid_reason(w, v, problem.n_params)
+        rows.append({"instance": truth.meta["scene"], "views": inference.get("views", 1),
+                     "solver": info["payload"]["solver"], "invalid": reason,
+                     "nc_w": float("nan") if reason else normalized_correlation(w, truth.w),
+                     "dof_fraction": problem.meta["observed_dof_fraction"]})
+    return rows
+
+
+def table(rows: list[dict], args, title: str) -> None:
+    from vvtbench.stats import paired_comparison, summarize
+
+    print(f"\n{title}\n")
+    print("| family | solver | views | DOFs observed | mean NC w [95 % CI] | valid | paired vs "
+          "1 view [95 % CI] | win rate |")
+    print("|---|---|---|---|---|---|---|---|")
+    families = sorted({r["instance"].rsplit("-", 2)[0] for r in rows})
+    for family, solver in ((f, s) for f in families for s in args.solvers):
+        mine = [r for r in rows if r["instance"].startswith(family) and r["solver"] == solver]
+        base = {r["instance"]: r["nc_w"] for r in mine if r["views"] == args.views[0]}
         for views in args.views:
-            sel = [r for r in rows if r["solver"] == solver and r["views"] == views]
+            sel = [r for r in mine if r["views"] == views and r["instance"] in base]
+            if not sel:
+                continue
             nc = [r["nc_w"] for r in sel]
             s = summarize(nc)
             frac = np.mean([r["dof_fraction"] for r in sel])
@@ -98,9 +140,9 @@ def main(argv: list[str] | None = None) -> int:
                 paired = (f"{c['mean_diff']:+.3f} [{c['ci_low']:+.3f}, {c['ci_high']:+.3f}] "
                           f"(n {c['n']})")
                 win = f"{c['win_rate']:.2f}"
-            print(f"| {solver} | {views} | {frac:.3f} | {s['mean']:.3f} [{s['mean_ci_low']:.3f}, "
-                  f"{s['mean_ci_high']:.3f}] | {valid}/{len(sel)} | {paired} | {win} |")
-    return 0
+            print(f"| {family} | {solver} | {views} | {frac:.3f} | {s['mean']:.3f} "
+                  f"[{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}] | {valid}/{len(sel)} | "
+                  f"{paired} | {win} |")
 
 
 if __name__ == "__main__":
