@@ -248,7 +248,7 @@ def _write_solve(stage: Path, args, estimate, wall, sinfo, problem, truth, info,
                  t_setup, target) -> dict:
     from ..bench.stages import write_evaluation
     from ..io import write_json
-    from ..plots import plot_fields, plot_uncertainty
+    from ..plots import contrast_first, plot_fields, plot_uncertainty
 
     name = sinfo["name"]
     estimate.save(stage, problem, wall_s=wall)
@@ -268,7 +268,12 @@ def _write_solve(stage: Path, args, estimate, wall, sinfo, problem, truth, info,
     if ev.get("invalid"):
         return ev
     scene = truth.meta.get("scene") or target.name
-    plot_fields(stage / "slices.png", problem, {name: (estimate.w, estimate.v)}, truth)
+    metrics = ev.get("metrics") or {}
+    plot_fields(stage / "slices.png", problem, {name: (estimate.w, estimate.v)}, truth,
+                scene=scene, observation=observation, solver=name,
+                score={"NC w": metrics.get("nc_w"), "NC v": metrics.get("nc_v")},
+                normalized=contrast_first(problem.to_grid(truth.w),
+                                          [problem.to_grid(estimate.w)]))
     if any(sd is not None for sd in stds):
         plot_uncertainty(stage / "uncertainty.png", problem, (estimate.w, estimate.v), stds,
                          truth, title=f"{name} on {scene} ({observation} modes): stated "
