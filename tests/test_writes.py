@@ -143,3 +143,16 @@ def test_two_exports_to_one_target_one_is_refused(sample, tmp_path, capsys):
         held.release()
     assert main(["export", str(sample), "-o", str(out)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds.zarr"]
+
+
+def test_generate_refuses_a_link_where_it_keeps_its_unfinished_sample(tmp_path):
+    from vvtbench.dataset import DatasetError
+    from vvtbench.generate import generate
+
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / ".jello_cube_defect_top.partial").symlink_to(victim)
+    with pytest.raises(DatasetError, match="a link or a file"):
+        generate("jello_cube_defect_top", tmp_path / "out", video=False, progress=False)
+    assert list(victim.iterdir()) == []

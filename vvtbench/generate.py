@@ -39,7 +39,7 @@ import numpy as np
 from ._version import __version__
 from .dataset import FORMAT_VERSION, DatasetError, sha256_file
 from .generate_jobs import ProgressCallback, StageProgress
-from .io import write_json
+from .io import open_new, write_json
 from .observe import default_voxel_shape
 from .scene import Scene, load_scene
 from .sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
@@ -244,13 +244,17 @@ def generate(
                            "replace it")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        probe = out_dir / f".{scene.name}.write-test"
-        probe.write_bytes(b"")
+        probe = out_dir / f".{scene.name}.write-test-{os.getpid()}"
+        with open_new(probe):  # O_EXCL|O_NOFOLLOW: never through a planted link
+            pass
         probe.unlink()
     except OSError as error:
         raise DatasetError(f"cannot write to output folder {out_dir}: {error.strerror or error}"
                            ) from None
     partial = out_dir / f".{scene.name}.partial"
+    if partial.is_symlink() or (partial.exists() and not partial.is_dir()):
+        raise DatasetError(f"{partial}: a link or a file where generate keeps its unfinished "
+                           "sample; remove it")
     scene_text = _scene_toml(scene)
     fingerprint = hashlib.sha256(
         json.dumps({"scene": scene_text, "options": opts.to_dict(), "vvtbench": __version__,
