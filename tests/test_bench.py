@@ -275,7 +275,9 @@ def test_dask_local_cluster_gives_the_same_table(micro, tmp_path):
         with distributed.Client(cluster) as client:
             df = run_suite(str(suite_file), None, out2, scheduler=client, progress=False)
     assert _computed(df)["solve"] == 4 and _computed(df)["generate"] == 0
-    cols = [c for c in df.columns if c not in ("runtime_s",)]
+    # the scores agree; the bytes of a recomputed observation or estimate need not (rounding)
+    cols = [c for c in df.columns if c not in ("runtime_s", "estimate_sha256",
+                                               "observation_sha256")]
     pd.testing.assert_frame_equal(df0[cols], df[cols], check_exact=False, atol=1e-6)
 
 

@@ -339,7 +339,14 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
         code = proc.returncode
         if kind == "bwrap" and code is not None and 128 < code < 128 + 65:
             code = 128 - code  # bwrap exits with 128 + the signal that ended the plug-in
-        result = _classify(code, response, seconds, memory_bytes, tail)
+        try:
+            result = _classify(code, response, seconds, memory_bytes, tail)
+        except SealedError as error:  # name the caller's files, not the child's view of them
+            text = str(error.args[0])
+            for name, src in inputs.items():
+                text = text.replace(str(work / "in" / name), str(src))
+            raise SealedError(error.kind, text if error.kind == "error" else
+                              text.removeprefix(f"{error.kind}: "), error.log) from None
         if dest is not None:
             _collect(work / "out", Path(dest), accept)
         return {**result, "sandbox": kind, "seconds": seconds}

@@ -242,7 +242,7 @@ def _extract_sealed(args, src: Path, fps, options: dict) -> int:
 
     sample = _sample_of(Path(args.video))
     secrets = [args.out, *([sample] if sample is not None else [])]
-    if not args.quiet:
+    if not args.quiet and sys.stderr.isatty():
         print(f"extracting modes from {src} ...", file=sys.stderr, flush=True)
     try:
         extract_sealed(src, fps, options, args.out, secrets=secrets,
