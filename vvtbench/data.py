@@ -97,12 +97,7 @@ def iter_instances(path: str | Path, split: str | None = None, options=None, *,
     from .loaders import default_cache_dir, extracted_modes_folder
     from .observe import ObserveOptions, observe
 
-    if options is None:
-        opts = ObserveOptions.from_mapping(overrides)
-    else:
-        base = options if isinstance(options, ObserveOptions) else \
-            ObserveOptions.from_mapping(options)
-        opts = base.replace(**overrides) if overrides else base
+    opts = ObserveOptions.resolve(options, **overrides)
     path = Path(path)
     cached = opts.observation == "extracted" and not opts.modes
     if cached and cache_dir is None:

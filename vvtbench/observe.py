@@ -156,6 +156,16 @@ class ObserveOptions:
         set_(self, "modes", tuple(modes))
 
     @classmethod
+    def resolve(cls, options: ObserveOptions | Mapping[str, Any] | None = None,
+                **overrides: Any) -> ObserveOptions:
+        """``options`` (an instance, a mapping of fields or None for the defaults) with the
+        fields ``overrides`` replaced."""
+        if options is None:
+            return cls.from_mapping(overrides)
+        base = options if isinstance(options, cls) else cls.from_mapping(options)
+        return base.replace(**overrides) if overrides else base
+
+    @classmethod
     def from_mapping(cls, data: Mapping[str, Any], where: str = "observe options"
                      ) -> ObserveOptions:
         """Options from a plain mapping (a suite's ``[defaults]``, JSON); unknown keys are an
@@ -377,12 +387,7 @@ def observe(source: Any, options: ObserveOptions | Mapping[str, Any] | None = No
     >>> problem.gamma.shape[0], truth.w.shape == (problem.n_params,)  # doctest: +SKIP
     (4, True)
     """
-    if options is None:
-        opts = ObserveOptions.from_mapping(overrides)
-    else:
-        base = options if isinstance(options, ObserveOptions) else \
-            ObserveOptions.from_mapping(options)
-        opts = base.replace(**overrides) if overrides else base
+    opts = ObserveOptions.resolve(options, **overrides)
     if isinstance(source, RealVideo):
         return _observe_real(source, opts), None
     return _observe_record(_as_record(source), opts)

@@ -34,13 +34,14 @@ for byte; a copy of the frozen files matches exactly.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import tomllib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from .dataset import sha256_file as _sha256
 
 __all__ = ["RELEASES_DIR", "Release", "ReleaseError", "file_sums", "load_release",
            "read_sums", "release_sums", "verify_copy", "write_sums"]
@@ -148,14 +149,6 @@ def load_release(name_or_path: str | Path) -> Release:
                    extra={k: v for k, v in doc.items() if k not in (
                        "name", "vvtbench", "description", "license", "observation", "parts",
                        "files_sha256")})
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _files(root: Path, exclude: tuple[str, ...] = (SUMS, DEFINITION)) -> Iterator[Path]:

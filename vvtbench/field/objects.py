@@ -19,13 +19,13 @@ points (``x,y,z,u,v``) are given in that frame.
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..dataset import sha256_file as _sha256
 from ..fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
 from ..observe import ObserveError, default_voxel_shape
 
@@ -116,14 +116,6 @@ def _options(spec: str, items: list[str], allowed: dict[str, tuple[str, ...] | N
             raise _bad(spec, f"option {key}={value!r}: allowed {', '.join(choices)}")
         out[key] = value
     return out
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
