@@ -251,3 +251,16 @@ def test_modes_only_sample(modes_only, sample, no_simulator):
     np.testing.assert_array_equal(truth.w, tref.w)
     with pytest.raises(ObserveError, match="video"):
         observe(modes_only, observation="extracted", **OPTS)
+
+
+def test_a_free_bodys_rigid_body_modes_are_left_out_and_said_so():
+    from vvtbench.scene import load_scene, parse_scene
+
+    data = load_scene("jello_cube_homogeneous").to_toml_dict()
+    data.setdefault("boundary", {})["fixed"] = ["none"]
+    data["simulation"]["n_modes"] = 12
+    problem, truth = observe(parse_scene(data, "free"), n_modes=4, inference_shape=(3, 3, 3))
+    assert problem.meta["rigid_body_modes_left_out"] == 6
+    assert problem.frequencies_hz.min() > 1.0 and truth.eigenvalues.min() > 0
+    clamped, _ = observe("jello_cube_homogeneous", n_modes=4, inference_shape=(3, 3, 3))
+    assert clamped.meta["rigid_body_modes_left_out"] == 0

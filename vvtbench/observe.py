@@ -445,6 +445,23 @@ def _inference_model(rec: _Record, opts: ObserveOptions, scale: np.ndarray
     return ParametricModel(mesh, vmap, nu=nu, fixed_nodes=fixed)
 
 
+RIGID_RTOL = 1e-8  # an eigenvalue below this fraction of the largest is a rigid-body mode
+
+
+def _without_rigid_body_modes(rec: _Record) -> tuple[_Record, int]:
+    """The record without its rigid-body modes (a free body's six zero eigenvalues: they move
+    the body without deforming it and carry no stiffness), and how many there were."""
+    from dataclasses import replace
+
+    lam = np.asarray(rec.eigenvalues, dtype=float)
+    if lam.size == 0:
+        return rec, 0
+    keep = lam > RIGID_RTOL * float(np.max(np.abs(lam)))
+    if keep.all():
+        return rec, 0
+    return replace(rec, eigenvalues=lam[keep], vectors=rec.vectors[:, keep]), int((~keep).sum())
+
+
 def _true_modes(rec: _Record, model: ParametricModel, scale: np.ndarray, k: int) -> np.ndarray:
     """(n_nodes, d, k) the simulation's first ``k`` modes at the inference nodes (fixed 0),
     in inference coordinates (stretched with the geometry)."""
@@ -588,6 +605,7 @@ def _observed_view(rec: _Record, model: ParametricModel, opts: ObserveOptions,
 def _observe_record(rec: _Record, opts: ObserveOptions) -> tuple[InverseProblem, Truth]:
     scene = rec.scene
     scale = _scale_vector(opts.geometry_scale)
+    rec, n_rigid = _without_rigid_body_modes(rec)
     n_true = len(rec.eigenvalues)
     if opts.observation == "true" and opts.n_modes > n_true:
         raise ObserveError(f"n_modes: asked for {opts.n_modes} modes; {rec.origin} holds "
@@ -617,6 +635,7 @@ def _observe_record(rec: _Record, opts: ObserveOptions) -> tuple[InverseProblem,
         "inference_element": model.mesh.element,
         "nu": model.nu if np.isscalar(model.nu) else float(np.mean(model.nu)),
         "n_visible": int(len(visible)),
+        "rigid_body_modes_left_out": n_rigid,
         **cam_meta,
     }
     truth_meta = {"scene": scene.name, "source": rec.origin,
