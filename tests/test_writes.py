@@ -156,3 +156,16 @@ def test_generate_refuses_a_link_where_it_keeps_its_unfinished_sample(tmp_path):
     with pytest.raises(DatasetError, match="a link or a file"):
         generate("jello_cube_defect_top", tmp_path / "out", video=False, progress=False)
     assert list(victim.iterdir()) == []
+
+
+def test_generate_takes_the_folder_lock_run_takes(tmp_path, capsys):
+    from vvtbench.bench.lock import RunLock
+
+    held = RunLock(tmp_path).acquire()  # a run (or another generate) writing the folder
+    try:
+        assert main(["generate", "jello_cube_defect_top", "--no-video", "-o",
+                     str(tmp_path)]) == 2
+        assert "in use by another vvtbench run" in capsys.readouterr().err
+        assert not (tmp_path / "jello_cube_defect_top").exists()
+    finally:
+        held.release()

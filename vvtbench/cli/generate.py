@@ -208,6 +208,21 @@ def run(args: argparse.Namespace) -> int:
     except (SceneError, DatasetError, NoSpaceError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    from ..bench.lock import RunLock, RunLocked
+
+    try:  # one writer per output folder, the lock `run` takes
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        lock = RunLock(args.out, remove=True).acquire()
+    except (RunLocked, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    try:
+        return _generate_jobs(jobs, args)
+    finally:
+        lock.release()
+
+
+def _generate_jobs(jobs: list[dict], args: argparse.Namespace) -> int:
     parallel = args.workers > 1 or args.scheduler is not None
     if parallel:
         for job in jobs:
