@@ -299,14 +299,7 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
         doc = {**spec, "memory_bytes": memory_bytes}
         (work / "spec.json").write_text(json.dumps(doc))
         cmd = [sys.executable, "-m", "vvtbench.sealed", str(work / "spec.json")]
-        if kind == "bwrap":
-            for name in inputs:
-                target = work / "in" / name
-                if Path(inputs[name]).is_dir():
-                    target.mkdir(parents=True, exist_ok=True)
-                else:
-                    target.parent.mkdir(parents=True, exist_ok=True)
-                    target.touch()
+        if kind == "bwrap":  # bwrap makes the mount points inside the sandbox
             cmd = _bwrap_argv(work, inputs, extra_ro, secrets, files) + cmd
         else:
             _link_inputs(work, inputs, files)
