@@ -14,30 +14,16 @@ import pytest
 pd = pytest.importorskip("pandas")
 pytest.importorskip("pyarrow")
 
+from test_runner_safety import TINY as RUNNER_TINY  # noqa: E402
+
 from vvtbench.bench import check_results, run_suite  # noqa: E402
 from vvtbench.bench.rescore import rescore  # noqa: E402
 from vvtbench.cli.run import main_check_results  # noqa: E402
 from vvtbench.plugins import REFERENCE_BUILTINS, SOLVERS, name_problem  # noqa: E402
 
-TINY = """
-name = "tiny"
-scenes = ["jello_cube_defect_top"]
-solvers = ["homogeneous", "oracle"]
-seeds = [0]
-observations = ["true"]
-
-[defaults]
-"geometry.cells" = [5, 5, 5]
-"simulation.n_modes" = 8
-"simulation.fps" = 400.0
-"simulation.duration" = 0.5
-"camera.resolution" = [64, 64]
-n_modes = 4
-inference_shape = [3, 3, 3]
-
-[solver.oracle]
-max_iter = 3
-"""
+# the runner-safety suite, with the oracle (a reference) beside the floor
+TINY = RUNNER_TINY.replace('solvers = ["homogeneous"]', 'solvers = ["homogeneous", "oracle"]') \
+    + "\n[solver.oracle]\nmax_iter = 3\n"
 
 
 @pytest.fixture(scope="module")
