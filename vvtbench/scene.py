@@ -416,7 +416,7 @@ class Simulation(_Strict):
         return self
 
 
-class CameraSpec(_Strict):
+class PinholeSpec(_Strict):
     """Pinhole camera: pose by position/look_at/up; intrinsics by fov_y or focal lengths fx, fy
     (px), principal point cx, cy (px, pixel-centre convention; default the image centre)."""
 
@@ -431,7 +431,7 @@ class CameraSpec(_Strict):
     resolution: tuple[Pixels, Pixels] = (256, 256)
 
     @model_validator(mode="after")
-    def _fy_needs_fx(self) -> CameraSpec:
+    def _fy_needs_fx(self) -> PinholeSpec:
         if self.fy is not None and self.fx is None:
             raise ValueError("fy (px) needs fx (px); with fov_y_deg the pixels are square")
         view = np.subtract(self.look_at, self.position, dtype=float)
@@ -448,6 +448,80 @@ class CameraSpec(_Strict):
                 "allowed: any direction not parallel to it"
             )
         return self
+
+
+MAX_VIEWS = 16
+RIG_KINDS = ("ring", "cone")
+
+
+class CameraRig(_Strict):
+    """Several synchronised cameras made from the scene's camera (view 0).
+
+    ring: view ``i`` is the camera turned by ``spread_deg * i / views`` about ``up`` through
+    ``look_at``. cone: views 1..N-1 sit evenly around a cone of half-angle ``spread_deg / 2``
+    about the line from ``look_at`` to the camera (view 0 on its axis). View ``i`` films
+    ``i * time_offset_s`` later than view 0 (0: genlocked).
+    """
+
+    views: Number(ge=2, le=MAX_VIEWS, integer=True)
+    spread_deg: Number(gt=0, le=360, unit="degrees") = 360.0
+    kind: Literal["ring", "cone"] = "ring"
+    time_offset_s: Number(ge=0, le=1, unit="s") = 0.0
+
+    @model_validator(mode="after")
+    def _cone_opens_less_than_a_half_turn(self) -> CameraRig:
+        if self.kind == "cone" and not self.spread_deg < 180:
+            raise ValueError(f"spread_deg {self.spread_deg:g} for kind 'cone'; allowed: a "
+                             "finite number > 0 and < 180 (degrees, the cone's full opening)")
+        return self
+
+
+_CAMERA_KEYS = ("position", "look_at", "up", "fov_y_deg", "fx", "fy", "cx", "cy", "resolution")
+_LENS_KEYS = ("fov_y_deg", "fx", "fy")
+
+
+class CameraSpec(PinholeSpec):
+    """The scene's camera (view 0), and optionally more synchronised views: a list
+    ``[[camera.views]]`` of cameras (each key it does not give is the ``[camera]`` table's)
+    or a ``[camera.rig]``."""
+
+    views: list[PinholeSpec] | None = None
+    rig: CameraRig | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _views_inherit_the_camera(cls, data):
+        if not (isinstance(data, dict) and isinstance(data.get("views"), list)):
+            return data
+        views = []
+        for view in data["views"]:
+            if isinstance(view, dict):
+                own_lens = any(k in view for k in _LENS_KEYS)
+                view = {**{k: data[k] for k in _CAMERA_KEYS if k in data
+                           and not (own_lens and k in _LENS_KEYS)}, **view}
+            views.append(view)
+        return {**data, "views": views}
+
+    @model_validator(mode="after")
+    def _views_or_rig(self) -> CameraSpec:
+        if self.views is not None and self.rig is not None:
+            raise ValueError("give either [[camera.views]] or [camera.rig], not both")
+        if self.views is not None and not 1 <= len(self.views) <= MAX_VIEWS - 1:
+            raise ValueError(f"camera.views lists {len(self.views)} camera(s); allowed: 1 to "
+                             f"{MAX_VIEWS - 1} (view 0 is the [camera] table itself)")
+        return self
+
+    @property
+    def n_views(self) -> int:
+        """Number of cameras filming the scene (1: the ``[camera]`` table alone)."""
+        if self.rig is not None:
+            return int(self.rig.views)
+        return 1 + (len(self.views) if self.views is not None else 0)
+
+    @property
+    def time_offset_s(self) -> float:
+        """Delay of view ``i`` behind view ``i - 1`` (s)."""
+        return float(self.rig.time_offset_s) if self.rig is not None else 0.0
 
 
 class RenderSpec(_Strict):
@@ -606,6 +680,10 @@ def _allowed_keys(parent: str) -> str:
         )
     elif head == "boundary" and "node_sets" in parent:
         model = NodeRegion
+    elif head == "camera" and "views" in parent:
+        model = PinholeSpec
+    elif head == "camera" and "rig" in parent:
+        model = CameraRig
     else:
         model = models.get(head)
     if model is None:

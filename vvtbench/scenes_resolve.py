@@ -24,7 +24,8 @@ def with_overrides(
     duration: float | None = None,
     resolution: tuple[int, int] | None = None,
 ) -> Scene:
-    """The scene with a different length (frames or seconds) or resolution (height, width)."""
+    """The scene with a different length (frames or seconds) or resolution (height, width; of
+    every view)."""
     if frames is not None and duration is not None:
         raise SceneError("give either frames or duration, not both")
     data = scene.to_toml_dict()
@@ -36,6 +37,8 @@ def with_overrides(
         data["simulation"]["duration"] = float(duration)
     if resolution is not None:
         data["camera"]["resolution"] = [int(resolution[0]), int(resolution[1])]
+        for view in data["camera"].get("views") or []:
+            view["resolution"] = [int(resolution[0]), int(resolution[1])]
     return parse_scene(data, scene.source or scene.name)
 
 

@@ -311,6 +311,49 @@ class Camera:
         K[:2, 2] = factor * (K[:2, 2] + 0.5) - 0.5
         return Camera(K=K, R=self.R, t=self.t, width=round(w), height=round(h))
 
+    def turned(self, angle: float, axis: Any, centre: Any) -> Camera:
+        """The camera carried rigidly around ``centre``: turned by ``angle`` (radians, right
+        hand) about ``axis`` through ``centre``; same intrinsics, so a point turned with it
+        keeps its pixel.
+
+        >>> cam = Camera.look_at((1.0, 0, 0), (0, 0, 0), fx=100.0, width=64, height=64)
+        >>> back = cam.turned(np.pi, (0, 0, 1.0), (0, 0, 0))
+        >>> back.project([0.0, 0.0, 0.0]).round(6).tolist(), back.center.round(6).tolist()
+        ([31.5, 31.5], [-1.0, 0.0, 0.0])
+        """
+        a = np.asarray(axis, dtype=np.float64)
+        a = a / np.linalg.norm(a)
+        cross = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+        Q = np.eye(3) + math.sin(angle) * cross + (1.0 - math.cos(angle)) * (cross @ cross)
+        c = np.asarray(centre, dtype=np.float64)
+        R = self.R @ Q.T
+        return Camera(self.K, R, self.t + self.R @ c - R @ c, self.width, self.height)
+
+    @classmethod
+    def views_from_spec(cls, spec: Any) -> list[Camera]:
+        """Every camera of a scene's ``[camera]`` table: view 0 (:meth:`from_spec`), then the
+        ``[[camera.views]]`` in order, or the ``[camera.rig]`` views (docs/dataset.md,
+        "Several views")."""
+        first = cls.from_spec(spec)
+        views = getattr(spec, "views", None)
+        rig = getattr(spec, "rig", None)
+        if views:
+            return [first, *(cls.from_spec(v) for v in views)]
+        if rig is None:
+            return [first]
+        n, spread = int(rig.views), math.radians(float(rig.spread_deg))
+        target = np.asarray(spec.look_at, dtype=np.float64)
+        if rig.kind == "ring":
+            return [first.turned(spread * i / n, spec.up, target) for i in range(n)]
+        line = first.center - target
+        line = line / np.linalg.norm(line)
+        side = np.cross(line, np.asarray(spec.up, dtype=np.float64))
+        if not np.linalg.norm(side) > 1e-9:
+            side = np.cross(line, [1.0, 0.0, 0.0] if abs(line[0]) < 0.9 else [0.0, 1.0, 0.0])
+        tilted = first.turned(spread / 2, side, target)
+        return [first, *(tilted.turned(2 * math.pi * i / (n - 1), line, target)
+                         for i in range(n - 1))]
+
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-serialisable representation (lists of floats and ints)."""
