@@ -149,6 +149,9 @@ _DESCRIPTIONS = {
 
 
 def _describe(rel: str) -> str:
+    parts = rel.split("/", 2)
+    if parts[0] == "views" and len(parts) == 3 and parts[1].isdigit():
+        return f"view {parts[1]}: {_describe(parts[2])}"
     if rel in _DESCRIPTIONS:
         return _DESCRIPTIONS[rel]
     if rel.startswith("truth.zarr/"):
@@ -324,15 +327,17 @@ def _texture(density: float, contrast: float, seed: int) -> np.ndarray:
     return tex
 
 
-def scene_renderer(scene: Scene, vertices: np.ndarray, triangles: np.ndarray):
-    """The :class:`Renderer` a sample of ``scene`` is filmed with (camera, texture, settings)."""
+def scene_renderer(scene: Scene, vertices: np.ndarray, triangles: np.ndarray, camera=None):
+    """The :class:`Renderer` a sample of ``scene`` is filmed with (texture, settings; the
+    scene's camera, view 0, unless ``camera`` is given)."""
     from .render import Camera
     from .render.pyrender_backend import Renderer
 
     rs = scene.render
     texture = _texture(rs.texture_density, rs.texture_contrast, rs.texture_seed)
     try:
-        return Renderer(vertices, triangles, Camera.from_spec(scene.camera), texture=texture,
+        camera = Camera.from_spec(scene.camera) if camera is None else camera
+        return Renderer(vertices, triangles, camera, texture=texture,
                         supersample=rs.supersample, lighting=rs.lighting)
     except ValueError as error:
         raise DatasetError(f"scene {scene.name}: cannot render with key 'camera': {error}"
@@ -353,6 +358,8 @@ class _Context:
     tris: np.ndarray  # triangles indexing the surface nodes
     camera: Any
     n_frames: int
+    cameras: list  # every view's camera; cameras[0] is ``camera``
+    offset_steps: int = 0  # simulation steps between the start of view i and view i + 1
 
     @property
     def frame_average(self) -> int:
@@ -367,18 +374,38 @@ def _generate_into(scene: Scene, scene_text: str, work: Path, opts: _Options, st
                    checkpoint: Path, bar: StageProgress) -> None:
     (work / "scene.toml").write_text(scene_text)
     ctx = _simulate(scene, work, opts, bar)
-    renderer = scene_renderer(scene, ctx.rest, ctx.tris)
-    with renderer:
-        if opts.video:
-            _render_video(ctx, renderer, state, checkpoint, bar)
-        bar.stage("ground truth", 6)
-        rest_view = _rest_views(ctx, renderer)
-        bar.advance()
-        truth = _write_truth(ctx, rest_view, bar)
-        _write_info(ctx, truth)
-        bar.advance()
-        if opts.video:
-            _preview(ctx, renderer, work / "preview.mp4", truth["peak_px"], bar)
+    views = []
+    for v, camera in enumerate(ctx.cameras):
+        with scene_renderer(scene, ctx.rest, ctx.tris, camera) as renderer:
+            if opts.video:
+                _render_video(ctx, renderer, state, checkpoint, bar, v)
+            views.append(_rest_views(ctx, renderer, v))
+            if opts.video and v == 0:
+                _preview(ctx, renderer, work / "preview.mp4", 0.0, bar)
+    bar.stage("ground truth", 4 + 2 * len(views))
+    truth = _write_truth(ctx, views, bar)
+    _write_info(ctx, truth)
+    bar.advance()
+
+
+def view_folder(view: int) -> str:
+    """The folder of view ``view``'s files inside a sample ("" for view 0, whose files are
+    where a single-view sample has them; ``views/<i>/`` for the others)."""
+    return "" if view == 0 else f"views/{view}/"
+
+
+def _offset_steps(scene: Scene) -> int:
+    """Simulation steps (at fps * frame_average) between the start of consecutive views."""
+    offset = scene.camera.time_offset_s
+    if offset == 0:
+        return 0
+    step = 1.0 / (scene.simulation.fps * scene.render.frame_average)
+    n = offset / step
+    if abs(n - round(n)) > 1e-6 * max(1.0, n):
+        raise DatasetError(f"scene {scene.name}: key 'camera.rig.time_offset_s' = {offset:g} s "
+                           "is not a whole number of simulation steps; allowed: multiples of "
+                           f"1 / (simulation.fps * render.frame_average) = {step:.9g} s")
+    return int(round(n))
 
 
 def _simulate(scene: Scene, work: Path, opts: _Options, bar: StageProgress) -> _Context:
@@ -391,7 +418,13 @@ def _simulate(scene: Scene, work: Path, opts: _Options, bar: StageProgress) -> _
     if opts.video and n_frames < 1:
         raise DatasetError(f"scene {scene.name}: simulation.duration * fps gives no frame")
     bar.stage("simulate", 1)
-    result = simulate(_fine_scene(scene), transient=opts.video)
+    offset = _offset_steps(scene) if opts.video else 0
+    fine = _fine_scene(scene)
+    if offset:  # the later views film (n_views - 1) * offset steps beyond view 0
+        extra = (scene.camera.n_views - 1) * offset / (scene.simulation.fps * A)
+        fine = fine.model_copy(update={"simulation": fine.simulation.model_copy(
+            update={"duration": fine.simulation.duration + extra})})
+    result = simulate(fine, transient=opts.video)
     if opts.video:
         if not result.has_transient:
             raise DatasetError(f"scene {scene.name}: excitation kind 'none' gives no motion "
@@ -400,22 +433,33 @@ def _simulate(scene: Scene, work: Path, opts: _Options, bar: StageProgress) -> _
         n_frames = min(n_frames, len(result.times) // A)  # rounding of duration * fps * A
     bar.advance()
     nodes, rest, tris = surface_geometry(result.mesh)
-    return _Context(scene, work, opts, result, nodes, rest, tris, Camera.from_spec(scene.camera),
-                    n_frames)
+    try:
+        cameras = Camera.views_from_spec(scene.camera)
+    except ValueError as error:
+        raise DatasetError(f"scene {scene.name}: cannot render with key 'camera': {error}"
+                           ) from None
+    return _Context(scene, work, opts, result, nodes, rest, tris, cameras[0], n_frames,
+                    cameras, offset)
 
 
 def _render_video(ctx: _Context, renderer, state: dict, checkpoint: Path,
-                  bar: StageProgress) -> None:
-    """Render, quantize and encode the video in checkpointed segments, then join them."""
+                  bar: StageProgress, view: int = 0) -> None:
+    """Render, quantize and encode the video of one view in checkpointed segments, then join
+    them. View ``i`` films ``i * offset_steps`` simulation steps after view 0; its sensor noise
+    comes from its own generator (:func:`view_noise_rng`)."""
     scene, opts, result, A = ctx.scene, ctx.opts, ctx.result, ctx.frame_average
     rs = scene.render
-    H, W = ctx.camera.height, ctx.camera.width
+    camera = ctx.cameras[view]
+    H, W = camera.height, camera.width
     seg_len = max(1, opts.segment_frames)
     n_seg = math.ceil(ctx.n_frames / seg_len)
-    seg_dir = ctx.work / "segments"
-    seg_dir.mkdir(exist_ok=True)
-    done = int(state.get("segments_done", 0))
-    bar.stage("render video", ctx.n_frames, min(done * seg_len, ctx.n_frames))
+    seg_dir = ctx.work / "segments" / (f"view{view}" if view else "")
+    seg_dir.mkdir(parents=True, exist_ok=True)
+    key = "segments_done" if view == 0 else f"segments_done_view{view}"
+    shift = view * ctx.offset_steps
+    done = int(state.get(key, 0))
+    bar.stage("render video" + (f" (view {view})" if view else ""), ctx.n_frames,
+              min(done * seg_len, ctx.n_frames))
     seg_pix = "gray" if opts.consumer_crf is not None else "gray16le"
     noisy = rs.shot_noise or rs.read_noise_dn > 0
     for s in range(done, n_seg):
@@ -424,49 +468,62 @@ def _render_video(ctx: _Context, renderer, state: dict, checkpoint: Path,
         with VideoWriter(tmp, H, W, capture_fps=scene.simulation.fps, pix_fmt=seg_pix) as writer:
             for k0 in range(a, b, 64):
                 k1 = min(k0 + 64, b)
-                u = _as_3d(result.displacement_frames(k0 * A, k1 * A))
+                u = _as_3d(result.displacement_frames(k0 * A + shift, k1 * A + shift))
                 for k in range(k0, k1):
                     subs = np.stack([renderer.render(rs.motion_scale * u[(k - k0) * A + j])
                                      for j in range(A)])
-                    rng = noise_rng(scene.seed, k) if noisy else None
+                    rng = view_noise_rng(scene.seed, k, view) if noisy else None
                     writer.write(sensor_dn(subs, ctx.bit_depth, rs.read_noise_dn,
                                            rs.shot_noise, opts.full_well, rng))
                     bar.advance()
         os.replace(tmp, seg_dir / f"seg_{s:05d}.mkv")
-        state["segments_done"] = s + 1
+        state[key] = s + 1
         _write_json_sorted(checkpoint, state)
     segments = [seg_dir / f"seg_{s:05d}.mkv" for s in range(n_seg)]
     bar.stage("join video", 1)
     name = "video.mkv" if opts.consumer_crf is None else "video.mp4"
-    concat_videos(segments, ctx.work / f"{name}.tmp{Path(name).suffix}",
+    folder = ctx.work / view_folder(view)
+    folder.mkdir(parents=True, exist_ok=True)
+    concat_videos(segments, folder / f"{name}.tmp{Path(name).suffix}",
                   capture_fps=scene.simulation.fps, crf=opts.consumer_crf)
-    os.replace(ctx.work / f"{name}.tmp{Path(name).suffix}", ctx.work / name)
+    os.replace(folder / f"{name}.tmp{Path(name).suffix}", folder / name)
     bar.advance()
 
 
-def _rest_views(ctx: _Context, renderer) -> dict:
-    """Rest render, depth buffer and visibility (one frame), and the viewing PNGs."""
+def view_noise_rng(seed: int, frame: int, view: int) -> np.random.Generator:
+    """The sensor-noise generator of video frame ``frame`` of view ``view``: view 0's is
+    :func:`vvtbench.sensor.noise_rng` (a single-view sample's), view ``i > 0`` draws from
+    ``numpy.random.default_rng([seed & 0xFFFFFFFF, 0x5EED0001, frame, i])``, so no two views
+    share noise."""
+    if view == 0:
+        return noise_rng(seed, frame)
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x5EED0001, int(frame), int(view)])
+
+
+def _rest_views(ctx: _Context, renderer, view: int = 0) -> dict:
+    """Rest render, depth buffer and visibility (one frame) of one view, and its viewing
+    PNGs."""
     import imageio.v3 as iio
 
     rest_img = renderer.render()
     depth = renderer.depth()
     visible = renderer.visible_vertices()
-    iio.imwrite(ctx.work / "rest.png", _to_png8(rest_img))
-    iio.imwrite(ctx.work / "depth.png", _depth_png(depth))
-    return {"rest": rest_img, "depth": depth, "visible": visible}
+    folder = ctx.work / view_folder(view)
+    folder.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(folder / "rest.png", _to_png8(rest_img))
+    iio.imwrite(folder / "depth.png", _depth_png(depth))
+    return {"rest": rest_img, "depth": depth, "visible": visible, "camera": ctx.cameras[view]}
 
 
-def _write_truth(ctx: _Context, view: dict, bar: StageProgress) -> dict:
-    """Write ``truth.zarr``; returns the numbers ``truth.json`` reports."""
+def _write_truth(ctx: _Context, views: list[dict], bar: StageProgress) -> dict:
+    """Write ``truth.zarr`` (view 0's arrays where a single-view sample has them, view ``i``'s
+    under ``views/<i>/``); returns the numbers ``truth.json`` reports."""
     import zarr
 
     from .fem.elements import element_volumes
     from .fem.voxels import VoxelMap, overlap_matrix, voxel_average
-    from .render.raster import interpolate, rasterize
 
-    result, mesh, nodes, camera = ctx.result, ctx.result.mesh, ctx.nodes, ctx.camera
-    rest, tris = ctx.rest, ctx.tris
-    H, W = camera.height, camera.width
+    result, mesh, nodes = ctx.result, ctx.result.mesh, ctx.nodes
     root = zarr.open_group(str(ctx.work / "truth.zarr"), mode="w", zarr_format=3)
     root.attrs.update({"vvtbench": __version__, "format": FORMAT_VERSION,
                        "scene": ctx.scene.name, "video": ctx.opts.video})
@@ -514,42 +571,60 @@ def _write_truth(ctx: _Context, view: dict, bar: StageProgress) -> dict:
     put("modes/vectors", modes.vectors)
     put("modes/free_dofs", result.model.free_dofs)
     put("modes/surface", phi3)
-    # observation
+    per_view = [_write_view_truth(ctx, root, put, v, view, phi3) for v, view in
+                enumerate(views)]
+    for _ in per_view:
+        bar.advance()
+    peaks = (_write_transient(ctx, root, put, [(p["J_vis"], p["vis_idx"]) for p in per_view])
+             if ctx.opts.video else [None] * len(views))
+    rulers = [_write_crb(ctx, root, put, view["rest"], view_folder(v)) if ctx.opts.video
+              else None for v, view in enumerate(views)]
+    bar.advance()
+    return {"vmap": vmap, "grid_shape": grid_shape, "n_visible": per_view[0]["n_visible"],
+            "n_occupied": int((voxel_volume > 0).sum()), "peak_px": peaks[0], "crb": rulers[0],
+            "views": [{"n_visible": p["n_visible"], "peak_px": peak, "crb": ruler}
+                      for p, peak, ruler in zip(per_view, peaks, rulers, strict=True)]}
+
+
+def _write_view_truth(ctx: _Context, root, put, v: int, view: dict, phi3: np.ndarray) -> dict:
+    """The arrays of one view (``observation/*``, ``image/*``), under ``views/<v>/`` for
+    ``v > 0``."""
+    from .render.raster import interpolate, rasterize
+
+    camera, rest, tris, pre = view["camera"], ctx.rest, ctx.tris, view_folder(v)
+    H, W = camera.height, camera.width
+    nodes = ctx.nodes
     visible = view["visible"]
     vis_idx = np.flatnonzero(visible)
     J = camera.jacobian(rest)  # (S, 2, 3)
     img_modes = np.einsum("sij,msj->msi", J, phi3)  # (m, S, 2)
-    put("observation/rest_uv", camera.project(rest))
-    put("observation/rest_depth", camera.depth(rest))
-    put("observation/visible", visible)
-    put("observation/visible_index", vis_idx)
-    put("observation/visible_nodes", nodes[vis_idx])
-    put("observation/jacobian", J[vis_idx])
-    put("observation/image_modes", img_modes[:, vis_idx])
-    put("observation/image_modes_surface", img_modes)
-    bar.advance()
+    put(pre + "observation/rest_uv", camera.project(rest))
+    put(pre + "observation/rest_depth", camera.depth(rest))
+    put(pre + "observation/visible", visible)
+    put(pre + "observation/visible_index", vis_idx)
+    put(pre + "observation/visible_nodes", nodes[vis_idx])
+    put(pre + "observation/jacobian", J[vis_idx])
+    put(pre + "observation/image_modes", img_modes[:, vis_idx])
+    put(pre + "observation/image_modes_surface", img_modes)
     # image-space fields
     raster = rasterize(camera, rest, tris)
-    put("image/rest", view["rest"])
-    put("image/depth", view["depth"])
-    put("image/triangle", raster.triangle)
-    put("image/barycentric", raster.barycentric)
+    put(pre + "image/rest", view["rest"])
+    put(pre + "image/depth", view["depth"])
+    put(pre + "image/triangle", raster.triangle)
+    put(pre + "image/barycentric", raster.barycentric)
     if ctx.opts.video:
-        dense = root.create_array("image/modes", shape=(len(modes), H, W, 2), dtype=np.float32,
+        m = len(phi3)
+        dense = root.create_array(pre + "image/modes", shape=(m, H, W, 2), dtype=np.float32,
                                   chunks=(1, H, W, 2), fill_value=np.nan, overwrite=True)
-        for m in range(len(modes)):
-            dense[m] = interpolate(raster, tris, img_modes[m]).astype(np.float32)
-    bar.advance()
-    peak_px = _write_transient(ctx, root, put, J[vis_idx], vis_idx) if ctx.opts.video else None
-    ruler = _write_crb(ctx, root, put, view["rest"]) if ctx.opts.video else None
-    bar.advance()
-    return {"vmap": vmap, "grid_shape": grid_shape, "n_visible": int(len(vis_idx)),
-            "n_occupied": int((voxel_volume > 0).sum()), "peak_px": peak_px, "crb": ruler}
+        for i in range(m):
+            dense[i] = interpolate(raster, tris, img_modes[i]).astype(np.float32)
+    return {"J_vis": J[vis_idx], "vis_idx": vis_idx, "n_visible": int(len(vis_idx))}
 
 
-def _write_crb(ctx: _Context, root, put, rest_img: np.ndarray) -> dict:
-    """The Cramér-Rao ruler (:mod:`vvtbench.scoring.crb`): ``crb/*`` block bounds of the
-    rest render and ``modes/crb_*`` per mode; returns the summary ``truth.json`` reports."""
+def _write_crb(ctx: _Context, root, put, rest_img: np.ndarray, pre: str = "") -> dict:
+    """The Cramér-Rao ruler (:mod:`vvtbench.scoring.crb`) of one view: ``crb/*`` block bounds
+    of the rest render and ``modes/crb_*`` per mode (under ``pre``: ``views/<i>/`` for view
+    ``i > 0``); returns the summary ``truth.json`` reports."""
     from .scoring import crb
 
     rs = ctx.scene.render
@@ -558,30 +633,32 @@ def _write_crb(ctx: _Context, root, put, rest_img: np.ndarray) -> dict:
                                  ctx.opts.full_well, ctx.frame_average)
     fisher_px = crb.pixel_fisher(intensity * float(2**ctx.bit_depth - 1), var)
     blocks = crb.block_crb(fisher_px, crb.BLOCK_PX)
-    put("crb/fisher", blocks["fisher"])
-    put("crb/std_px", blocks["std_px"])
-    put("crb/std_min_px", blocks["std_min_px"])
-    dense = root["image/modes"]
+    put(pre + "crb/fisher", blocks["fisher"])
+    put(pre + "crb/std_px", blocks["std_px"])
+    put(pre + "crb/std_min_px", blocks["std_min_px"])
+    dense = root[pre + "image/modes"]
     info, gain = crb.mode_information(fisher_px, (dense[m] for m in range(dense.shape[0])),
                                       rs.motion_scale)
     energy = crb.modal_energy(root["transient/displacements"], root["modes/surface"]) * gain**2
     snr = crb.mode_snr(info, energy)
     threshold = crb.detection_snr_threshold(ctx.n_frames)
-    put("modes/crb_snr", snr)
-    put("modes/crb_information", info)
-    put("modes/crb_energy_px2", energy)
+    put(pre + "modes/crb_snr", snr)
+    put(pre + "modes/crb_information", info)
+    put(pre + "modes/crb_energy_px2", energy)
     summary = {"block_px": crb.BLOCK_PX, "detection_snr": threshold,
                "false_alarm": crb.EXTRACTOR_FALSE_ALARM, "n_bins": max(1, ctx.n_frames // 2),
                "n_detectable": int(np.count_nonzero(snr >= threshold)),
                "derivative_taps": crb.DERIVATIVE_TAPS.tolist(),
                "noise_model": "(I D^2/F [shot] + r^2)/A + 1/12 DN^2"}
-    root["crb"].attrs.update(summary)
+    root[pre + "crb"].attrs.update(summary)
     return {**summary, "snr": snr}
 
 
-def _write_transient(ctx: _Context, root, put, J_vis: np.ndarray, vis_idx: np.ndarray) -> float:
+def _write_transient(ctx: _Context, root, put, seen: list[tuple[np.ndarray, np.ndarray]]
+                     ) -> list[float]:
     """Surface-node displacements at the video frame times (sub-frames averaged); returns the
-    peak single-axis image motion (px, unscaled)."""
+    peak single-axis image motion (px, unscaled) of each view (``seen``: its Jacobians at its
+    visible nodes and their indices), over these frames."""
     result, A, n_frames = ctx.result, ctx.frame_average, ctx.n_frames
     S = len(ctx.nodes)
     tchunk = max(1, min(n_frames, (8 << 20) // (S * 12)))
@@ -589,15 +666,16 @@ def _write_transient(ctx: _Context, root, put, J_vis: np.ndarray, vis_idx: np.nd
                              dtype=np.float32, chunks=(tchunk, S, 3), overwrite=True)
     times = result.times[: n_frames * A].reshape(n_frames, A).mean(axis=1)
     put("transient/times", times)
-    peak_px = 0.0
+    peaks = [0.0] * len(seen)
     for k0 in range(0, n_frames, tchunk):
         k1 = min(k0 + tchunk, n_frames)
         u = _as_3d(result.displacement_frames(k0 * A, k1 * A))
         u = u.reshape(k1 - k0, A, S, 3).mean(axis=1, dtype=np.float64)
         disp[k0:k1] = u.astype(np.float32)
-        px = np.einsum("vij,tvj->tvi", J_vis, u[:, vis_idx])
-        peak_px = max(peak_px, float(np.abs(px).max(initial=0.0)))
-    return peak_px
+        for v, (J_vis, vis_idx) in enumerate(seen):
+            px = np.einsum("vij,tvj->tvi", J_vis, u[:, vis_idx])
+            peaks[v] = max(peaks[v], float(np.abs(px).max(initial=0.0)))
+    return peaks
 
 
 def _write_info(ctx: _Context, truth: dict) -> None:
@@ -655,11 +733,42 @@ def _write_info(ctx: _Context, truth: dict) -> None:
         "truncation_error": result.truncation_error,
         "generator": opts.to_dict(),
     }
+    if len(ctx.cameras) > 1:
+        info["views"] = _views_info(ctx, truth, info["video"]["file"],
+                                    info["modes"].get("crb_snr"))
     _write_json_sorted(ctx.work / "truth.json", info)
-    cam = camera.to_dict()
-    cam["P"] = camera.P.tolist()
-    cam["fov_y_deg"] = float(np.degrees(2 * np.arctan((H / 2) / camera.fy)))
-    _write_json_sorted(ctx.work / "camera.json", cam)
+    for v, cam_v in enumerate(ctx.cameras):
+        cam = cam_v.to_dict()
+        cam["P"] = cam_v.P.tolist()
+        cam["fov_y_deg"] = float(np.degrees(2 * np.arctan((cam_v.height / 2) / cam_v.fy)))
+        _write_json_sorted(ctx.work / view_folder(v) / "camera.json", cam)
+
+
+def _views_info(ctx: _Context, truth: dict, video_file: str | None,
+                first_snr: list | None) -> list[dict]:
+    """``truth.json`` ``views``: what differs between the views of a multi-view sample."""
+    scene = ctx.scene
+    step = 1.0 / (scene.simulation.fps * ctx.frame_average)
+    out = []
+    for v, (camera, seen) in enumerate(zip(ctx.cameras, truth["views"], strict=True)):
+        folder = view_folder(v)
+        ruler = seen["crb"]
+        out.append({
+            "index": v,
+            "folder": folder.rstrip("/"),
+            "camera": folder + "camera.json",
+            "video_file": None if video_file is None else folder + video_file,
+            "height": camera.height,
+            "width": camera.width,
+            "time_offset_s": v * ctx.offset_steps * step,
+            "n_visible": seen["n_visible"],
+            "peak_image_motion_px": (None if seen["peak_px"] is None
+                                     else seen["peak_px"] * scene.render.motion_scale),
+            **({} if ruler is None else {
+                "crb_snr": (first_snr if v == 0 else [float(x) for x in ruler["snr"]]),
+                "crb_detectable": int(ruler["n_detectable"])}),
+        })
+    return out
 
 
 def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: StageProgress) -> None:
