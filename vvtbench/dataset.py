@@ -125,6 +125,41 @@ class Sample(SampleView):
     def times(self) -> np.ndarray:
         return self.require("transient/times")
 
+    @property
+    def n_views(self) -> int:
+        """Number of synchronised views of the simulation the sample holds (docs/dataset.md,
+        "Several views"); 1 for a single-view sample."""
+        views = self.info.get("views")
+        return len(views) if isinstance(views, list) and views else 1
+
+    def view(self, index: int) -> Sample:
+        """View ``index`` of the sample as a :class:`Sample` of its own: its camera, video
+        (``views/<i>/video.mkv``), ``observation/*``, ``image/*``, ``crb/*`` and
+        ``modes/crb_*`` arrays (read from ``truth.zarr/views/<i>/``) and the sample's shared
+        arrays (mesh, material, voxels, modes, transient). ``view(0)`` is the sample."""
+        n = self.n_views
+        if not isinstance(index, (int, np.integer)) or isinstance(index, bool) or not (
+                0 <= index < n):
+            raise DatasetError(f"{self.path}: no view {index!r}; the sample holds views "
+                               f"0..{n - 1}")
+        if index == 0:
+            return self
+        entries, problems = _view_entries(self.info)
+        if problems:
+            raise DatasetError(f"{self.path / problems[0]}")
+        entry = entries[int(index) - 1]
+        camera = _read_camera(self.path / entry["camera"])
+        info = json.loads(json.dumps(self.info))
+        info["video"].update(file=entry.get("video_file"), height=int(entry["height"]),
+                             width=int(entry["width"]))
+        info["mesh"]["n_visible"] = entry.get("n_visible")
+        info["peak_image_motion_px"] = entry.get("peak_image_motion_px")
+        info["view"] = {"index": int(index), "time_offset_s": entry.get("time_offset_s", 0.0)}
+        if "crb_snr" in entry:
+            info["modes"]["crb_snr"] = entry["crb_snr"]
+        return Sample(self.path, self.scene, camera, info, self.manifest,
+                      _ViewTruth(self.truth, f"views/{int(index)}/"))
+
     def __getitem__(self, name: str) -> np.ndarray:
         return np.asarray(self.truth[name][...])
 
@@ -240,6 +275,57 @@ class Sample(SampleView):
 #: The small files checked against the manifest on every open (with all of ``truth.zarr``).
 CHECKED_FILES = ("scene.toml", "truth.json", "camera.json")
 
+#: Arrays every view of a multi-view sample has of its own (``truth.zarr/views/<i>/...``).
+VIEW_GROUPS = ("observation/", "image/", "crb/", "modes/crb_")
+
+
+class _ViewTruth:
+    """The truth group as one view sees it: its own arrays from ``views/<i>/``, the shared
+    ones from the root."""
+
+    def __init__(self, root: Any, prefix: str) -> None:
+        self.root, self.prefix = root, prefix
+
+    def __getitem__(self, name: str) -> Any:
+        if name.startswith(VIEW_GROUPS) or name == "crb":
+            return self.root[self.prefix + name]
+        return self.root[name]
+
+    @property
+    def attrs(self) -> Any:
+        return self.root.attrs
+
+    def members(self, max_depth: int | None = None):
+        return self.root.members(max_depth=max_depth)
+
+
+def _read_camera(path: Path) -> Any:
+    from .render import Camera
+
+    try:
+        return Camera.from_dict(read_json(path))
+    except (KeyError, TypeError, ValueError, OSError) as error:
+        raise DatasetError(f"{path}: not a camera ({error})") from None
+
+
+def _view_entries(info: dict) -> tuple[list[dict], list[str]]:
+    """The ``truth.json`` ``views`` entries of views 1.. (none for a single-view sample), and
+    what is wrong with the others."""
+    views = info.get("views")
+    if views is None:
+        return [], []
+    if not isinstance(views, list):
+        return [], ["truth.json: 'views' is not a list (docs/dataset.md, 'Several views')"]
+    good, problems = [], []
+    for i, entry in enumerate(views[1:], start=1):
+        if not (isinstance(entry, dict) and entry.get("camera") == f"views/{i}/camera.json"
+                and entry.get("folder") == f"views/{i}"):
+            problems.append(f"truth.json: views[{i}] does not name views/{i}/camera.json and "
+                            f"folder views/{i} (docs/dataset.md, 'Several views')")
+        else:
+            good.append(entry)
+    return good, problems
+
 
 def read_json(path: Path) -> dict:
     try:
@@ -273,7 +359,6 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
     listed = manifest.get("files")
     if not isinstance(listed, dict):
         return ["manifest.json: no 'files' table (not a manifest written by vvtbench)"]
-    problems: list[str] = []
 
     def check(rel: str) -> None:
         entry, p = listed.get(rel), path / rel
@@ -291,15 +376,22 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
 
     video = info.get("video") if isinstance(info.get("video"), dict) else {}
     video_file = video.get("file")
+    views, problems = _view_entries(info)
     on_disk = sorted(p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file())
     if full:
         wanted = [rel for rel in listed]
         extra = [rel for rel in on_disk if rel != "manifest.json" and rel not in listed]
     else:
-        wanted = [*CHECKED_FILES, *(rel for rel in listed if rel.startswith("truth.zarr/"))]
+        wanted = [*CHECKED_FILES, *(str(v.get("camera")) for v in views),
+                  *(rel for rel in listed if rel.startswith("truth.zarr/"))]
         extra = [rel for rel in on_disk if rel.startswith("truth.zarr/") and rel not in listed]
     if video_file is not None:
         problems += _check_video(path, str(video_file), video, listed, full)
+    for entry in views:
+        if entry.get("video_file") is not None:
+            problems += _check_video(path, str(entry["video_file"]), {**video, **{
+                k: entry.get(k) for k in ("height", "width")}}, listed, full,
+                folder=str(entry.get("folder", "")))
     for rel in dict.fromkeys(wanted):
         check(rel)
     problems += [f"{rel}: not in the manifest" for rel in extra]
@@ -325,11 +417,16 @@ def _check_ruler(info: dict, listed: dict) -> list[str]:
             for name in RULER_ARRAYS if f"truth.zarr/{name}/zarr.json" not in listed]
 
 
-def _check_video(path: Path, name: str, video: dict, listed: dict, full: bool) -> list[str]:
+def _check_video(path: Path, name: str, video: dict, listed: dict, full: bool,
+                 folder: str = "") -> list[str]:
     from .video import VideoError, count_frames, probe_video
 
-    if Path(name).name != name or name in ("", ".", ".."):
-        return [f"truth.json: video.file {name!r} is not a file name inside the sample"]
+    base = name[len(folder) + 1:] if folder and name.startswith(folder + "/") else name
+    parts = folder.split("/") if folder else []
+    if (Path(base).name != base or base in ("", ".", "..") or not (
+            parts == [] or (len(parts) == 2 and parts[0] == "views" and parts[1].isdigit()))):
+        key = "video.file" if not folder else "views[].video_file"
+        return [f"truth.json: {key} {name!r} is not a file name inside the sample"]
     p, entry = path / name, listed.get(name)
     if not isinstance(entry, dict):
         return [f"{name}: not in the manifest"]
@@ -386,7 +483,6 @@ def open_sample(path: str | Path, *, verify: bool = True) -> Sample:
     """
     import zarr
 
-    from .render import Camera
 
     path = Path(path)
     if not path.is_dir():
@@ -409,10 +505,7 @@ def open_sample(path: str | Path, *, verify: bool = True) -> Sample:
         if problems:
             raise _problems_error(path, problems)
     scene = load_scene(path / "scene.toml")
-    try:
-        camera = Camera.from_dict(read_json(path / "camera.json"))
-    except (KeyError, TypeError, ValueError) as error:
-        raise DatasetError(f"{path / 'camera.json'}: not a camera ({error})") from None
+    camera = _read_camera(path / "camera.json")
     try:
         truth = zarr.open_group(str(path / "truth.zarr"), mode="r")
     except (OSError, ValueError, KeyError) as error:
