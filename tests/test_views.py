@@ -75,8 +75,10 @@ def test_the_solvers_take_the_stacked_problem_unchanged(cube, solver):
     assert invalid_reason(est.w, est.v, problem.n_params) is None or solver == "vvt"
 
 
-def test_views_need_true_modes_and_no_clicks():
-    with pytest.raises(ObserveError, match="not built yet"):
+def test_extracted_views_need_a_video_per_view_and_no_clicks():
+    with pytest.raises(ObserveError, match=r"holds 1 view\(s\).*\[camera.rig\]"):
         observe("jello_cube_defect_top", observation="extracted", views=2)
+    with pytest.raises(ObserveError, match="clicks"):
+        observe("jello_cube_defect_top", views=2, clicks="x.csv")
     with pytest.raises(ObserveError, match="views"):
         observe("jello_cube_defect_top", views=0)

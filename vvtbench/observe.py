@@ -72,17 +72,22 @@ class ObserveOptions:
     modes : extracted mode sets to use instead of extracting: ModeSet objects or folders
         written by ``vvtbench extract`` (several views of the object are merged).
     merge_freq_tol, merge_min_mac : merging tolerances for several videos of one view.
-    views : number of synchronised cameras (1: the sample's own). With ``views > 1`` the
-        sample's camera is turned about the scene's up axis through the object's centre in
-        ``view_spread_deg / views`` steps (a ring of identical cameras; 360 puts 2 views on
-        opposite sides), each sees its own visible vertices (its own rasterized rest depth),
-        and the observation operator stacks the views: ``P = [P_1; P_2; ...]``, every mode
-        one vector over all views' rows, normalized once. A vertex seen by two views
-        contributes both views' rows: its 3-D motion is then observed along up to three
-        directions instead of two; every row has the same weight (the image noise is the same
-        per pixel in every view). ``problem.meta["observed_dof_fraction"]`` is the rank of
-        ``P`` over the free DOFs. True modes only: extracting modes from several videos is not
-        built yet.
+    views : number of synchronised cameras (1: the sample's own, view 0). With ``views > 1``
+        the cameras are the sample's first ``views`` views when it holds that many (a sample
+        generated with ``[camera.rig]`` or ``[[camera.views]]``, docs/dataset.md "Several
+        views"); otherwise (true modes only) the sample's camera is turned about the scene's
+        up axis through the object's centre in ``view_spread_deg / views`` steps (a ring of
+        identical cameras; 360 puts 2 views on opposite sides). Each view sees its own visible
+        vertices (its own rest depth), and the observation operator stacks the views:
+        ``P = [P_1; P_2; ...]``, every mode one vector over all views' rows, normalized once.
+        A vertex seen by two views contributes both views' rows: its 3-D motion is then
+        observed along up to three directions instead of two; every row has the same weight
+        (the image noise is the same per pixel in every view). With ``observation
+        "extracted"`` the modes are extracted from every view's video and joined
+        (:mod:`vvtbench.modes.joint`: paired by frequency, phases aligned across views, each
+        view's shape scaled to one common modal coordinate); a view that did not find a mode
+        contributes zeros to its rows. ``problem.meta["observed_dof_fraction"]`` is the rank
+        of ``P`` over the free DOFs.
     view_spread_deg : degrees the ring of cameras spans (360: all around).
     clicks : a clicks file (vertex index of the inference mesh, u, v; see docs/modes.md):
         the camera is estimated from it (DLT + refinement) instead of taken from the sample.
@@ -138,9 +143,9 @@ class ObserveOptions:
         spread = _number("view_spread_deg", self.view_spread_deg, 0.0)
         if spread > 360.0:
             raise ObserveError(f"view_spread_deg must be in (0, 360], got {spread}")
-        if self.views > 1 and self.observation != "true":
-            raise ObserveError("views > 1 needs observation 'true': extracting modes jointly "
-                               "from several videos is not built yet")
+        if self.views > 1 and self.observation != "true" and self.modes:
+            raise ObserveError("views > 1 with given mode sets (modes) is not built yet: the "
+                               "views' modes are extracted from the sample's videos")
         if self.views > 1 and self.clicks is not None:
             raise ObserveError("views > 1 with clicks is not built yet (one clicks file "
                                "calibrates one camera)")
@@ -264,6 +269,8 @@ class _Record:
     depth: np.ndarray | None
     video: Any = None            # () -> (frames source, fps), for extraction; or None
     packed_modes: Any = None     # () -> mode sets packed with a dataset entry; or None
+    views: list | None = None    # every view of a multi-view sample (view 0 first); or None
+    time_offset_s: float = 0.0   # how much later than view 0 this view films (s)
 
     @property
     def fixed_nodes(self) -> np.ndarray:
@@ -307,7 +314,7 @@ def _record_from_sample(sample: Any) -> _Record:
         video = ((lambda: (path, sample.fps)) if path is not None
                  else (lambda: (sample.read_frames(), sample.fps)))
     packed = getattr(sample, "extracted_modes", None)
-    return _Record(
+    rec = _Record(
         origin=origin, scene=sample.scene, camera=sample.camera, mesh=mesh,
         free_dofs=_read(sample, "modes/free_dofs"),
         eigenvalues=_read(sample, "modes/eigenvalues").astype(float),
@@ -316,6 +323,21 @@ def _record_from_sample(sample: Any) -> _Record:
         density=_read(sample, "material/density"), depth=depth, video=video,
         packed_modes=packed,
     )
+    n_views = int(getattr(sample, "n_views", 1))
+    if n_views > 1:
+        rec.views = [rec] + [_view_record(rec, sample.view(i)) for i in range(1, n_views)]
+    return rec
+
+
+def _view_record(rec: _Record, view: Any) -> _Record:
+    """View ``view`` (a :meth:`~vvtbench.dataset.Sample.view`) of the sample of ``rec``."""
+    video = None
+    if view.has_video:
+        path = view.video_path
+        video = lambda: (path, view.fps)  # noqa: E731
+    return replace(rec, camera=view.camera, depth=_read(view, "image/depth"), video=video,
+                   packed_modes=None, views=None,
+                   time_offset_s=float(view.info.get("view", {}).get("time_offset_s", 0.0)))
 
 
 def _record_from_result(result: Any) -> _Record:
@@ -479,22 +501,35 @@ def _true_modes(rec: _Record, model: ParametricModel, scale: np.ndarray, k: int)
 
 def _observed_views(rec: _Record, model: ParametricModel, opts: ObserveOptions,
                     scale: np.ndarray):
-    """:func:`_observed_view` of every camera of the rig, stacked (one view: the sample's)."""
+    """:func:`_observed_view` of every view, stacked (one view: the sample's); returns
+    (cameras, visible nodes, P, meta, the view records)."""
     import scipy.sparse as sp
 
     if opts.views == 1:
         camera, visible, P, meta = _observed_view(rec, model, opts, scale)
+        cameras, views = [camera], [rec]
     else:
-        parts = [_observed_view(view, model, opts, scale)
-                 for view in _ring_records(rec, opts.views, opts.view_spread_deg)]
-        camera = parts[0][0]
+        if rec.views is not None and len(rec.views) >= opts.views:
+            views, source = rec.views[: opts.views], "sample"
+        elif opts.observation == "true":
+            views, source = _ring_records(rec, opts.views, opts.view_spread_deg), "ring"
+        else:
+            held = len(rec.views) if rec.views else 1
+            raise ObserveError(f"views: {rec.origin} holds {held} view(s) and observation "
+                               f"'extracted' needs {opts.views} videos; generate the sample "
+                               "with [camera.rig] or [[camera.views]] (docs/dataset.md, "
+                               "'Several views'), or observe true modes")
+        parts = [_observed_view(view, model, opts, scale) for view in views]
+        cameras = [p[0] for p in parts]
         visible = np.concatenate([p[1] for p in parts])
         P = sp.vstack([p[2] for p in parts]).tocsr()
-        meta = {**parts[0][3], "views": opts.views, "view_spread_deg": opts.view_spread_deg,
+        meta = {**parts[0][3], "views": opts.views, "view_source": source,
                 "cameras": [p[3]["camera"] for p in parts],
                 "n_visible_per_view": [int(len(p[1])) for p in parts]}
+        if source == "ring":
+            meta["view_spread_deg"] = opts.view_spread_deg
     meta["observed_dof_fraction"] = observed_dof_fraction(P, model)
-    return camera, visible, P, meta
+    return cameras, visible, P, meta, views
 
 
 def _ring_records(rec: _Record, n: int, spread_deg: float) -> list[_Record]:
@@ -612,7 +647,8 @@ def _observe_record(rec: _Record, opts: ObserveOptions) -> tuple[InverseProblem,
                            f"{n_true} (simulation.n_modes)")
     k = n_true if opts.observation == "extracted" else opts.n_modes
     model = _inference_model(rec, opts, scale)
-    camera, visible, P, cam_meta = _observed_views(rec, model, opts, scale)
+    cameras, visible, P, cam_meta, views = _observed_views(rec, model, opts, scale)
+    camera = cameras[0]
     U = _true_modes(rec, model, scale, k).reshape(-1, k)[model.free_dofs]
     gamma = (P @ U).T
     norms = np.linalg.norm(gamma, axis=1)
@@ -651,6 +687,8 @@ def _observe_record(rec: _Record, opts: ObserveOptions) -> tuple[InverseProblem,
                   image_modes=gamma, true_eigenvalues=lam, meta=truth_meta)
     if opts.observation == "true":
         return problem, truth
+    if opts.views > 1:
+        return _with_joint_extracted(problem, truth, views, cameras, opts)
     return _with_extracted(problem, truth, _modesets(rec, opts), camera, opts)
 
 
@@ -672,11 +710,18 @@ def _modesets(rec: _Record, opts: ObserveOptions) -> list:
 def _with_extracted(problem: InverseProblem, truth: Truth, modesets: list, camera: Any,
                     opts: ObserveOptions) -> tuple[InverseProblem, Truth]:
     """The problem observing extracted modes; each is paired with a true mode by MAC."""
+    gamma, freqs, snr, info = _sample_extracted(problem, modesets, camera, opts)
+    return _matched(problem, truth, gamma, freqs, snr, info)
+
+
+def _matched(problem: InverseProblem, truth: Truth, gamma: np.ndarray, freqs: np.ndarray,
+             snr: np.ndarray, info: dict) -> tuple[InverseProblem, Truth]:
+    """The problem observing the modes ``gamma`` (unit rows), each paired with a true mode by
+    MAC (the truth's 3-D modes signed and ordered to match)."""
     from scipy.optimize import linear_sum_assignment
 
     from .metrics import mac_matrix
 
-    gamma, freqs, snr, info = _sample_extracted(problem, modesets, camera, opts)
     mac = mac_matrix(gamma, truth.image_modes)
     rows, cols = linear_sum_assignment(-mac)
     order = np.argsort(rows)
@@ -691,6 +736,43 @@ def _with_extracted(problem: InverseProblem, truth: Truth, modesets: list, camer
                     eigenvalues=(2 * np.pi * true_f) ** 2, matched=cols,
                     extraction_mac=mac[rows, cols], meta=dict(truth.meta))
     return problem, truth
+
+
+def _with_joint_extracted(problem: InverseProblem, truth: Truth, views: list[_Record],
+                          cameras: list, opts: ObserveOptions) -> tuple[InverseProblem, Truth]:
+    """The problem observing modes extracted from every view's video and joined
+    (:func:`vvtbench.modes.joint.extract_joint`), sampled at each view's visible vertices and
+    stacked like ``P``."""
+    from .modes import sample_modes
+    from .modes.joint import extract_joint
+
+    sources, rates = [], []
+    for view in views:
+        if view.video is None:
+            raise ObserveError(f"{view.origin}: observation 'extracted' with views > 1 needs "
+                               "every view's video; this sample has none (modes-only)")
+        source, fps = view.video()
+        sources.append(source)
+        rates.append(float(fps))
+    joint = extract_joint(sources, rates[0], time_offsets_s=[v.time_offset_s for v in views],
+                          freq_tol=opts.merge_freq_tol / 2, **opts.extract)
+    scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
+    counts = np.cumsum([0, *problem.meta["n_visible_per_view"]])
+    points = problem.mesh.points[problem.visible_nodes] / scale
+    sampled = [sample_modes(joint.modesets[v].shapes, cameras[v].project(
+        points[counts[v]:counts[v + 1]])) for v in range(len(views))]
+    gamma = joint.stack(sampled)
+    keep = np.flatnonzero(np.linalg.norm(gamma, axis=1) > 0)
+    lowest = keep[np.argsort(joint.frequencies_hz[keep], kind="stable")][: opts.n_modes]
+    if lowest.size == 0:
+        raise ObserveError("no modes were extracted from the views' videos")
+    info = {"source": "extracted from every view's video and joined",
+            "n_modes_extracted": int(len(joint)),
+            "n_modes_extracted_per_view": [len(m) for m in joint.modesets],
+            "views_seen": (joint.members[lowest] >= 0).sum(axis=1).tolist(),
+            "view_phase_deg": joint.metadata["phase_deg"]}
+    return _matched(problem, truth, gamma[lowest], joint.frequencies_hz[lowest],
+                    joint.snr[lowest], info)
 
 
 def _sample_extracted(problem: InverseProblem, modesets: list, camera: Any,
