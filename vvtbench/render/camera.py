@@ -344,7 +344,7 @@ class Camera:
         n, spread = int(rig.views), math.radians(float(rig.spread_deg))
         target = np.asarray(spec.look_at, dtype=np.float64)
         if rig.kind == "ring":
-            return [first.turned(spread * i / n, spec.up, target) for i in range(n)]
+            return [first, *(first.turned(spread * i / n, spec.up, target) for i in range(1, n))]
         line = first.center - target
         line = line / np.linalg.norm(line)
         side = np.cross(line, np.asarray(spec.up, dtype=np.float64))
