@@ -2,10 +2,13 @@
 
 ``generate(scene, out_dir)`` simulates the scene, renders every frame through the scene's
 camera, streams the frames to a lossless 16-bit FFVHUFF video chunk by chunk, and writes the ground
-truth a solver or a metric could need; ``generate(scene, out_dir, video=False)`` writes a
-*modes-only* sample (the truth without the video and the transient response) in about a
-second. :func:`vvtbench.dataset.open_sample` reads either back. The folder layout, every
-array's shape, dtype and unit, and the conventions are in ``docs/dataset.md``.
+truth a solver or a metric could need; a scene with several cameras (``[[camera.views]]`` or
+``[camera.rig]``) is simulated once and every view rendered from the same motion, view 0 where
+a single-view sample has its files and view ``i`` under ``views/<i>/``;
+``generate(scene, out_dir, video=False)`` writes a *modes-only* sample (the truth without
+the video and the transient response) in about a second.
+:func:`vvtbench.dataset.open_sample` reads either back. The folder layout, every array's
+shape, dtype and unit, and the conventions are in ``docs/dataset.md``.
 
 Properties
 ----------
