@@ -316,6 +316,10 @@ def extract_joint(
     iterator."""
     from .extract import extract_modes
 
+    start, stop = int(extract.get("start", 0)), extract.get("stop")
+    if extract.get("max_frames") is not None:
+        last = start + int(extract["max_frames"])
+        stop = last if stop is None else min(int(stop), last)
     sets, phasors = [], []
     for v, source in enumerate(sources):
         if not isinstance(source, (str, Path, np.ndarray)):
@@ -323,6 +327,5 @@ def extract_joint(
                              f"an array, not a {type(source).__name__}")
         ms = extract_modes(source, fps, **extract)
         sets.append(ms)
-        phasors.append(modal_phasors(source, fps, ms, start=int(extract.get("start", 0)),
-                                     stop=extract.get("stop")))
+        phasors.append(modal_phasors(source, fps, ms, start=start, stop=stop))
     return joint_modes(sets, phasors, freq_tol=freq_tol, time_offsets_s=time_offsets_s)
