@@ -155,6 +155,19 @@ def test_view_zero_is_the_single_view_sample(samples):
     assert info_a == {k: v for k, v in info_b.items() if k != "views"}
 
 
+def test_a_single_view_sample_of_the_frozen_release_regenerates_byte_for_byte(tmp_path):
+    from vvtbench.generate_jobs import generate_instance
+
+    listed = Path(__file__).resolve().parents[1] / "releases" / "vvtbench-v1.sha256"
+    rel = "cube_defects-modes/val/cube_defects-val-00000/manifest.json"
+    frozen = dict(reversed(line.split()) for line in listed.read_text().splitlines())[rel]
+    job = generate_instance({"out": str(tmp_path), "family": "cube_defects", "split": "val",
+                             "index": 0, "options": {"video": False, "progress": False}})
+    path = Path(job["path"])
+    assert ds.sha256_file(path / "manifest.json") == frozen  # the manifest hashes every file
+    assert ds.open_sample(path).verify() == []
+
+
 def test_a_damaged_view_is_named_on_open(samples, tmp_path):
     _, two = samples
     copy = tmp_path / "small"
