@@ -244,16 +244,17 @@ def find_combinations(
     fps: float | None = None,
     max_order: int = 3,
     tolerance_bins: float = 0.5,
-    max_phase_residual: float = 0.3,
-    min_envelope_correlation: float = 0.6,
+    max_phase_residual: float = 0.35,
+    min_envelope_correlation: float = 0.4,
     sigma_px: float = 4.0,
     third_order_parents: int = 10,
 ) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
     """Which candidate peaks are products of stronger ones (see the module's docstring).
 
     Candidates are taken from the strongest to the weakest; the parents of a candidate are
-    the stronger candidates kept so far.  A candidate is a product of a combination
-    ``sum_p n_p f_p`` (order ``sum |n_p|`` from 2 to ``max_order``) when
+    all stronger candidates, products included (a product of products is a product of
+    higher order of the modes: ``(f_1 + f_2) - (f_1 - f_2)``).  A candidate is a product of a
+    combination ``sum_p n_p f_p`` (order ``sum |n_p|`` from 2 to ``max_order``) when
 
     * its frequency is within ``tolerance_bins`` bins of the combination's (folded at the
       Nyquist frequency of ``fps`` when given);
@@ -296,8 +297,9 @@ def find_combinations(
     products : list of dict
         One per rejected candidate: ``index``, ``reason`` (``"product"``), ``product`` (e.g.
         ``"3 x 113.0 Hz"``), ``kind``, ``order``, ``parents`` (indices), ``parents_hz``,
-        ``coefficients``, ``expected_hz``, ``frequency_error_bins``, ``phase_residual_rad``
-        (None without phases), ``envelope_correlation``.
+        ``parents_rejected`` (which parents are products themselves), ``coefficients``,
+        ``expected_hz``, ``frequency_error_bins``, ``phase_residual_rad`` (None without
+        phases), ``envelope_correlation``.
     """
     f = np.asarray(frequencies, dtype=np.float64).reshape(-1)
     a = np.asarray(amplitudes, dtype=np.float64).reshape(-1)
@@ -318,7 +320,7 @@ def find_combinations(
     pos, coef = _combination_table(f.size, max_order, third_order_parents)
     tol = tolerance_bins * bin_hz
     for r, k in enumerate(order):
-        parents_ok = np.array([i for i in order[:r] if kept[i]], dtype=np.int64)
+        parents_ok = np.asarray(order[:r], dtype=np.int64)
         if not parents_ok.size:
             continue
         usable = pos.max(axis=1) < parents_ok.size
@@ -356,6 +358,7 @@ def find_combinations(
             "order": comb.order,
             "parents": [int(p) for p in comb.parents],
             "parents_hz": [float(f[p]) for p in comb.parents],
+            "parents_rejected": [bool(not kept[p]) for p in comb.parents],
             "coefficients": [int(n) for n in comb.coefficients],
             "expected_hz": float(seen),
             "frequency_error_bins": float(err / bin_hz),
