@@ -315,6 +315,7 @@ def find_combinations(
     if not bin_hz > 0:
         raise ValueError(f"bin_hz must be > 0, got {bin_hz!r}")
     kept = np.ones(f.size, bool)
+    root_order = np.ones(f.size, np.int64)
     out: list[dict[str, Any]] = []
     order = np.argsort(-a, kind="stable")
     pos, coef = _combination_table(f.size, max_order, third_order_parents)
@@ -343,13 +344,17 @@ def find_combinations(
                                        [abs(n) for n in comb.coefficients], weights, sigma_px)
             if env < min_envelope_correlation:
                 continue
-            key = (comb.order, -env)
+            # a product of products is named by the fewest root modes it needs
+            n_roots = sum(abs(n) * int(root_order[p]) for p, n in
+                          zip(comb.parents, comb.coefficients, strict=True))
+            key = (n_roots, sum(not kept[p] for p in comb.parents), -env)
             if best is None or key < best[0]:
                 best = (key, comb, float(seen[m]), err, res, env)
         if best is None:
             continue
         _, comb, seen, err, res, env = best
         kept[k] = False
+        root_order[k] = best[0][0]
         out.append({
             "index": int(k),
             "reason": "product",

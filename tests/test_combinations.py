@@ -1,0 +1,166 @@
+"""Harmonics and intermodulation products told apart from true modes by phase and shape.
+
+The products are made by a memoryless pixel-dependent non-linearity applied to the motion
+(``u' = u + a(x) u**2 + b(x) u**3``, the model of the measured motion), not by the code under
+test; true modes have smooth shapes of their own.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vvtbench.modes import modes_from_displacements
+from vvtbench.modes.combinations import (
+    Combination,
+    combination_phase_residual,
+    envelope_correlation,
+    find_combinations,
+    reject_combinations,
+)
+
+N = 64
+
+
+def smooth_shape(rng: np.random.Generator, n: int = N) -> np.ndarray:
+    """A smooth ``(n, n, 2)`` field: two random plane waves per component."""
+    y, x = np.mgrid[0:n, 0:n] / n
+    out = np.zeros((n, n, 2))
+    for c in range(2):
+        for _ in range(2):
+            kx, ky = rng.uniform(-1.5, 1.5, 2)
+            out[..., c] += rng.standard_normal() * np.cos(
+                2 * np.pi * (kx * x + ky * y) + rng.uniform(0, 2 * np.pi))
+    return out / np.linalg.norm(out)
+
+
+def texture(rng: np.random.Generator, n: int = N) -> np.ndarray:
+    """A rough pixel-dependent non-linearity coefficient per pixel and component."""
+    from scipy.ndimage import gaussian_filter
+
+    return gaussian_filter(rng.standard_normal((n, n, 2)), (1.0, 1.0, 0))
+
+
+def unit(a: np.ndarray) -> np.ndarray:
+    return a / np.linalg.norm(a)
+
+
+def test_label_kinds_and_phase_residual_of_a_third_order_product():
+    f = [113.0, 96.0]
+    assert Combination((0,), (3,)).label(f) == "3 x 113.0 Hz"
+    assert Combination((0, 1), (1, 1)).label(f) == "113.0 + 96.0 Hz"
+    assert Combination((0, 1), (1, -1)).kind == "difference"
+    assert Combination((0,), (3,)).kind == "harmonic" and Combination((0,), (3,)).order == 3
+    # 3 x 113 = 339 Hz sampled at 400 fps shows at 400 - 339 = 61 Hz, its phase negated
+    ph = [0.3, 1.0, (-(3 * 0.3)) % np.pi]
+    c = Combination((0,), (3,))
+    assert abs(combination_phase_residual(ph, [113.0, 96.0, 61.0], 2, c, fps=400.0)) < 1e-12
+    assert abs(combination_phase_residual(ph, [113.0, 96.0, 61.0], 2, c)) > 0.5
+
+
+def test_envelope_correlation_monte_carlo_separates_products_from_own_shapes():
+    """Over random draws, a parent-shaped product (any power law, rough texture) correlates
+    with its parents' envelope, an independent smooth shape does not."""
+    rng = np.random.default_rng(1)
+    prod, own = [], []
+    for _ in range(40):
+        s1, s2 = smooth_shape(rng), smooth_shape(rng)
+        a = texture(rng)
+        prod.append(envelope_correlation(a * s1 * s2[..., ::-1], np.stack([s1, s2]), [1, 1]))
+        own.append(envelope_correlation(smooth_shape(rng), np.stack([s1, s2]), [1, 1]))
+    prod, own = np.array(prod), np.array(own)
+    assert np.mean(prod >= 0.4) >= 0.9
+    assert np.mean(own >= 0.4) <= 0.1
+    assert abs(np.mean(own)) < 0.1
+
+
+def _candidates(rng, *, product_shape: bool, phase_of_product: bool, harmonic3: bool = False):
+    """Two parents (113 and 96 Hz, pluck-like phases) and a weak candidate at 209 Hz (f1 + f2)
+    or at 339 Hz (3 x 113 Hz)."""
+    s1, s2 = smooth_shape(rng), smooth_shape(rng)
+    ph = np.array([0.2, 1.1])
+    if harmonic3:
+        f_k, shape = 339.0, texture(rng) * s1**3
+        ph_k = 3 * ph[0]
+    else:
+        f_k, shape = 209.0, texture(rng) * s1 * s2
+        ph_k = ph[0] + ph[1]
+    if not product_shape:
+        shape = smooth_shape(rng)
+    if not phase_of_product:
+        ph_k += 1.2
+    f = np.array([113.0, 96.0, f_k])
+    shapes = np.stack([s1, s2, unit(shape)])
+    return f, np.array([1.0, 0.5, 1e-3]), np.append(ph, ph_k % np.pi), shapes
+
+
+@pytest.mark.parametrize("harmonic3", [False, True])
+def test_product_with_predicted_shape_and_phase_is_rejected(harmonic3):
+    rng = np.random.default_rng(2)
+    f, a, ph, shapes = _candidates(rng, product_shape=True, phase_of_product=True,
+                                   harmonic3=harmonic3)
+    kept, products = find_combinations(f, a, shapes, 0.5, phases=ph, fps=1000.0)
+    assert kept.tolist() == [True, True, False]
+    (d,) = products
+    assert d["product"] == ("3 x 113.0 Hz" if harmonic3 else "113.0 + 96.0 Hz")
+    assert d["order"] == (3 if harmonic3 else 2) and d["reason"] == "product"
+    assert abs(d["phase_residual_rad"]) < 1e-9 and d["envelope_correlation"] >= 0.4
+
+
+def test_true_mode_at_a_combination_frequency_is_kept_by_its_shape():
+    """Same frequency and phase as the product (a pluck), a shape of its own: kept."""
+    kept_count = 0
+    for seed in range(20):
+        rng = np.random.default_rng(100 + seed)
+        f, a, ph, shapes = _candidates(rng, product_shape=False, phase_of_product=True)
+        kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph, fps=1000.0)
+        kept_count += bool(kept[2])
+    assert kept_count >= 18
+
+
+def test_product_shape_with_a_phase_of_its_own_is_kept():
+    rng = np.random.default_rng(3)
+    f, a, ph, shapes = _candidates(rng, product_shape=True, phase_of_product=False)
+    kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph, fps=1000.0)
+    assert kept.all()
+    # without phases the shape alone decides
+    kept, _ = find_combinations(f, a, shapes, 0.5, fps=1000.0)
+    assert kept.tolist() == [True, True, False]
+
+
+def test_frequency_off_the_combination_is_kept_and_bad_input_raises():
+    rng = np.random.default_rng(4)
+    f, a, ph, shapes = _candidates(rng, product_shape=True, phase_of_product=True)
+    f[2] += 0.6  # more than half a bin of 0.5 Hz... times 2
+    kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph, fps=1000.0)
+    assert kept.all()
+    with pytest.raises(ValueError, match="max_order"):
+        find_combinations(f, a, shapes, 0.5, max_order=4)
+    with pytest.raises(ValueError, match="do not agree"):
+        find_combinations(f[:2], a, shapes, 0.5)
+
+
+def test_extraction_of_distorted_motion_keeps_modes_and_rejects_products():
+    """Displacements through ``u + a(x) u**2 + b(x) u**3`` (per pixel and component) of two
+    modes at 113 and 96 Hz and a third mode of its own exactly at 113 + 96 Hz: the harmonics
+    (226, 192, 339 Hz) and intermodulation products (17, 130, 79 Hz, ...) are rejected with
+    the combination named; the three modes are kept."""
+    rng = np.random.default_rng(5)
+    n, fps, T = 40, 1000.0, 600
+    t = np.arange(T) / fps
+    shapes = [smooth_shape(rng, n) * n for _ in range(3)]
+    freqs, amps = [113.0, 96.0, 209.0], [0.3, 0.2, 0.02]
+    a2, a3 = texture(rng, n), 2.0 * texture(rng, n)
+    u = sum(A * np.cos(2 * np.pi * f0 * t)[:, None, None, None] * s[None]
+            for f0, A, s in zip(freqs, amps, shapes, strict=True))
+    d = (u + a2 * u**2 + a3 * u**3).astype(np.float32)
+    ms = modes_from_displacements(d, fps, reject_distortion=False, faint_product_ratio=None)
+    assert len(ms) > 4  # the products are there
+    out = reject_combinations(ms)
+    assert sorted(np.round(out.frequencies_hz).tolist()) == [96.0, 113.0, 209.0]
+    products = {round(r["frequency_hz"]): r["product"] for r in out.metadata["rejected"]
+                if r["reason"] == "product"}
+    assert products[226] == "2 x 113.0 Hz"
+    assert products[339] == "3 x 113.0 Hz"
+    assert products[17] == "113.0 - 96.0 Hz"
+    assert out.metadata["combinations"]["phase_tested"]
