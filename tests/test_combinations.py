@@ -164,3 +164,45 @@ def test_extraction_of_distorted_motion_keeps_modes_and_rejects_products():
     assert products[339] == "3 x 113.0 Hz"
     assert products[17] == "113.0 - 96.0 Hz"
     assert out.metadata["combinations"]["phase_tested"]
+
+
+def _rendered_clip(n: int = 64, T: int = 300, fps: float = 400.0) -> np.ndarray:
+    """A speckle warped exactly (third-order Taylor expansion with the image's Fourier
+    derivatives) by modes at 37 and 52 Hz (0.4 and 0.25 px) and one of its own exactly at
+    37 + 52 = 89 Hz (0.03 px), all plucked (phase 0)."""
+    import math
+
+    rng = np.random.default_rng(0)
+    wy = 2 * np.pi * np.fft.fftfreq(n)[:, None]
+    wx = 2 * np.pi * np.fft.fftfreq(n)[None, :]
+    F = np.fft.fft2(rng.standard_normal((n, n))) * np.exp(-0.5 * (np.hypot(wx, wy) * 1.5) ** 2)
+    ders = {(i, j): np.fft.ifft2(F * (1j * wx) ** i * (1j * wy) ** j).real
+            for i in range(4) for j in range(4 - i)}
+    y, x = np.mgrid[0:n, 0:n] / n
+    fields = [np.stack([np.sin(np.pi * x) * np.cos(np.pi * y), 0.5 * np.sin(2 * np.pi * y)], -1),
+              np.stack([0.6 * np.cos(2 * np.pi * x), np.sin(np.pi * x) * np.sin(np.pi * y)], -1),
+              np.stack([np.cos(np.pi * y), np.sin(2 * np.pi * x) * np.cos(np.pi * x)], -1)]
+    t = np.arange(T) / fps
+    frames = np.empty((T, n, n), np.float32)
+    for k in range(T):
+        d = sum(A * np.cos(2 * np.pi * f0 * t[k]) * s
+                for f0, A, s in zip((37.0, 52.0, 89.0), (0.4, 0.25, 0.03), fields, strict=True))
+        img = ders[(0, 0)].copy()
+        for (i, j), der in ders.items():
+            if i + j:
+                img += ((-1) ** (i + j) / (math.factorial(i) * math.factorial(j))
+                        * d[..., 0] ** i * d[..., 1] ** j * der)
+        frames[k] = img
+    return frames
+
+
+def test_rendered_clip_products_rejected_plucked_mode_at_their_sum_kept():
+    from vvtbench.modes import extract_modes
+
+    ms = extract_modes(_rendered_clip(), 400.0, faint_product_ratio=None,
+                       reject_distortion=False)
+    assert {15, 74, 104} <= set(np.round(ms.frequencies_hz).astype(int).tolist())
+    out = reject_combinations(ms)
+    assert np.round(out.frequencies_hz).tolist() == [37.0, 52.0, 89.0]
+    named = {round(r["frequency_hz"]): r["product"] for r in out.metadata["rejected"]}
+    assert named == {15: "52.0 - 37.0 Hz", 74: "2 x 37.0 Hz", 104: "2 x 52.0 Hz"}

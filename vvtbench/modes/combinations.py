@@ -77,19 +77,20 @@ class Combination:
 
     def label(self, frequencies: ArrayLike) -> str:
         """How the parents make it, e.g. ``"3 x 113.0 Hz"``, ``"113.0 + 96.0 Hz"``,
-        ``"2 x 113.0 - 96.0 Hz"``.
+        ``"2 x 113.0 - 96.0 Hz"`` (positive terms first).
 
         >>> Combination((0, 1), (2, -1)).label([113.0, 96.0])
         '2 x 113.0 - 96.0 Hz'
         """
         f = np.asarray(frequencies, dtype=np.float64)
         terms = []
-        for p, n in zip(self.parents, self.coefficients, strict=True):
+        pairs = sorted(zip(self.parents, self.coefficients, strict=True), key=lambda t: t[1] < 0)
+        for p, n in pairs:
             sign = "-" if n < 0 else "+"
             mag = abs(n)
             text = f"{mag} x {_hz(f[p])}" if mag > 1 else _hz(f[p])
             terms.append((sign, text))
-        out = ("-" if terms[0][0] == "-" else "") + terms[0][1]
+        out = terms[0][1]
         for sign, text in terms[1:]:
             out += f" {sign} {text}"
         return out + " Hz"
