@@ -196,8 +196,8 @@ def _rendered_clip(n: int = 64, T: int = 300, fps: float = 400.0) -> np.ndarray:
     return frames
 
 
-def test_rendered_clip_products_rejected_plucked_mode_at_their_sum_kept():
-    from vvtbench.modes import extract_modes
+def test_rendered_clip_products_rejected_plucked_mode_at_their_sum_kept(tmp_path):
+    from vvtbench.modes import ModeSet, extract_modes
 
     ms = extract_modes(_rendered_clip(), 400.0, faint_product_ratio=None,
                        reject_distortion=False)
@@ -206,3 +206,6 @@ def test_rendered_clip_products_rejected_plucked_mode_at_their_sum_kept():
     assert np.round(out.frequencies_hz).tolist() == [37.0, 52.0, 89.0]
     named = {round(r["frequency_hz"]): r["product"] for r in out.metadata["rejected"]}
     assert named == {15: "52.0 - 37.0 Hz", 74: "2 x 37.0 Hz", 104: "2 x 52.0 Hz"}
+    back = ModeSet.load(out.save(tmp_path / "modes"))
+    assert [r["product"] for r in back.metadata["rejected"]] == list(named.values())
+    assert all(r["reason"] == "product" and r["parents_hz"] for r in back.metadata["rejected"])
