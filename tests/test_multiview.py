@@ -295,6 +295,21 @@ def test_extracted_modes_of_two_views_make_one_stacked_problem(samples):
     assert problem.meta["observed_dof_fraction"] > one_view.meta["observed_dof_fraction"]
 
 
+def test_mode_sets_extracted_per_view_elsewhere_give_the_same_problem(samples):
+    from vvtbench.modes import extract_modes
+    from vvtbench.observe import ObserveError
+
+    _, two = samples
+    s = ds.open_sample(two)
+    sets = [extract_modes(s.view(v).video_path, s.fps) for v in (0, 1)]
+    given, _ = observe(two, observation="extracted", views=2, modes=sets, **OBSERVE)
+    auto, _ = observe(two, observation="extracted", views=2, **OBSERVE)
+    assert np.allclose(given.gamma, auto.gamma) and np.allclose(given.eigenvalues,
+                                                                auto.eigenvalues)
+    with pytest.raises(ObserveError, match="one mode set per view"):
+        observe(two, observation="extracted", views=2, modes=sets[:1], **OBSERVE)
+
+
 @pytest.mark.parametrize("solver", ["sensitivity", "vvt"])
 def test_solvers_take_the_two_view_extracted_problem_unchanged(samples, solver):
     from vvtbench.metrics import invalid_reason

@@ -70,7 +70,8 @@ class ObserveOptions:
     extract : keyword arguments of :func:`vvtbench.modes.extract_modes` when modes are
         extracted here.
     modes : extracted mode sets to use instead of extracting: ModeSet objects or folders
-        written by ``vvtbench extract`` (several views of the object are merged).
+        written by ``vvtbench extract`` (several videos of one view are merged; with
+        ``views > 1``: one set per view, view 0 first, joined with each view's video).
     merge_freq_tol, merge_min_mac : merging tolerances for several videos of one view.
     views : number of synchronised cameras (1: the sample's own, view 0). With ``views > 1``
         the cameras are the sample's first ``views`` views when it holds that many (a sample
@@ -143,9 +144,11 @@ class ObserveOptions:
         spread = _number("view_spread_deg", self.view_spread_deg, 0.0)
         if spread > 360.0:
             raise ObserveError(f"view_spread_deg must be in (0, 360], got {spread}")
-        if self.views > 1 and self.observation != "true" and self.modes:
-            raise ObserveError("views > 1 with given mode sets (modes) is not built yet: the "
-                               "views' modes are extracted from the sample's videos")
+        modes_given = self.modes if isinstance(self.modes, (list, tuple)) else (self.modes,)
+        if (self.views > 1 and self.observation != "true" and self.modes
+                and len(modes_given) != self.views):
+            raise ObserveError(f"modes: with views = {self.views} give one mode set per view "
+                               f"(view 0 first), got {len(modes_given)}")
         if self.views > 1 and self.clicks is not None:
             raise ObserveError("views > 1 with clicks is not built yet (one clicks file "
                                "calibrates one camera)")
@@ -743,8 +746,8 @@ def _with_joint_extracted(problem: InverseProblem, truth: Truth, views: list[_Re
     """The problem observing modes extracted from every view's video and joined
     (:func:`vvtbench.modes.joint.extract_joint`), sampled at each view's visible vertices and
     stacked like ``P``."""
-    from .modes import sample_modes
-    from .modes.joint import extract_joint
+    from .modes import ModeSet, sample_modes
+    from .modes.joint import extract_joint, frame_range, joint_modes, modal_phasors
 
     sources, rates = [], []
     for view in views:
@@ -754,8 +757,17 @@ def _with_joint_extracted(problem: InverseProblem, truth: Truth, views: list[_Re
         source, fps = view.video()
         sources.append(source)
         rates.append(float(fps))
-    joint = extract_joint(sources, rates[0], time_offsets_s=[v.time_offset_s for v in views],
-                          freq_tol=opts.merge_freq_tol / 2, **opts.extract)
+    offsets = [v.time_offset_s for v in views]
+    if opts.modes:  # one mode set per view, extracted elsewhere: measure their phasors here
+        sets = [m if isinstance(m, ModeSet) else ModeSet.load(m) for m in opts.modes]
+        start, stop = frame_range(opts.extract)
+        phasors = [modal_phasors(src, fps, ms, start=start, stop=stop)
+                   for src, fps, ms in zip(sources, rates, sets, strict=True)]
+        joint = joint_modes(sets, phasors, freq_tol=opts.merge_freq_tol / 2,
+                            time_offsets_s=offsets)
+    else:
+        joint = extract_joint(sources, rates[0], time_offsets_s=offsets,
+                              freq_tol=opts.merge_freq_tol / 2, **opts.extract)
     scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
     counts = np.cumsum([0, *problem.meta["n_visible_per_view"]])
     points = problem.mesh.points[problem.visible_nodes] / scale

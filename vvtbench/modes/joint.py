@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .modeset import ModeSet
 
-__all__ = ["JointModes", "extract_joint", "joint_modes", "modal_phasors"]
+__all__ = ["JointModes", "extract_joint", "frame_range", "joint_modes", "modal_phasors"]
 
 
 @dataclass
@@ -316,10 +316,7 @@ def extract_joint(
     iterator."""
     from .extract import extract_modes
 
-    start, stop = int(extract.get("start", 0)), extract.get("stop")
-    if extract.get("max_frames") is not None:
-        last = start + int(extract["max_frames"])
-        stop = last if stop is None else min(int(stop), last)
+    start, stop = frame_range(extract)
     sets, phasors = [], []
     for v, source in enumerate(sources):
         if not isinstance(source, (str, Path, np.ndarray)):
@@ -329,3 +326,13 @@ def extract_joint(
         sets.append(ms)
         phasors.append(modal_phasors(source, fps, ms, start=start, stop=stop))
     return joint_modes(sets, phasors, freq_tol=freq_tol, time_offsets_s=time_offsets_s)
+
+
+def frame_range(extract: dict[str, Any]) -> tuple[int, int | None]:
+    """The frames ``start:stop`` that :func:`vvtbench.modes.extract_modes` with the options
+    ``extract`` reads (``start``, ``stop``, ``max_frames``)."""
+    start, stop = int(extract.get("start", 0)), extract.get("stop")
+    if extract.get("max_frames") is not None:
+        last = start + int(extract["max_frames"])
+        stop = last if stop is None else min(int(stop), last)
+    return start, (None if stop is None else int(stop))
