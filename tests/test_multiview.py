@@ -155,6 +155,20 @@ def test_view_zero_is_the_single_view_sample(samples):
     assert info_a == {k: v for k, v in info_b.items() if k != "views"}
 
 
+def test_a_modes_only_sample_holds_every_view_without_video(tmp_path):
+    cameras = {"views": [{"position": [-0.1, 0.2, 0.12]}]}
+    s = ds.open_sample(gen.generate(scene(cameras), tmp_path, video=False, progress=False))
+    v = s.view(1)
+    assert s.n_views == 2 and not v.has_video and v.info["video"]["file"] is None
+    assert v.camera == Camera.from_spec(s.scene.camera.views[0])
+    assert "views/1/image/modes" not in s.truth and "views/1/image/depth" in s.truth
+    problem, _ = observe(s, views=2, **OBSERVE)
+    assert problem.meta["view_source"] == "sample"
+    assert problem.meta["cameras"][1] == v.camera.to_dict()
+    with pytest.raises(ds.DatasetError, match="modes-only"):
+        next(v.frames())
+
+
 def test_a_single_view_sample_of_the_frozen_release_regenerates_byte_for_byte(tmp_path):
     from vvtbench.generate_jobs import generate_instance
 
