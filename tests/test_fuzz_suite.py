@@ -14,6 +14,21 @@ import pytest
 
 from vvtbench.bench import SUITES_DIR, SuiteError, build_graph, parse_suite
 
+
+@pytest.fixture(autouse=True, scope="module")
+def _descriptions_kept_across_cases():
+    """Each case expands a graph, which describes every solver in a sealed child. A description
+    is keyed by the plug-in, its config and the mtimes of the files it names, so keeping them
+    across cases changes no outcome; it spares hundreds of identical children."""
+    import vvtbench.sealed as sealed
+
+    forget = sealed.forget_descriptions
+    sealed.forget_descriptions = lambda: None
+    yield
+    sealed.forget_descriptions = forget
+    forget()
+
+
 SMOKE = tomllib.loads((SUITES_DIR / "smoke.toml").read_text())
 SOURCE = "fuzz.toml"
 
