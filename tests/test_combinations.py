@@ -209,3 +209,32 @@ def test_rendered_clip_products_rejected_plucked_mode_at_their_sum_kept(tmp_path
     back = ModeSet.load(out.save(tmp_path / "modes"))
     assert [r["product"] for r in back.metadata["rejected"]] == list(named.values())
     assert all(r["reason"] == "product" and r["parents_hz"] for r in back.metadata["rejected"])
+
+
+def test_sibling_product_shape_decides_at_the_difference_frequency():
+    """``a(x) u1 u2`` puts the same field at ``f1 + f2`` and ``f1 - f2``: two such candidates
+    are both rejected (sibling MAC 1); a mode of its own at ``f1 - f2`` whose smooth shape
+    follows its would-be parents' envelope (so the envelope test alone would reject it) is
+    kept because it is unlike the product at ``f1 + f2``."""
+    rng = np.random.default_rng(6)
+    s1, s2 = smooth_shape(rng), smooth_shape(rng)
+    prod = unit(texture(rng) * s1 * s2)
+    f = np.array([113.0, 96.0, 209.0, 17.0])
+    a = np.array([1.0, 0.5, 1e-3, 1e-3])
+    ph = np.array([0.2, 1.1, 1.3, 0.2 - 1.1 + np.pi])
+    kept, products = find_combinations(f, a, np.stack([s1, s2, prod, prod]), 0.5, phases=ph)
+    assert kept.tolist() == [True, True, False, False]
+    assert all(d["sibling_mac"] > 0.99 for d in products)
+    assert {d["product"] for d in products} == {"113.0 + 96.0 Hz", "113.0 - 96.0 Hz"}
+
+    own = unit(s1 * s2[..., ::-1])  # smooth, shaped like the parents' envelope
+    assert envelope_correlation(own, np.stack([s1, s2]), [1, 1]) >= 0.4
+    shapes = np.stack([s1, s2, prod, own])
+    a[3] = 3e-3  # the mode, stronger than the product: it says nothing about the product
+    kept, products = find_combinations(f, a, shapes, 0.5, phases=ph)
+    assert kept.tolist() == [True, True, False, True]
+    assert products[0]["sibling_mac"] is None  # the product is judged by its envelope
+    # without the product at f1 + f2 the envelope alone decides, and takes the mode for one
+    kept, _ = find_combinations(f[[0, 1, 3]], a[[0, 1, 3]], shapes[[0, 1, 3]], 0.5,
+                                phases=ph[[0, 1, 3]])
+    assert not kept[2]

@@ -9,15 +9,19 @@ w_1``, ``w_1 + w_2``, ``2 w_1 - w_2``, ...), and such a line
 
 * has the phase ``sum_p n_p phi_p`` at the record's start, modulo ``pi`` (the sign of the
   local non-linearity), in every pixel;
+* has a sibling: the term of ``g_x`` that makes ``w_1 + w_2`` makes ``|w_1 - w_2|`` with the
+  same shape and amplitude (``cos a cos b = (cos(a + b) + cos(a - b)) / 2``; likewise ``2 w_1
+  + w_2`` and ``2 w_1 - w_2``), so when both are peaks their shapes agree (MAC ~1);
 * lives where all its parents move: in a pixel where one parent is still, the local motion
   holds no term of that parent and ``g_x`` makes none of its products.  Its energy envelope
   is an increasing function of ``prod_p |s_p(x)|^|n_p|`` (``|s_p|`` the length of the
   parent's displacement vector), times a texture-dependent factor.
 
-A true mode at a combination frequency has a shape of its own: its envelope does not follow
-its would-be parents'.  :func:`find_combinations` tests every candidate that sits at a
-combination of up to ``max_order`` stronger ones by both: the phase residual and the rank
-correlation of the locally averaged energies (:func:`envelope_correlation`).
+A true mode at a combination frequency has a shape of its own: unlike its sibling's, and
+with an envelope that does not follow its would-be parents'.  :func:`find_combinations`
+tests every candidate that sits at a combination of up to ``max_order`` stronger ones by
+the phase residual and then by its sibling's shape when the sibling is a peak too, else by
+the rank correlation of the locally averaged energies (:func:`envelope_correlation`).
 :func:`reject_combinations` applies it to a :class:`.ModeSet`.  See docs/modes.md, "False
 modes of the extractor's own making".
 """
@@ -234,6 +238,41 @@ def envelope_correlation(shape: ArrayLike, parent_shapes: ArrayLike, powers: Arr
     return float(spearmanr(E, M).statistic)
 
 
+def _mac(a: NDArray, b: NDArray, w: NDArray[np.float64] | None) -> float:
+    ww = 1.0 if w is None else w[..., None]
+    ab = float(np.sum(ww * a * b))
+    aa, bb = float(np.sum(ww * a * a)), float(np.sum(ww * b * b))
+    return ab * ab / (aa * bb) if aa > 0 and bb > 0 else 0.0
+
+
+def _sibling(shapes: NDArray, f: NDArray[np.float64], a: NDArray[np.float64], k: int,
+             comb: Combination, tol: float, fps: float | None, weights: ArrayLike | None,
+             max_ratio: float) -> tuple[int | None, float]:
+    """The detected sibling of ``comb`` most like candidate ``k`` (the same term of the
+    non-linearity at another sign pattern of its coefficients, e.g. ``f_1 - f_2`` for ``f_1 +
+    f_2``), and the MAC of their shapes; ``(None, 0)`` when no sibling is a candidate.  A
+    candidate more than ``max_ratio`` times stronger than ``k`` holds more than the sibling
+    product (a mode of its own at the sibling's frequency) and says nothing about ``k``."""
+    if len(comb.parents) < 2:
+        return None, 0.0
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    mags = [abs(n) for n in comb.coefficients]
+    best: tuple[int | None, float] = (None, 0.0)
+    own = {tuple(comb.coefficients), tuple(-n for n in comb.coefficients)}
+    for signs in itertools.product((1, -1), repeat=len(mags) - 1):
+        coefs = (mags[0], *(m * sg for m, sg in zip(mags[1:], signs, strict=True)))
+        if coefs in own:
+            continue
+        c = abs(sum(n * f[p] for p, n in zip(comb.parents, coefs, strict=True)))
+        seen, _ = _folded(c, fps)
+        for j in np.flatnonzero(np.abs(f - seen) <= tol):
+            if j == k or j in comb.parents or a[j] > max_ratio * a[k]:
+                continue
+            mac = _mac(np.asarray(shapes[k], np.float64), np.asarray(shapes[j], np.float64), w)
+            if best[0] is None or mac > best[1]:
+                best = (int(j), mac)
+    return best
+
 def find_combinations(
     frequencies: ArrayLike,
     amplitudes: ArrayLike,
@@ -247,6 +286,8 @@ def find_combinations(
     tolerance_bins: float = 0.5,
     max_phase_residual: float = 0.35,
     min_envelope_correlation: float = 0.4,
+    min_sibling_mac: float = 0.8,
+    sibling_amplitude_ratio: float = 1.5,
     sigma_px: float = 4.0,
     third_order_parents: int = 10,
 ) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
@@ -261,8 +302,13 @@ def find_combinations(
       Nyquist frequency of ``fps`` when given);
     * its phase is within ``max_phase_residual`` rad of ``sum_p n_p phi_p`` modulo ``pi``
       (:func:`combination_phase_residual`; not tested when ``phases`` is None);
-    * the rank correlation of its local energy with its parents' envelope
-      (:func:`envelope_correlation`) is at least ``min_envelope_correlation``.
+    * its shape is the shape of the combination's sibling (the same coefficients with other
+      signs, e.g. ``|f_1 - f_2|`` for ``f_1 + f_2``) when a candidate sits there and is at
+      most ``sibling_amplitude_ratio`` times stronger (a stronger one holds a mode of its
+      own): MAC at least ``min_sibling_mac`` (weighted by ``weights``); when none does
+      (harmonics have no observable sibling), the rank correlation of its local energy with
+      its parents' envelope (:func:`envelope_correlation`) is at least
+      ``min_envelope_correlation``.
 
     A candidate at a combination frequency that fails the phase or the envelope test is kept:
     the frequency alone decides nothing.
@@ -285,8 +331,13 @@ def find_combinations(
         they fold.
     max_order : {2, 3}, default 3
         Highest order ``sum |n_p|``.
-    tolerance_bins, max_phase_residual, min_envelope_correlation, sigma_px :
-        The tests above.
+    tolerance_bins, max_phase_residual, min_sibling_mac, sibling_amplitude_ratio, \
+    min_envelope_correlation, sigma_px :
+        The tests above.  The defaults were chosen on seeded clean synthetic videos
+        (``benchmarks/bench_false_modes.py``, seeds 0-39): products' sibling MACs 0.96-1.00
+        and amplitude ratios 0.97-1.03, against MACs 0.14-0.34 for true modes at a
+        combination frequency, products' envelope
+        correlations 0.2-0.8 against at most 0.42 for those true modes.
     third_order_parents : int, default 10
         Third-order combinations are formed from the strongest this many candidates only
         (their number grows as the cube of the parents').
@@ -300,7 +351,8 @@ def find_combinations(
         ``"3 x 113.0 Hz"``), ``kind``, ``order``, ``parents`` (indices), ``parents_hz``,
         ``parents_rejected`` (which parents are products themselves), ``coefficients``,
         ``expected_hz``, ``frequency_error_bins``, ``phase_residual_rad`` (None without
-        phases), ``envelope_correlation``.
+        phases), ``envelope_correlation``, ``sibling_hz`` and ``sibling_mac`` (None without
+        a sibling).
     """
     f = np.asarray(frequencies, dtype=np.float64).reshape(-1)
     a = np.asarray(amplitudes, dtype=np.float64).reshape(-1)
@@ -341,19 +393,24 @@ def find_combinations(
                                                                      fps=fps)
             if res is not None and abs(res) > max_phase_residual:
                 continue
+            sib, sib_mac = _sibling(s, f, a, k, comb, tol, fps, weights,
+                                    sibling_amplitude_ratio)
             env = envelope_correlation(s[k], s[list(comb.parents)],
                                        [abs(n) for n in comb.coefficients], weights, sigma_px)
-            if env < min_envelope_correlation:
+            if sib is not None and sib_mac < min_sibling_mac:
+                continue
+            if sib is None and env < min_envelope_correlation:
                 continue
             # a product of products is named by the fewest root modes it needs
             n_roots = sum(abs(n) * int(root_order[p]) for p, n in
                           zip(comb.parents, comb.coefficients, strict=True))
-            key = (n_roots, sum(not kept[p] for p in comb.parents), -env)
+            evidence = env if sib is None else sib_mac
+            key = (n_roots, sum(not kept[p] for p in comb.parents), -evidence)
             if best is None or key < best[0]:
-                best = (key, comb, float(seen[m]), err, res, env)
+                best = (key, comb, float(seen[m]), err, res, env, sib, sib_mac)
         if best is None:
             continue
-        _, comb, seen, err, res, env = best
+        _, comb, seen, err, res, env, sib, sib_mac = best
         kept[k] = False
         root_order[k] = best[0][0]
         out.append({
@@ -370,6 +427,8 @@ def find_combinations(
             "frequency_error_bins": float(err / bin_hz),
             "phase_residual_rad": None if res is None else float(res),
             "envelope_correlation": float(env),
+            "sibling_hz": None if sib is None else float(f[sib]),
+            "sibling_mac": None if sib is None else float(sib_mac),
         })
     return kept, out
 
@@ -390,8 +449,8 @@ def reject_combinations(ms: ModeSet, *, weights: ArrayLike | str | None = "confi
         confidence saturated at its 90 % quantile (uniform without one); None: uniform.
     **options
         Passed to :func:`find_combinations` (``max_order``, ``tolerance_bins``,
-        ``max_phase_residual``, ``min_envelope_correlation``, ``sigma_px``,
-        ``third_order_parents``).
+        ``max_phase_residual``, ``min_sibling_mac``, ``sibling_amplitude_ratio``,
+        ``min_envelope_correlation``, ``sigma_px``, ``third_order_parents``).
 
     Returns
     -------
