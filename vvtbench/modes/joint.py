@@ -278,8 +278,9 @@ def joint_modes(
     common = np.exp(0.5j * np.angle(np.sum(Za**2, axis=1)))
     scales = np.real(Za * np.conj(common)[:, None])
     scales[member < 0] = 0.0
-    flip = np.sign(scales[np.arange(K), np.argmax(np.abs(scales), axis=1)]) if K else []
-    scales = scales * np.where(np.asarray(flip) < 0, -1.0, 1.0)[:, None] if K else scales
+    if K:  # a mode's overall sign is free: its largest scale positive
+        lead = scales[np.arange(K), np.argmax(np.abs(scales), axis=1)]
+        scales = scales * np.where(lead < 0, -1.0, 1.0)[:, None]
     snr = np.full(K, np.nan)
     damping = np.full(K, np.nan)
     line = [ms.line_snr() for ms in sets]
