@@ -245,14 +245,11 @@ def _mac(a: NDArray, b: NDArray, w: NDArray[np.float64] | None) -> float:
     return ab * ab / (aa * bb) if aa > 0 and bb > 0 else 0.0
 
 
-def _sibling(shapes: NDArray, f: NDArray[np.float64], a: NDArray[np.float64], k: int,
-             comb: Combination, tol: float, fps: float | None, weights: ArrayLike | None,
-             max_ratio: float) -> tuple[int | None, float]:
+def _sibling(shapes: NDArray, f: NDArray[np.float64], k: int, comb: Combination, tol: float,
+             fps: float | None, weights: ArrayLike | None) -> tuple[int | None, float]:
     """The detected sibling of ``comb`` most like candidate ``k`` (the same term of the
     non-linearity at another sign pattern of its coefficients, e.g. ``f_1 - f_2`` for ``f_1 +
-    f_2``), and the MAC of their shapes; ``(None, 0)`` when no sibling is a candidate.  A
-    candidate more than ``max_ratio`` times stronger than ``k`` holds more than the sibling
-    product (a mode of its own at the sibling's frequency) and says nothing about ``k``."""
+    f_2``), and the MAC of their shapes; ``(None, 0)`` when no sibling is a candidate."""
     if len(comb.parents) < 2:
         return None, 0.0
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
@@ -266,7 +263,7 @@ def _sibling(shapes: NDArray, f: NDArray[np.float64], a: NDArray[np.float64], k:
         c = abs(sum(n * f[p] for p, n in zip(comb.parents, coefs, strict=True)))
         seen, _ = _folded(c, fps)
         for j in np.flatnonzero(np.abs(f - seen) <= tol):
-            if j == k or j in comb.parents or a[j] > max_ratio * a[k]:
+            if j == k or j in comb.parents:
                 continue
             mac = _mac(np.asarray(shapes[k], np.float64), np.asarray(shapes[j], np.float64), w)
             if best[0] is None or mac > best[1]:
@@ -287,7 +284,7 @@ def find_combinations(
     max_phase_residual: float = 0.35,
     min_envelope_correlation: float = 0.4,
     min_sibling_mac: float = 0.8,
-    sibling_amplitude_ratio: float = 1.5,
+    sibling_amplitude_ratio: float = 1.1,
     sigma_px: float = 4.0,
     third_order_parents: int = 10,
 ) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
@@ -303,11 +300,13 @@ def find_combinations(
     * its phase is within ``max_phase_residual`` rad of ``sum_p n_p phi_p`` modulo ``pi``
       (:func:`combination_phase_residual`; not tested when ``phases`` is None);
     * its shape is the shape of the combination's sibling (the same coefficients with other
-      signs, e.g. ``|f_1 - f_2|`` for ``f_1 + f_2``) when a candidate sits there and is at
-      most ``sibling_amplitude_ratio`` times stronger (a stronger one holds a mode of its
-      own): MAC at least ``min_sibling_mac`` (weighted by ``weights``); when none does
-      (harmonics have no observable sibling), the rank correlation of its local energy with
-      its parents' envelope (:func:`envelope_correlation`) is at least
+      signs, e.g. ``|f_1 - f_2|`` for ``f_1 + f_2``) when a candidate sits there: MAC at least
+      ``min_sibling_mac`` (weighted by ``weights``).  Pure sibling products have equal
+      amplitudes, so of two unlike siblings the one more than ``sibling_amplitude_ratio``
+      times stronger holds a mode of its own: the candidate is kept unless its sibling is
+      that much stronger, and then the envelope test decides.  When no sibling is a
+      candidate (harmonics have no observable sibling), the rank correlation of its local
+      energy with its parents' envelope (:func:`envelope_correlation`) is at least
       ``min_envelope_correlation``.
 
     A candidate at a combination frequency that fails the phase or the envelope test is kept:
@@ -393,12 +392,13 @@ def find_combinations(
                                                                      fps=fps)
             if res is not None and abs(res) > max_phase_residual:
                 continue
-            sib, sib_mac = _sibling(s, f, a, k, comb, tol, fps, weights,
-                                    sibling_amplitude_ratio)
+            sib, sib_mac = _sibling(s, f, k, comb, tol, fps, weights)
             env = envelope_correlation(s[k], s[list(comb.parents)],
                                        [abs(n) for n in comb.coefficients], weights, sigma_px)
             if sib is not None and sib_mac < min_sibling_mac:
-                continue
+                if a[sib] <= sibling_amplitude_ratio * a[k]:
+                    continue  # unlike its sibling product and as strong: a mode of its own
+                sib = None  # the stronger sibling holds a mode: the envelope decides
             if sib is None and env < min_envelope_correlation:
                 continue
             # a product of products is named by the fewest root modes it needs
