@@ -8,7 +8,9 @@
 * :func:`translation_mac`: similarity of a mode with the best rigid image translation
   (global camera shake detection).
 * :func:`distortion_products`: peaks that are harmonics or intermodulation products
-  (``2 f_i``, ``f_i + f_j``, ``|f_i - f_j|``) of stronger peaks.
+  (``2 f_i``, ``f_i + f_j``, ``|f_i - f_j|``) of stronger peaks, by frequency and power
+  (:mod:`.combinations` tells products from true modes at the same frequencies by phase and
+  shape, up to third order).
 
 Damping estimation lives in :mod:`.damping`, the noise floor in :mod:`.significance`, mode
 merging in :mod:`.merging`.
