@@ -5,14 +5,14 @@ Each seed draws one clean video (no sensor noise, 16-bit lossless FFV1 ``.mkv``,
 the container's rate): a crop (96-160 px a side) of a band-limited random speckle warped
 exactly (third-order Taylor expansion with the image's exact Fourier derivatives, as
 ``bench_unseen_videos.py``) by 2-5 smooth random displacement fields times modal coordinates
-``a_m exp(-2 pi f_m zeta_m t) cos(2 pi f_m t + phi_m)``: amplitudes log-uniform in 0.001-0.3
-px with the weakest at 0.001 px, 30 % of the modes damped (``zeta`` up to 0.005), frequencies
-from 6 bins to 0.45 fps at least 4 bins apart, 500-2000 fps, 500 or 1000 frames.  Half the
-videos are plucked (every ``phi_m = 0``, so a product's phase is a mode's), the others have
-random phases; in half of them the weakest mode sits exactly on a combination of two stronger
-ones (``f_1 + f_2``, ``|f_1 - f_2|``, ``2 f_1`` or ``2 f_1 - f_2``): a true mode that the
-frequency alone would take for a product.  The seeds start at 70000, away from every other
-script's draws.
+``a_m exp(-2 pi f_m zeta_m t) cos(2 pi f_m t + phi_m)``: amplitudes log-uniform in 0.001-0.3 px
+(``--max-amplitude``: 0.001-A) with the weakest at 0.001 px, 30 % of the modes damped (``zeta``
+up to 0.005), frequencies from 6 bins to 0.45 fps at least 4 bins apart, 500-2000 fps, 500 or
+1000 frames. Half the videos are plucked (every ``phi_m = 0``, so a product's phase is a
+mode's), the others have random phases; in half of them the weakest mode sits exactly on a
+combination of two stronger ones (``f_1 + f_2``, ``|f_1 - f_2|``, ``2 f_1`` or ``2 f_1 -
+f_2``): a true mode that the frequency alone would take for a product. The seeds start at
+70000, away from every other script's draws.
 
 Three extractions per video:
 
@@ -26,7 +26,8 @@ A detection is false when no true frequency is within one bin; a true mode (spec
 at least 0.001 px, ``bench_unseen_videos.py``'s ``line_px``) is lost when no detection is
 within one bin.
 
-Usage: ``python benchmarks/bench_false_modes.py [--n 16] [--start 0] [--diag]``; prints one
+Usage: ``python benchmarks/bench_false_modes.py [--n 16] [--start 0] [--max-amplitude 0.3]
+[--diag]``; prints one
 line per video and a table of the totals.  ``--diag`` prints, for every candidate of an
 extraction that keeps every peak, whether it is true and its best combination's phase residual
 and envelope correlation.
@@ -73,8 +74,8 @@ def _coincidence(freqs: list[float], order: np.ndarray, rng: np.random.Generator
     return None
 
 
-def draw(seed: int) -> dict:
-    """The clean video of ``seed`` and its truth."""
+def draw(seed: int, max_amplitude: float = 0.3) -> dict:
+    """The clean video of ``seed`` and its truth (amplitudes up to ``max_amplitude`` px)."""
     rng = np.random.default_rng(SEED_OFFSET + seed)
     h, w = (int(v) for v in rng.choice([96, 128, 160], 2))
     sigma = float(rng.choice([1.0, 1.5, 2.5]))
@@ -88,7 +89,7 @@ def draw(seed: int) -> dict:
         f = float(rng.uniform(lo, hi))
         if all(abs(f - g) > 4 * df for g in freqs):
             freqs.append(f)
-    amps = np.exp(rng.uniform(np.log(0.001), np.log(0.3), n_modes))
+    amps = np.exp(rng.uniform(np.log(FLOOR_PX), np.log(max_amplitude), n_modes))
     amps[np.argmin(amps)] = FLOOR_PX
     coincident = None
     if rng.random() < 0.5:
@@ -177,8 +178,8 @@ def _combinations_near(f: np.ndarray, parents: np.ndarray, target: float, df: fl
     return out
 
 
-def run(seed: int, tmp: Path, diag: bool = False) -> dict:
-    v = draw(seed)
+def run(seed: int, tmp: Path, diag: bool = False, max_amplitude: float = 0.3) -> dict:
+    v = draw(seed, max_amplitude)
     path = tmp / f"clean_{seed}.mkv"
     write_mkv(path, v["frames"], v["fps"])
     t0 = time.perf_counter()
@@ -211,6 +212,16 @@ def _at_least(low: int):
     return parse
 
 
+def _amplitude(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value >= FLOOR_PX:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number of px >= {FLOOR_PX}")
+    return value
+
+
 COLUMNS = (("default", "default"), ("combined", "+ combinations"),
            ("shape_phase", "shape/phase only"))
 
@@ -220,11 +231,13 @@ def main() -> None:
     ap.add_argument("--n", type=_at_least(1), default=16)
     ap.add_argument("--start", type=_at_least(0), default=0)
     ap.add_argument("--diag", action="store_true")
+    ap.add_argument("--max-amplitude", type=_amplitude, default=0.3,
+                    help="largest modal amplitude drawn (px, >= 0.001; default 0.3)")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(args.start, args.start + args.n):
-            r = run(seed, Path(tmp), args.diag)
+            r = run(seed, Path(tmp), args.diag, args.max_amplitude)
             rows.append(r)
             parts = [f"{label}: false {[round(f, 2) for f in r[key][0]]} lost "
                      f"{[round(f, 2) for f in r[key][1]]}" for key, label in COLUMNS]
@@ -234,7 +247,8 @@ def main() -> None:
                      if r["coincident_hz"] else "")
                   + f" | {' | '.join(parts)} | rejected {r['products']} ({r['seconds']:.1f} s)",
                   flush=True)
-    print(f"\nseeds {args.start}..{args.start + args.n - 1} ({len(rows)} clean videos, "
+    print(f"\nseeds {args.start}..{args.start + args.n - 1}, amplitudes {FLOOR_PX}-"
+          f"{args.max_amplitude} px ({len(rows)} clean videos, "
           f"{sum(r['n_true'] for r in rows)} true modes, "
           f"{sum(r['coincident_hz'] is not None for r in rows)} on a combination frequency)")
     print("| extraction | false modes | most in one video | videos with > 1 false "
