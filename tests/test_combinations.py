@@ -164,6 +164,9 @@ def test_extraction_of_distorted_motion_keeps_modes_and_rejects_products():
     assert products[339] == "3 x 113.0 Hz"
     assert products[17] == "113.0 - 96.0 Hz"
     assert out.metadata["combinations"]["phase_tested"]
+    assert "combinations" not in ms.metadata  # the input is left as it was
+    with pytest.raises(ValueError, match="confidence"):
+        reject_combinations(ms, weights="texture")
 
 
 def _rendered_clip(n: int = 64, T: int = 300, fps: float = 400.0) -> np.ndarray:

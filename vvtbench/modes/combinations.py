@@ -455,7 +455,8 @@ def reject_combinations(ms: ModeSet, *, weights: ArrayLike | str | None = "confi
     Returns
     -------
     ModeSet
-        The kept modes; ``metadata["combinations"]`` records the options used.
+        The kept modes (``ms`` is not changed); ``metadata["combinations"]`` records the
+        options used.
     """
     if len(ms) < 2:
         return ms
@@ -485,10 +486,11 @@ def reject_combinations(ms: ModeSet, *, weights: ArrayLike | str | None = "confi
         if analysed is not None and isinstance(rough, list) and analysed[k] < len(rough):
             entry["roughness"] = float(rough[analysed[k]])
         rejected.append({**entry, **d})
-    ms.metadata["rejected"] = rejected
-    ms.metadata["combinations"] = {"phase_tested": phases is not None,
-                                   "weighted": w is not None, **options}
-    return ms.select(kept)
+    out = ms.select(kept)
+    out.metadata["rejected"] = rejected
+    out.metadata["combinations"] = {"phase_tested": phases is not None,
+                                    "weighted": w is not None, **options}
+    return out
 
 
 def _confidence_weights(confidence: ArrayLike | None, shape: tuple[int, int]
