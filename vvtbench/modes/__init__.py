@@ -7,6 +7,7 @@ from ..mac import mac
 from ..video import open_video
 from .damping import damping_half_power, damping_lorentzian
 from .extract import confidence_weights, extract_modes, modes_from_displacements
+from .joint import extract_joint, joint_modes, modal_phasors
 from .merging import merge_modes
 from .modeset import ModeSet, merge_modesets
 from .peaks import align_phase, check_band, pick_peaks, translation_mac
@@ -31,11 +32,14 @@ __all__ = [
     "damping_half_power",
     "damping_lorentzian",
     "estimate_camera",
+    "extract_joint",
     "extract_modes",
+    "joint_modes",
     "load_clicks",
     "mac",
     "merge_modes",
     "merge_modesets",
+    "modal_phasors",
     "modes_from_displacements",
     "motion_power_spectrum",
     "observation_operator",
