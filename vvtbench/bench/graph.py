@@ -41,6 +41,11 @@ OBSERVE_REVISION = 3
 #: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
 #: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)
 LINE_FIT_REVISION = 3
+#: revision of the field path (``[tracks.field]``: its extract and observe keys only)
+FIELD_REVISION = 1
+#: inference options the field path cannot honour (a real video has one camera, its object's
+#: own geometry and the reader's mesh)
+FIELD_UNSUPPORTED = {"views": 1, "geometry_scale": 1.0, "inference_order": 1}
 
 
 def extraction_revision(extract_opts: dict) -> int | list[int]:
@@ -67,6 +72,32 @@ def extract_options(suite: Suite, observation: str,
         return opts, opts
     opts.update(extractor=ext["spec"], extractor_config=ext["config"])
     return opts, {**opts, "extractor": f"{ext['name']} {ext['version']}"}
+
+
+def field_settings(track: Track, variation, seed: int, scene_dicts: list[dict],
+                   source: str):
+    """The :class:`~vvtbench.field.track.FieldSettings` of a row of a field track (the click
+    seed resolved), or None; a variation or scene the field path cannot take is a
+    :class:`SuiteError` naming the track."""
+    if track.field is None:
+        return None
+    from ..field.track import FieldSettings
+
+    where = f"{source or '<suite>'}: track {track.name!r} with [tracks.field]"
+    for key, neutral in FIELD_UNSUPPORTED.items():
+        value = variation.inference.get(key, neutral)
+        if value != neutral and value != [neutral] * 3:
+            raise SuiteError(f"{where}: key '{key}' = {value!r} is not allowed (allowed: "
+                             f"{neutral!r}; the field path has one camera, the object's own "
+                             "geometry and the mesh read from its file)")
+    settings = FieldSettings.from_mapping(track.field).resolved(seed)
+    if settings.object == "stl":
+        drums = [d["name"] for d in scene_dicts if d["geometry"]["kind"] == "drum"]
+        if drums:
+            raise SuiteError(f"{where}: key 'field.object' = 'stl' is not allowed for the "
+                             f"membrane {drums[0]!r} (allowed: 'scene': a drum head has no "
+                             "closed surface)")
+    return settings
 
 
 def _canon(x):
@@ -242,6 +273,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
             gen_keys = [add("generate", [d, {"video": video}], [], {"scene": d, "video": video},
                             d["name"]) for d in scene_dicts]
             dataset_revision = content_hash(*gen_keys)
+            fs = field_settings(track, var, seed, scene_dicts, suite.source)
+            field_key = {} if fs is None else {**fs.key(), "revision": FIELD_REVISION}
             if stop < 1:
                 continue
             n_modes = int(var.inference.get("n_modes", 10))
@@ -250,8 +283,11 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 extract_opts, extract_key = extract_options(suite, obs, track.extract)
                 ext_rev = extraction_revision(extract_opts)
                 if observation_kind(obs) == "extracted":
-                    ext_keys = [add("extract", [extract_key, ext_rev], [g],
-                                    {"options": extract_opts},
+                    ext_keys = [add("extract", [extract_key, ext_rev,
+                                                *([field_key["video"], FIELD_REVISION]
+                                                  if fs else [])], [g],
+                                    {"options": extract_opts,
+                                     **({"field": fs.to_dict()} if fs else {})},
                                     name) for g, name in zip(gen_keys, [d["name"] for d in
                                                                         scene_dicts],
                                                              strict=True)]
@@ -259,11 +295,13 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                     continue
                 inf = {"n_modes": n_modes, **var.inference}
                 obs_payload = {"scene": scene_dicts[0], "inference": inf, "observation": obs,
-                               "extract": extract_opts}
+                               "extract": extract_opts,
+                               **({"field": fs.to_dict()} if fs else {})}
                 obs_key = add("observe", [scene_dicts[0], inf, obs,
                                           {**extract_key, "revision": ext_rev,
                                            "observe_revision": OBSERVE_REVISION}
-                                          if ext_keys else {}],
+                                          if ext_keys else {},
+                                          *([field_key] if fs else [])],
                               [gen_keys[0], *ext_keys], obs_payload, scene_label)
                 if stop < 3:
                     continue
@@ -274,7 +312,9 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                         vlabel if var.name == "base" else f"{var.name},{vlabel}")
                     run = Run(track.name, scene_label, vname, seed, obs, spec, n_modes,
                               {**var.scene_overrides, **var.inference,
-                               **{f"{name}.{k}": x for k, x in (extra or {}).items()}},
+                               **{f"{name}.{k}": x for k, x in (extra or {}).items()},
+                               **({f"field.{k}": x for k, x in fs.to_dict().items()}
+                                  if fs else {})},
                               dataset_revision,
                               observe_key=obs_key, config=cfg, config_hash=cfg_hash,
                               solver_name=name, solver_version=version, setup_error=err,

@@ -47,12 +47,41 @@ def _stage_extract(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
     sample = open_sample(sample_path(cache, task.deps[0]))
     opts = {k: v for k, v in task.payload["options"].items() if not k.startswith("merge_")}
     limits = ctx.get("limits") or {}
-    result = extract_sealed(sample.video_path, sample.fps, opts, out,
-                            timeout=limits.get("timeout"),
-                            memory_bytes=limits.get("memory_bytes"),
-                            threads=ctx.get("threads"), secrets=_secrets(cache, sample.path))
+    field = task.payload.get("field")
+    scratch = None
+    video, extra = sample.video_path, {}
+    try:
+        if field is not None:  # the video as a camera writes it, read back by its reader
+            scratch = cache / "extract" / "_field" / _tmp_name(task.key.split("/")[1])
+            video, extra = _field_video(sample, field, scratch)
+        result = extract_sealed(video, sample.fps, opts, out,
+                                timeout=limits.get("timeout"),
+                                memory_bytes=limits.get("memory_bytes"),
+                                threads=ctx.get("threads"), folder=field is not None,
+                                secrets=_secrets(cache, sample.path))
+        if extra:
+            write_json(out / "field_video.json", extra)
+    finally:
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
     return {"n_modes": result["n_modes"], "frequencies_hz": result["frequencies_hz"],
-            "sandbox": result["sandbox"]}
+            "sandbox": result["sandbox"], **({"field_video": extra} if extra else {})}
+
+
+def _field_video(sample, field: dict, dest: Path) -> tuple[Path, dict]:
+    """The sample's video re-encoded into ``dest`` as :func:`vvtbench.field.track.encode_video`
+    writes it: (the path to open, what was written: format, bytes, sha256, frames)."""
+    from ..field.invert import source_sha256
+    from ..field.track import FieldSettings, encode_video
+    from ..video import open_video
+
+    settings = FieldSettings.from_mapping(field)
+    stream = open_video(sample.video_path)
+    path = encode_video(stream.frames, float(sample.fps), dest, settings)
+    files = [f for f in dest.rglob("*") if f.is_file()]
+    return path, {**settings.key()["video"], "file": path.relative_to(dest).as_posix(),
+                  "files": len(files), "bytes": int(sum(f.stat().st_size for f in files)),
+                  "sha256": source_sha256(path)}
 
 
 def _secrets(cache: Path, *more: Path) -> list[Path]:
@@ -74,6 +103,8 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     from ..observe import observe
 
     p = task.payload
+    if p.get("field") is not None:
+        return _field_observe(cache, task, out)
     kind = observation_kind(p["observation"])
     opts = observe_options(p["inference"], kind, p.get("extract") or {})
     sample, *extracted = task.deps
@@ -86,6 +117,67 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     if kind == "extracted":
         truth.meta["extraction"] = extraction_scores(opened, opts.modes,
                                                      (p.get("extract") or {}).get("fmax"))
+    problem.save(out)
+    truth.save(out)
+    return {"n_modes": problem.n_modes, "n_params": problem.n_params,
+            "meta": {k: v for k, v in problem.meta.items() if k != "camera"}}
+
+
+def _field_observe(cache: Path, task: Task, out: Path) -> dict:
+    """The observe stage of a field track: the object from its surface file (``object.stl``)
+    or scene, the camera from simulated clicks (``clicks.csv``, ``calibration.json``), the
+    problem from these alone (:func:`vvtbench.field.track.field_observe`)."""
+    from ..dataset import open_sample
+    from ..field.calibrate import calibrate_from_file
+    from ..field.objects import resolve_object
+    from ..field.track import (
+        FieldSettings,
+        clicks_csv,
+        field_observe,
+        reprojection_error,
+        simulate_clicks,
+        write_object_surface,
+    )
+    from ..modes import ModeSet
+    from ..observe import _read
+
+    p = task.payload
+    settings = FieldSettings.from_mapping(p["field"])
+    sample, *extracted = task.deps
+    opened = open_sample(sample_path(cache, sample))
+    inference = p["inference"]
+    shape = inference.get("inference_shape")
+    shape = tuple(shape) if shape else None
+    if settings.object == "stl":
+        from ..fem.mesh import Mesh
+
+        sim = Mesh(_read(opened, "mesh/points"), _read(opened, "mesh/cells"),
+                   opened.info["mesh"]["element"], {}, _read(opened, "mesh/surface"))
+        spec = str(write_object_surface(opened.scene, out / "object.stl", sim))
+    else:
+        spec = str(opened.path / "scene.toml")
+    obj = resolve_object(spec, inference_shape=shape)
+    true_camera = opened.camera
+    width, height = int(true_camera.width), int(true_camera.height)
+    vertices, X, uv = simulate_clicks(obj.mesh.points, obj.mesh.surface, obj.corner_nodes(),
+                                      true_camera, settings.clicks, settings.click_noise_px,
+                                      int(settings.click_seed))
+    write_text(out / "clicks.csv", clicks_csv(X, uv))
+    cal = calibrate_from_file(out / "clicks.csv", obj.mesh.points, width, height,
+                              max_error=settings.max_error_px)
+    modes = [str(cache / k) for k in extracted]
+    problem, truth = field_observe(opened, obj, cal.camera, [ModeSet.load(m) for m in modes],
+                                   inference, width, height)
+    camera_error = reprojection_error(cal.camera, true_camera,
+                                      obj.mesh.points[problem.visible_nodes])
+    record = {"settings": settings.to_dict(), "object": obj.describe(),
+              "clicked_vertices": vertices.tolist(), "calibration": cal.to_dict(),
+              "camera_error_px": camera_error}
+    write_json(out / "calibration.json", record)
+    problem.meta["field"] = {"settings": settings.to_dict(), "clicks_rms_px": cal.rms_px,
+                             "camera_error_px": camera_error}
+    truth.meta["extraction"] = extraction_scores(opened, tuple(modes),
+                                                 (p.get("extract") or {}).get("fmax"))
     problem.save(out)
     truth.save(out)
     return {"n_modes": problem.n_modes, "n_params": problem.n_params,

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..scene import SCENES_DIR
 
@@ -138,6 +138,43 @@ class ExtractOptions(_Strict):
         "config overrides (key = value); the extractor of an observation 'extracted:NAME'")
 
 
+class FieldOptions(_Strict):
+    """The ``[tracks.field]`` table: the track's videos reach the solver as a field user's do
+    (:mod:`vvtbench.field.track`): re-encoded as a camera writes them, read back by the field
+    readers, the camera estimated from noisy clicks, the object given as a surface mesh."""
+
+    format: Literal["tiff", "mraw", "h264"] = Field(
+        "tiff", description="'tiff' (an image sequence), 'mraw' (Photron .cih + packed .mraw) "
+        "or 'h264' (an 8-bit .mp4)")
+    bit_depth: Literal[8, 12, 16] = Field(
+        12, description="8, 12 or 16 (bits of the TIFF or MRAW samples)")
+    crf: Annotated[int, Field(ge=0, le=51)] = Field(
+        23, description="an integer in 0..51 (H.264 constant rate factor; 'h264' only)")
+    clicks: Annotated[int, Field(ge=6, le=1000)] = Field(
+        10, description="an integer in 6..1000 (clicked correspondences)")
+    click_noise_px: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)] = Field(
+        0.5, description="a number in [0, 100] (px: Gaussian noise per click coordinate)")
+    click_seed: Annotated[int, Field(ge=0, le=2**32 - 1)] | None = Field(
+        None, description="an integer >= 0 (seed of the click noise; default: the row's seed)")
+    object: Literal["stl", "scene"] = Field(
+        "stl", description="'stl' (a surface mesh file of the object) or 'scene' (the scene "
+        "file)")
+    max_error_px: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = Field(
+        2.0, description="a number in (0, 1000] (px: the largest click reprojection error "
+        "accepted)")
+
+    @model_validator(mode="after")
+    def _one_encoding(self):
+        given = self.model_fields_set
+        if self.format == "h264" and "bit_depth" in given:
+            raise ValueError("'bit_depth' applies to 'tiff' and 'mraw' (H.264 is 8-bit); "
+                             "allowed with 'h264': crf")
+        if self.format != "h264" and "crf" in given:
+            raise ValueError(f"'crf' applies to 'h264' only (format is {self.format!r}); "
+                             "allowed: bit_depth")
+        return self
+
+
 SceneGroup = Name | Annotated[list[Name], Field(min_length=1)]
 _SCENES = ("a list of scene names or paths (relative to the suite file), or of lists of them "
            "(videos of one object whose modes are merged)")
@@ -173,6 +210,9 @@ class TrackFile(_Strict):
     extract: ExtractOptions | None = Field(
         None, description="a table of extraction options over the suite's [extract] (motion "
         "extractors are configured in the suite's [extract.extractor.NAME] only)")
+    field: FieldOptions | None = Field(
+        None, description="a table of field-path settings (format, bit_depth, crf, clicks, "
+        "click_noise_px, click_seed, object, max_error_px)")
 
 
 class SuiteFile(_Strict):
@@ -202,9 +242,10 @@ class SuiteFile(_Strict):
 
 INFERENCE_KEYS = tuple(InferenceOptions.model_fields)
 EXTRACT_KEYS = tuple(ExtractOptions.model_fields)
-_PARENTS = {"": SuiteFile, "tracks": TrackFile, "extract": ExtractOptions}
+_PARENTS = {"": SuiteFile, "tracks": TrackFile, "extract": ExtractOptions,
+            "field": FieldOptions}
 _DESCRIPTIONS = {name: f.description for model in (SuiteFile, TrackFile, ExtractOptions,
-                                                   InferenceOptions)
+                                                   InferenceOptions, FieldOptions)
                  for name, f in model.model_fields.items()}
 _TYPE_TAGS = {"str", "int", "float", "bool", "list", "dict", "none"}
 
@@ -364,6 +405,8 @@ class Track:
     solver_sweep: dict[str, list[tuple[str, dict]]] = field(default_factory=dict)
     #: ``[tracks.extract]``: extraction options over the suite's ``[extract]``
     extract: dict = field(default_factory=dict)
+    #: ``[tracks.field]`` as written (None: the sample's lossless video and true camera)
+    field: dict | None = None
 
 
 @dataclass
@@ -554,9 +597,13 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
             raise SuiteError(f"{source}: key '{_join(path, 'extract.extractor')}': motion "
                              "extractors are configured in the suite's [extract.extractor.NAME] "
                              "(allowed here: the extraction options of [extract])")
+        tfield = t.get("field")
+        if tfield is not None:
+            _check_field_track(obs, source, path, "observations" in t)
         tracks.append(Track(tname, scenes, _variations(t, source, path, tdefaults),
                             list(tseeds), list(obs), t.get("description", ""), tsolvers,
-                            dict(t.get("solver", {})), ssweep, textract))
+                            dict(t.get("solver", {})), ssweep, textract,
+                            None if tfield is None else dict(tfield)))
     names = [t.name for t in tracks]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -567,6 +614,16 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
                  data.get("description", ""), source, data,
                  None if timeout is None else float(timeout),
                  None if memory_gb is None else float(memory_gb), extractors)
+
+
+def _check_field_track(observations: list[str], source: str, path: str, own: bool) -> None:
+    """A field track observes extracted modes only (true modes never pass through a video)."""
+    bad = [o for o in observations if observation_kind(o) != "extracted"]
+    if bad:
+        key = _join(path, "observations") if own else "observations"
+        raise SuiteError(f"{source}: key '{key}': {bad[0]!r} in a track with [tracks.field] "
+                         "(allowed: 'extracted' or 'extracted:EXTRACTOR': the field path "
+                         "observes the modes of its video)")
 
 
 def observation_kind(observation: str) -> str:

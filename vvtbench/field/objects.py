@@ -10,7 +10,9 @@ Accepted forms (:func:`resolve_object`):
 * ``path/to/surface.stl`` (``.obj``, ``.ply``) -- a closed surface in metres,
   tetrahedralized as the shipped bunny is (:func:`vvtbench.fem.mesh.tet_mesh`), lowest
   corner moved to the origin, bottom nodes clamped; options ``:up=y``, ``:scale_to=0.1``,
-  ``:fixed=none``.
+  ``:fixed=none``. A surface that is an axis-aligned rectangular block (its enclosed volume
+  that of its bounding box) is meshed as that block's hexahedral voxel grid, as ``box:`` is
+  (``:mesh=tet`` tetrahedralizes it anyway).
 * ``path/to/scene.toml`` -- a scene file: its geometry and boundary, never its material.
 
 Every object is in its own frame: metres, lowest corner at the origin, z up. Clicked 3-D
@@ -29,7 +31,7 @@ from ..dataset import sha256_file as _sha256
 from ..fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
 from ..observe import ObserveError, default_voxel_shape
 
-__all__ = ["SURFACE_SUFFIXES", "FieldObject", "resolve_object"]
+__all__ = ["SURFACE_SUFFIXES", "FieldObject", "is_block", "resolve_object"]
 
 SURFACE_SUFFIXES = (".stl", ".obj", ".ply")
 FORMS = ("box:LxWxH", "plate:LxW", "plate:D:circle", "a .stl/.obj/.ply surface",
@@ -173,7 +175,8 @@ def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
         if not path.is_file():
             raise _bad(text, f"{path}: no such file")
         opts = _options(text, items, {"up": ("x", "y", "z"), "scale_to": None,
-                                      "fixed": ("bottom", "none")})
+                                      "fixed": ("bottom", "none"),
+                                      "mesh": ("auto", "tet")})
         scale_to = None
         if "scale_to" in opts:
             try:
@@ -182,16 +185,37 @@ def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
                 scale_to = -1.0
             if not (np.isfinite(scale_to) and scale_to > 0):
                 raise _bad(text, "option scale_to must be a positive length (metres)")
+        shape = tuple(inference_shape or default_voxel_shape("box"))
         try:
             v, f = load_surface(path, opts.get("up", "z"), scale_to, target_faces=3000)
-            mesh = tet_mesh(v, f, edge_length_fac=0.1, coarsen=True)
+            block = opts.get("mesh", "auto") == "auto" and is_block(v, f) and len(shape) == 3
+            mesh = box_mesh(shape, tuple(float(x) for x in v.max(0))) if block else \
+                tet_mesh(v, f, edge_length_fac=0.1, coarsen=True)
         except (FileNotFoundError, ValueError) as error:
             raise _bad(text, str(error)) from None
         fixed = mesh.node_sets["bottom"] if opts.get("fixed", "bottom") == "bottom" \
             else np.zeros(0, np.int64)
-        shape = tuple(inference_shape or default_voxel_shape("box"))
-        return FieldObject(text, "mesh", mesh, fixed, shape, _sha256(path))
+        return FieldObject(text, "mesh", mesh, fixed, shape, _sha256(path),
+                           {"meshed_as": "block" if block else "tetrahedra"})
     raise _bad(text, "not a known form")
+
+
+def is_block(vertices: np.ndarray, faces: np.ndarray, rtol: float = 1e-6) -> bool:
+    """True when the closed surface ``(vertices, faces)`` is an axis-aligned rectangular block:
+    the volume it encloses equals that of its bounding box (anything else encloses less).
+
+    >>> import trimesh
+    >>> b, s = trimesh.creation.box(extents=(1.0, 2.0, 3.0)), trimesh.creation.icosphere()
+    >>> bool(is_block(b.vertices, b.faces)), bool(is_block(s.vertices, s.faces))
+    (True, False)
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    volume = abs(float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum()) / 6.0)
+    extent = v.max(0) - v.min(0)
+    box = float(np.prod(extent))
+    return box > 0 and abs(volume - box) <= rtol * box
 
 
 def _from_scene(text: str, path: Path, inference_shape: tuple[int, ...] | None
