@@ -6,7 +6,7 @@ difference to the true-camera row.
 
     .venv/bin/python benchmarks/bench_field_path.py --out /work/tmp/field/run \\
         --sample /work/tmp/field/jello_cube_defect_top --duration 1.0 \
-        [--formats tiff h264] [--seeds 0 1 2]
+        [--formats tiff mraw h264] [--crf 18 23] [--click-seeds 0 1 2 3 4]
 
 ``--sample``: an already generated sample of the scene (``vvtbench generate
 jello_cube_defect_top --out DIR``; a paper cube takes minutes to render on 2 cores); it is
@@ -31,19 +31,26 @@ from vvtbench.io import write_json
 from vvtbench.scene import load_scene
 
 
-def field_suite(scene: str, formats: list[str], crf: int, clicks: int, noise: float,
-                seeds: list[int], n_modes: int, duration: float | None = None) -> dict:
+def field_suite(scene: str, formats: list[str], crfs: list[int], clicks: int, noise: float,
+                seeds: list[int], n_modes: int, duration: float | None = None,
+                click_seeds: list[int] | None = None) -> dict:
     """The comparison as a suite: the paper suite's extraction (its ``modes`` track's) and
-    vvt settings; one true-camera track, one field track per format."""
+    vvt settings; one true-camera track, one field track per format (per H.264 ``crf``) and
+    click seed (None: the row's seed)."""
     paper = tomllib.loads((SUITES_DIR / "paper.toml").read_text())
     modes_track = next(t for t in paper["tracks"] if t["name"] == "modes")
     common = {"scenes": [scene], "observations": ["extracted"],
               "extract": dict(modes_track.get("extract", {}))}
     tracks = [{"name": "true_camera", **common}]
-    for fmt in formats:
-        field = {"format": fmt, "clicks": clicks, "click_noise_px": noise}
-        field.update({"crf": crf} if fmt == "h264" else {"bit_depth": 12})
-        tracks.append({"name": f"field_{fmt}", **common, "field": field})
+    encodings = [(f"h264_crf{c}", {"format": "h264", "crf": c}) if fmt == "h264" else
+                 (fmt, {"format": fmt, "bit_depth": 12})
+                 for fmt in formats for c in (crfs if fmt == "h264" else [None])]
+    for label, encoding in encodings:
+        for cs in click_seeds or [None]:
+            field = {**encoding, "clicks": clicks, "click_noise_px": noise,
+                     **({} if cs is None else {"click_seed": cs})}
+            name = f"{label}" + ("" if cs is None else f"_c{cs}")
+            tracks.append({"name": name, **common, "field": field})
     return {"name": "field_bench", "solvers": ["vvt"], "seeds": seeds,
             "defaults": {**paper["defaults"], "n_modes": n_modes,
                          **({} if duration is None else {"simulation.duration": duration})},
@@ -83,22 +90,24 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--formats", nargs="+", default=["tiff", "h264"],
                    choices=["tiff", "mraw", "h264"])
-    p.add_argument("--crf", type=int, default=23)
+    p.add_argument("--crf", type=int, nargs="+", default=[23])
     p.add_argument("--clicks", type=int, default=10)
     p.add_argument("--noise", type=float, default=0.5)
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--click-seeds", type=int, nargs="+", default=None,
+                   help="one field track per click-noise seed (default: the row's seed)")
     p.add_argument("--n-modes", type=int, default=10)
     p.add_argument("--duration", type=float, default=None,
                    help="simulated seconds (default: the scene's; 1.0 renders 6x faster)")
     a = p.parse_args()
     suite = parse_suite(field_suite(a.scene, a.formats, a.crf, a.clicks, a.noise, a.seeds,
-                                    a.n_modes, a.duration), "bench_field_path")
+                                    a.n_modes, a.duration, a.click_seeds), "bench_field_path")
     a.out.mkdir(parents=True, exist_ok=True)
     if a.sample is not None:
         print(f"seeded {seed_cache(suite, a.out, a.sample)} generate task(s) from {a.sample}")
     df = run_suite(suite, ["vvt"], out_dir=a.out, progress=False)
     ref = df[df.track == "true_camera"].set_index("seed")
-    print(f"{'track':<12} {'seed':>4} {'status':<7} {'nc_w':>7} {'nc_v':>7} {'d nc_w':>7} "
+    print(f"{'track':<16} {'seed':>4} {'status':<7} {'nc_w':>7} {'nc_v':>7} {'d nc_w':>7} "
           f"{'d nc_v':>7} {'modes':>5} {'cam err px':>10}")
     cache = a.out / "cache"
     for _, row in df.sort_values(["track", "seed"]).iterrows():
@@ -107,11 +116,18 @@ def main() -> None:
         calib = _calibration(cache, df, row)
         if calib:
             cam = f"{calib['camera_error_px']['rms_px']:.3f}"
-        print(f"{row.track:<12} {row.seed:>4} {row.status:<7} {row.nc_w:7.3f} {row.nc_v:7.3f} "
+        print(f"{row.track:<16} {row.seed:>4} {row.status:<7} {row.nc_w:7.3f} {row.nc_v:7.3f} "
               f"{row.nc_w - base.nc_w:+7.3f} {row.nc_v - base.nc_v:+7.3f} "
               f"{row.n_modes_observed:>5} {cam:>10}")
         if row.status != "ok":
             print(f"    {row.error}")
+    field = df[df.track != "true_camera"].copy()
+    if len(field):
+        field["encoding"] = field.track.str.replace(r"_c\d+$", "", regex=True)
+        for enc, g in field.groupby("encoding"):
+            d = g.nc_w.to_numpy() - ref.loc[g.seed].nc_w.to_numpy()
+            print(f"{enc}: d nc_w mean {d.mean():+.3f}, worst {d.min():+.3f} over {len(d)} "
+                  f"row(s)")
 
 
 def _calibration(cache: Path, df, row) -> dict | None:
