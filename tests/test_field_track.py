@@ -249,6 +249,15 @@ scenes = ["jello_cube_defect_top"]
 format = "tiff"
 clicks = 8
 click_noise_px = 0.3
+
+[[tracks]]
+name = "field_scene"
+scenes = ["jello_cube_defect_top"]
+[tracks.field]
+format = "tiff"
+clicks = 8
+click_noise_px = 0.3
+object = "scene"
 """
 
 
@@ -260,18 +269,22 @@ def test_a_tiny_field_track_end_to_end(tmp_path):
     suite = tmp_path / "tiny_field.toml"
     suite.write_text(TINY_FIELD)
     df = run_suite(str(suite), None, tmp_path / "run", progress=False)
-    assert len(df) == 1
-    row = df.iloc[0]
-    assert row.status == "ok", row.error
+    assert len(df) == 2 and (df.status == "ok").all(), df.error.tolist()
+    assert df.attrs["stats"]["extract"]["tasks"] == 1  # the two tracks share the video
+    row = df[df.track == "field"].iloc[0]
     opts = json.loads(row.variation_options)
     assert opts["field.click_seed"] == 2 and opts["field.clicks"] == 8
     assert opts["field.format"] == "tiff" and opts["field.click_noise_px"] == 0.3
     cache = Path(tmp_path / "run" / "cache")
-    (calib,) = cache.glob("observe/*/calibration.json")
-    record = json.loads(calib.read_text())
+    records = {r["object"]["kind"]: r for r in (
+        json.loads(f.read_text()) for f in cache.glob("observe/*/calibration.json"))}
+    assert set(records) == {"mesh", "scene"}
+    record = records["mesh"]
     assert record["object"]["meshed_as"] == "block" and len(record["clicked_vertices"]) == 8
     assert record["camera_error_px"]["rms_px"] < 3 * 0.3
+    # the STL block and the scene give the same mesh, hence the same clicks and camera
+    assert records["scene"]["clicked_vertices"] == record["clicked_vertices"]
+    assert records["scene"]["camera_error_px"] == pytest.approx(record["camera_error_px"])
     (video,) = cache.glob("extract/*/field_video.json")
     assert json.loads(video.read_text())["files"] == 160  # 0.8 s at 200 fps
-    assert not (cache / "extract" / "_field").exists() or not any(
-        (cache / "extract" / "_field").iterdir())
+    assert not [p for p in (cache / "extract").iterdir() if ".tmp-" in p.name]

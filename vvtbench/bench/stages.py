@@ -52,7 +52,8 @@ def _stage_extract(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
     video, extra = sample.video_path, {}
     try:
         if field is not None:  # the video as a camera writes it, read back by its reader
-            scratch = cache / "extract" / "_field" / _tmp_name(task.key.split("/")[1])
+            # a temporary of the stage folder: a killed run's is removed by the next run
+            scratch = cache / f"{_tmp_name(task.key)}.field"
             video, extra = _field_video(sample, field, scratch)
         result = extract_sealed(video, sample.fps, opts, out,
                                 timeout=limits.get("timeout"),
