@@ -62,6 +62,9 @@ def test_field_keys_parse_with_their_defaults():
     ("max_error_px = 0", "tracks[0].field.max_error_px", "(0, 1000]"),
     ("crf = 20", "tracks[0].field", "'crf' applies to 'h264' only"),
     ("format = 'h264'\nbit_depth = 12", "tracks[0].field", "allowed with 'h264': crf"),
+    ("bitrate_mbps = 50", "tracks[0].field", "'bitrate_mbps' applies to 'h264' only"),
+    ("format = 'h264'\ncrf = 20\nbitrate_mbps = 50", "tracks[0].field", "not both"),
+    ("format = 'h264'\nbitrate_mbps = 0", "tracks[0].field.bitrate_mbps", "(0, 10000]"),
     ("clickz = 10", "tracks[0].field.clickz", "click_noise_px"),
 ])
 def test_bad_field_values_are_one_line_errors(table, key, allowed):
@@ -161,6 +164,22 @@ def test_h264_is_lossy_but_close(tmp_path):
     assert back.shape == (8, 32, 32)
     err = np.abs(back - np.stack(frames))
     assert 0 < err.mean() < 0.02
+
+
+def test_h264_at_a_bit_rate_holds_that_many_bits_per_second_of_recording(tmp_path):
+    """Noise frames (incompressible): the file holds about bitrate x recorded seconds."""
+    from vvtbench.video import open_video
+
+    frames = _frames(120, (64, 64), seed=3)  # 0.5 s at 240 fps
+    sizes = {}
+    for mbps in (0.5, 2.0):
+        path = encode_video(iter(frames), 240.0, tmp_path / str(mbps),
+                            FieldSettings(format="h264", bitrate_mbps=mbps))
+        sizes[mbps] = path.stat().st_size
+        assert sizes[mbps] == pytest.approx(mbps * 1e6 * 0.5 / 8, rel=0.35)
+        assert len(list(open_video(path).frames)) == 120
+    assert FieldSettings(format="h264", bitrate_mbps=2.0).key()["video"] == {
+        "format": "h264", "bitrate_mbps": 2.0}
 
 
 @pytest.fixture(scope="module")

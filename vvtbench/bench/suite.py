@@ -150,6 +150,9 @@ class FieldOptions(_Strict):
         12, description="8, 12 or 16 (bits of the TIFF or MRAW samples)")
     crf: Annotated[int, Field(ge=0, le=51)] = Field(
         23, description="an integer in 0..51 (H.264 constant rate factor; 'h264' only)")
+    bitrate_mbps: Annotated[float, Field(gt=0, le=10000, allow_inf_nan=False)] | None = Field(
+        None, description="a number in (0, 10000] (Mbit per second of recording at the "
+        "capture rate; 'h264' only, instead of crf)")
     clicks: Annotated[int, Field(ge=6, le=1000)] = Field(
         10, description="an integer in 6..1000 (clicked correspondences)")
     click_noise_px: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)] = Field(
@@ -169,9 +172,12 @@ class FieldOptions(_Strict):
         if self.format == "h264" and "bit_depth" in given:
             raise ValueError("'bit_depth' applies to 'tiff' and 'mraw' (H.264 is 8-bit); "
                              "allowed with 'h264': crf")
-        if self.format != "h264" and "crf" in given:
-            raise ValueError(f"'crf' applies to 'h264' only (format is {self.format!r}); "
-                             "allowed: bit_depth")
+        for key in ("crf", "bitrate_mbps"):
+            if self.format != "h264" and key in given:
+                raise ValueError(f"'{key}' applies to 'h264' only (format is "
+                                 f"{self.format!r}); allowed: bit_depth")
+        if {"crf", "bitrate_mbps"} <= given:
+            raise ValueError("give 'crf' or 'bitrate_mbps', not both (allowed: one of them)")
         return self
 
 
@@ -211,8 +217,8 @@ class TrackFile(_Strict):
         None, description="a table of extraction options over the suite's [extract] (motion "
         "extractors are configured in the suite's [extract.extractor.NAME] only)")
     field: FieldOptions | None = Field(
-        None, description="a table of field-path settings (format, bit_depth, crf, clicks, "
-        "click_noise_px, click_seed, object, max_error_px)")
+        None, description="a table of field-path settings (format, bit_depth, crf, "
+        "bitrate_mbps, clicks, click_noise_px, click_seed, object, max_error_px)")
 
 
 class SuiteFile(_Strict):

@@ -42,6 +42,8 @@ class FieldSettings:
         or ``"h264"`` (an ``.mp4``, 8-bit).
     bit_depth : significant bits of the TIFF or MRAW samples (8, 12 or 16).
     crf : H.264 constant rate factor (0 best .. 51 worst; 23 is libx264's default).
+    bitrate_mbps : H.264 average bit rate instead of ``crf``, in Mbit per second of
+        recording at the capture frame rate (a consumer camera's figure: 50-100 Mbit/s).
     clicks : clicked correspondences (>= 6: the DLT estimates intrinsics and pose).
     click_noise_px : standard deviation of the Gaussian noise on each pixel coordinate.
     click_seed : seed of the click noise (None: the row's seed).
@@ -52,6 +54,7 @@ class FieldSettings:
     format: str = "tiff"
     bit_depth: int = 12
     crf: int = 23
+    bitrate_mbps: float | None = None
     clicks: int = 10
     click_noise_px: float = 0.5
     click_seed: int | None = None
@@ -71,8 +74,12 @@ class FieldSettings:
         """What changes the encoded video (``video``) and the calibration (``clicks``)."""
         d = asdict(self)
         video = {"format": d["format"]}
-        video.update({"crf": d["crf"]} if self.format == "h264" else
-                     {"bit_depth": d["bit_depth"]})
+        if self.format != "h264":
+            video["bit_depth"] = d["bit_depth"]
+        elif self.bitrate_mbps is not None:
+            video["bitrate_mbps"] = d["bitrate_mbps"]
+        else:
+            video["crf"] = d["crf"]
         return {"video": video, "clicks": {k: d[k] for k in (
             "clicks", "click_noise_px", "click_seed", "object", "max_error_px")}}
 
@@ -164,8 +171,6 @@ def encode_video(frames: Iterable[ArrayLike], fps: float, dest: str | Path,
         write_text(dest / "recording.cih", _cih(n, shape[0], shape[1], fps, bits))
         out = dest / "recording.cih"
     else:
-        from ..video import VideoWriter
-
         writer = None
         out = dest / "video.mp4"
         try:
@@ -173,8 +178,7 @@ def encode_video(frames: Iterable[ArrayLike], fps: float, dest: str | Path,
                 n += 1
                 q = _quantize(frame, 8)
                 if writer is None:
-                    writer = VideoWriter(out, q.shape[0], q.shape[1], capture_fps=fps,
-                                         pix_fmt="gray", codec="h264", crf=int(settings.crf))
+                    writer = _h264_writer(out, q.shape, fps, settings)
                 writer.write(q)
         except BaseException:
             if writer is not None:
@@ -185,6 +189,58 @@ def encode_video(frames: Iterable[ArrayLike], fps: float, dest: str | Path,
     if n == 0:
         raise ValueError("no frame to encode")
     return out
+
+
+def _h264_writer(path: Path, shape: tuple[int, int], fps: float, settings: FieldSettings):
+    """An 8-bit H.264 writer at ``settings.crf``, or at ``settings.bitrate_mbps`` of
+    recording: the container plays at :data:`vvtbench.video.PLAYBACK_FPS`, so the encoder's
+    rate is scaled to give each frame the bits it has at the capture rate ``fps``."""
+    from ..video import PLAYBACK_FPS, VideoWriter
+
+    if settings.bitrate_mbps is None:
+        return VideoWriter(path, shape[0], shape[1], capture_fps=fps, pix_fmt="gray",
+                           codec="h264", crf=int(settings.crf))
+    return _RateWriter(path, shape, fps, settings.bitrate_mbps * 1e6 * PLAYBACK_FPS / fps)
+
+
+class _RateWriter:
+    """libx264 at an average bit rate (one pass, ``-b:v``), gray frames, atomic on close."""
+
+    def __init__(self, path: Path, shape: tuple[int, int], fps: float, bits_per_s: float):
+        import imageio_ffmpeg
+
+        from ..video import BITEXACT, PLAYBACK_FPS, rate_fraction
+
+        self.path, self.shape = Path(path), shape
+        self._pad = (shape[0] % 2, shape[1] % 2)
+        self._tmp = self.path.with_name(f".{self.path.name}.partial.mp4")
+        rate = f"{max(1, round(bits_per_s / 1000))}k"
+        params = ["-b:v", rate, "-maxrate", rate, "-bufsize", rate, "-preset", "medium",
+                  "-threads", "1", *BITEXACT,
+                  "-metadata:s:v:0", f"CAPTURE_FPS={rate_fraction(fps)}"]
+        self._gen = imageio_ffmpeg.write_frames(
+            f"file:{self._tmp}", (shape[1] + self._pad[1], shape[0] + self._pad[0]),
+            pix_fmt_in="gray", pix_fmt_out="yuv420p", codec="libx264", quality=None,
+            fps=PLAYBACK_FPS, macro_block_size=1, output_params=params,
+            ffmpeg_log_level="error")
+        self._gen.send(None)
+
+    def write(self, frame: NDArray) -> None:
+        a = np.asarray(frame, dtype=np.uint8)
+        if any(self._pad):
+            a = np.pad(a, ((0, self._pad[0]), (0, self._pad[1])))
+        self._gen.send(np.ascontiguousarray(a))
+
+    def close(self) -> None:
+        self._gen.close()
+        self._tmp.replace(self.path)
+
+    def abort(self) -> None:
+        try:
+            self._gen.close()
+        except Exception:  # noqa: BLE001 -- the partial file is removed either way
+            pass
+        self._tmp.unlink(missing_ok=True)
 
 
 # --------------------------------------------------------------------------- object, clicks
