@@ -6,7 +6,7 @@ difference to the true-camera row.
 
     .venv/bin/python benchmarks/bench_field_path.py --out /work/tmp/field/run \\
         --sample /work/tmp/field/jello_cube_defect_top --duration 1.0 \
-        [--formats tiff mraw h264] [--crf 18 23] [--click-seeds 0 1 2 3 4]
+        [--formats tiff mraw h264] [--crf 18 23] [--bitrate-mbps 50] [--click-seeds 0 1 2]
 
 ``--sample``: an already generated sample of the scene (``vvtbench generate
 jello_cube_defect_top --out DIR``; a paper cube takes minutes to render on 2 cores); it is
@@ -33,7 +33,8 @@ from vvtbench.scene import load_scene
 
 def field_suite(scene: str, formats: list[str], crfs: list[int], clicks: int, noise: float,
                 seeds: list[int], n_modes: int, duration: float | None = None,
-                click_seeds: list[int] | None = None) -> dict:
+                click_seeds: list[int] | None = None,
+                bitrates: list[float] | None = None) -> dict:
     """The comparison as a suite: the paper suite's extraction (its ``modes`` track's) and
     vvt settings; one true-camera track, one field track per format (per H.264 ``crf``) and
     click seed (None: the row's seed)."""
@@ -45,6 +46,8 @@ def field_suite(scene: str, formats: list[str], crfs: list[int], clicks: int, no
     encodings = [(f"h264_crf{c}", {"format": "h264", "crf": c}) if fmt == "h264" else
                  (fmt, {"format": fmt, "bit_depth": 12})
                  for fmt in formats for c in (crfs if fmt == "h264" else [None])]
+    encodings += [(f"h264_{b:g}mbps", {"format": "h264", "bitrate_mbps": b})
+                  for b in bitrates or []]
     for label, encoding in encodings:
         for cs in click_seeds or [None]:
             field = {**encoding, "clicks": clicks, "click_noise_px": noise,
@@ -91,6 +94,8 @@ def main() -> None:
     p.add_argument("--formats", nargs="+", default=["tiff", "h264"],
                    choices=["tiff", "mraw", "h264"])
     p.add_argument("--crf", type=int, nargs="+", default=[23])
+    p.add_argument("--bitrate-mbps", type=float, nargs="+", default=None,
+                   help="H.264 tracks at these bit rates (Mbit per second of recording)")
     p.add_argument("--clicks", type=int, default=10)
     p.add_argument("--noise", type=float, default=0.5)
     p.add_argument("--seeds", type=int, nargs="+", default=[0])
@@ -101,7 +106,8 @@ def main() -> None:
                    help="simulated seconds (default: the scene's; 1.0 renders 6x faster)")
     a = p.parse_args()
     suite = parse_suite(field_suite(a.scene, a.formats, a.crf, a.clicks, a.noise, a.seeds,
-                                    a.n_modes, a.duration, a.click_seeds), "bench_field_path")
+                                    a.n_modes, a.duration, a.click_seeds, a.bitrate_mbps),
+                        "bench_field_path")
     a.out.mkdir(parents=True, exist_ok=True)
     if a.sample is not None:
         print(f"seeded {seed_cache(suite, a.out, a.sample)} generate task(s) from {a.sample}")

@@ -59,6 +59,7 @@ def test_field_keys_parse_with_their_defaults():
     ("click_noise_px = -0.1", "tracks[0].field.click_noise_px", "[0, 100]"),
     ("click_seed = -1", "tracks[0].field.click_seed", "an integer >= 0"),
     ("object = 'obj'", "tracks[0].field.object", "'stl'"),
+    ("mesh = 'hex'", "tracks[0].field.mesh", "'auto'"),
     ("max_error_px = 0", "tracks[0].field.max_error_px", "(0, 1000]"),
     ("crf = 20", "tracks[0].field", "'crf' applies to 'h264' only"),
     ("format = 'h264'\nbit_depth = 12", "tracks[0].field", "allowed with 'h264': crf"),
@@ -226,16 +227,26 @@ def test_noisy_click_camera_matches_least_squares_theory(box_view):
 
 
 def test_an_stl_block_is_meshed_as_the_box(tmp_path):
+    import trimesh
+
     from vvtbench.field.objects import resolve_object
     from vvtbench.field.track import write_object_surface
+    from vvtbench.observe import ObserveError
     from vvtbench.scene import load_scene
 
     stl = write_object_surface(load_scene("jello_cube_defect_top"), tmp_path / "cube.stl")
-    obj = resolve_object(str(stl), inference_shape=(4, 4, 4))
     box = resolve_object("box:0.05x0.05x0.05", inference_shape=(4, 4, 4))
-    assert obj.info["meshed_as"] == "block" and obj.mesh.element == "hex8"
-    np.testing.assert_allclose(obj.mesh.points, box.mesh.points, atol=1e-12)
-    np.testing.assert_array_equal(obj.fixed_nodes, box.fixed_nodes)
+    for how in ("auto", "block"):
+        obj = resolve_object(f"{stl}:mesh={how}", inference_shape=(4, 4, 4))
+        assert obj.info["meshed_as"] == "block" and obj.mesh.element == "hex8"
+        np.testing.assert_allclose(obj.mesh.points, box.mesh.points, atol=1e-12)
+        np.testing.assert_array_equal(obj.fixed_nodes, box.fixed_nodes)
+    assert resolve_object(str(stl)).mesh.element == "tet4"  # the default: tetrahedra
+    ball = tmp_path / "ball.stl"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.02).export(ball)
+    assert resolve_object(f"{ball}:mesh=auto").mesh.element == "tet4"
+    with pytest.raises(ObserveError, match="mesh=block, but the surface is not"):
+        resolve_object(f"{ball}:mesh=block")
 
 
 TINY_FIELD = """

@@ -154,7 +154,7 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
 
         sim = Mesh(_read(opened, "mesh/points"), _read(opened, "mesh/cells"),
                    opened.info["mesh"]["element"], {}, _read(opened, "mesh/surface"))
-        spec = str(write_object_surface(opened.scene, out / "object.stl", sim))
+        spec = f"{write_object_surface(opened.scene, out / 'object.stl', sim)}:mesh={settings.mesh}"
     else:
         spec = str(opened.path / "scene.toml")
     obj = resolve_object(spec, inference_shape=shape)

@@ -162,6 +162,9 @@ class FieldOptions(_Strict):
     object: Literal["stl", "scene"] = Field(
         "stl", description="'stl' (a surface mesh file of the object) or 'scene' (the scene "
         "file)")
+    mesh: Literal["auto", "tet"] = Field(
+        "auto", description="'auto' (an STL block meshed as its voxel grid, other surfaces in "
+        "tetrahedra) or 'tet' (tetrahedra always)")
     max_error_px: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = Field(
         2.0, description="a number in (0, 1000] (px: the largest click reprojection error "
         "accepted)")
@@ -218,7 +221,7 @@ class TrackFile(_Strict):
         "extractors are configured in the suite's [extract.extractor.NAME] only)")
     field: FieldOptions | None = Field(
         None, description="a table of field-path settings (format, bit_depth, crf, "
-        "bitrate_mbps, clicks, click_noise_px, click_seed, object, max_error_px)")
+        "bitrate_mbps, clicks, click_noise_px, click_seed, object, mesh, max_error_px)")
 
 
 class SuiteFile(_Strict):

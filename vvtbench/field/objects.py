@@ -10,9 +10,10 @@ Accepted forms (:func:`resolve_object`):
 * ``path/to/surface.stl`` (``.obj``, ``.ply``) -- a closed surface in metres,
   tetrahedralized as the shipped bunny is (:func:`vvtbench.fem.mesh.tet_mesh`), lowest
   corner moved to the origin, bottom nodes clamped; options ``:up=y``, ``:scale_to=0.1``,
-  ``:fixed=none``. A surface that is an axis-aligned rectangular block (its enclosed volume
-  that of its bounding box) is meshed as that block's hexahedral voxel grid, as ``box:`` is
-  (``:mesh=tet`` tetrahedralizes it anyway).
+  ``:fixed=none``, ``:mesh=auto`` (a surface that is an axis-aligned rectangular block, its
+  enclosed volume that of its bounding box, is meshed as that block's hexahedral voxel grid,
+  as ``box:`` is; any other is tetrahedralized), ``:mesh=block`` (the same, an error when the
+  surface is not a block); the default ``:mesh=tet`` tetrahedralizes every surface.
 * ``path/to/scene.toml`` -- a scene file: its geometry and boundary, never its material.
 
 Every object is in its own frame: metres, lowest corner at the origin, z up. Clicked 3-D
@@ -176,7 +177,7 @@ def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
             raise _bad(text, f"{path}: no such file")
         opts = _options(text, items, {"up": ("x", "y", "z"), "scale_to": None,
                                       "fixed": ("bottom", "none"),
-                                      "mesh": ("auto", "tet")})
+                                      "mesh": ("tet", "auto", "block")})
         scale_to = None
         if "scale_to" in opts:
             try:
@@ -188,7 +189,11 @@ def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
         shape = tuple(inference_shape or default_voxel_shape("box"))
         try:
             v, f = load_surface(path, opts.get("up", "z"), scale_to, target_faces=3000)
-            block = opts.get("mesh", "auto") == "auto" and is_block(v, f) and len(shape) == 3
+            how = opts.get("mesh", "tet")
+            block = how != "tet" and len(shape) == 3 and is_block(v, f)
+            if how == "block" and not block:
+                raise ValueError(f"{path}: option mesh=block, but the surface is not an "
+                                 "axis-aligned rectangular block (allowed: mesh=auto or tet)")
             mesh = box_mesh(shape, tuple(float(x) for x in v.max(0))) if block else \
                 tet_mesh(v, f, edge_length_fac=0.1, coarsen=True)
         except (FileNotFoundError, ValueError) as error:

@@ -48,6 +48,9 @@ class FieldSettings:
     click_noise_px : standard deviation of the Gaussian noise on each pixel coordinate.
     click_seed : seed of the click noise (None: the row's seed).
     object : ``"stl"`` (a surface mesh file of the object) or ``"scene"`` (the scene file).
+    mesh : how an STL is meshed: ``"auto"`` (a block as its voxel grid, any other surface in
+        tetrahedra) or ``"tet"`` (tetrahedra always); the ``--object FILE.stl:mesh=...``
+        option of :func:`vvtbench.field.objects.resolve_object`.
     max_error_px : the largest reprojection error of a click accepted (px).
     """
 
@@ -59,6 +62,7 @@ class FieldSettings:
     click_noise_px: float = 0.5
     click_seed: int | None = None
     object: str = "stl"
+    mesh: str = "auto"
     max_error_px: float = 2.0
 
     @classmethod
@@ -81,7 +85,7 @@ class FieldSettings:
         else:
             video["crf"] = d["crf"]
         return {"video": video, "clicks": {k: d[k] for k in (
-            "clicks", "click_noise_px", "click_seed", "object", "max_error_px")}}
+            "clicks", "click_noise_px", "click_seed", "object", "mesh", "max_error_px")}}
 
     def to_dict(self) -> dict[str, Any]:
         """The settings that matter, flat (for the results row)."""
