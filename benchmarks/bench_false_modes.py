@@ -14,13 +14,16 @@ combination of two stronger ones (``f_1 + f_2``, ``|f_1 - f_2|``, ``2 f_1`` or `
 f_2``): a true mode that the frequency alone would take for a product. The seeds start at
 70000, away from every other script's draws.
 
-Three extractions per video:
+Four results per video (two extractions):
 
 * ``default``: :func:`vvtbench.modes.extract_modes` as shipped (faint products rejected by
   power, rough ones by roughness);
 * ``+ combinations``: the same followed by :func:`vvtbench.modes.combinations.reject_combinations`;
 * ``shape/phase only``: ``faint_product_ratio=None`` (no rejection by power) followed by
-  ``reject_combinations``.
+  ``reject_combinations``;
+* ``in place of the faint rule``: the same with ``reject_combinations(faint_ratio=0.01)``:
+  faint candidates at a combination are products unless their phase or their sibling's shape
+  says otherwise.
 
 A detection is false when no true frequency is within one bin; a true mode (spectral line of
 at least 0.001 px, ``bench_unseen_videos.py``'s ``line_px``) is lost when no detection is
@@ -55,6 +58,7 @@ from vvtbench.modes.combinations import (
 )
 
 SEED_OFFSET = 70_000
+FAINT_RATIO = 0.01
 FLOOR_PX = 0.001
 
 
@@ -184,8 +188,10 @@ def run(seed: int, tmp: Path, diag: bool = False, max_amplitude: float = 0.3) ->
     write_mkv(path, v["frames"], v["fps"])
     t0 = time.perf_counter()
     default = extract_modes(path)
-    combined = reject_combinations(default.select(np.arange(len(default))))
-    no_power = reject_combinations(extract_modes(path, faint_product_ratio=None))
+    combined = reject_combinations(default)
+    every_peak = extract_modes(path, faint_product_ratio=None)
+    no_power = reject_combinations(every_peak)
+    in_place = reject_combinations(every_peak, faint_ratio=FAINT_RATIO)
     elapsed = time.perf_counter() - t0
     if diag:
         diagnose(seed, v, path)
@@ -193,9 +199,10 @@ def run(seed: int, tmp: Path, diag: bool = False, max_amplitude: float = 0.3) ->
     out = {"seed": seed, "fps": v["fps"], "n_frames": len(v["frames"]),
            "shape": default.image_shape, "n_true": len(v["freqs"]), "plucked": v["plucked"],
            "coincident_hz": v["coincident_hz"], "seconds": elapsed,
-           "products": [r["product"] for r in no_power.metadata["rejected"]
+           "products": [f"{r['product']} ({r['test']})" for r in in_place.metadata["rejected"]
                         if r.get("reason") == "product"]}
-    for name, ms in (("default", default), ("combined", combined), ("shape_phase", no_power)):
+    for name, ms in (("default", default), ("combined", combined), ("shape_phase", no_power),
+                     ("in_place", in_place)):
         out[name] = tally(ms.frequencies_hz, v)
     return out
 
@@ -223,7 +230,7 @@ def _amplitude(text: str) -> float:
 
 
 COLUMNS = (("default", "default"), ("combined", "+ combinations"),
-           ("shape_phase", "shape/phase only"))
+           ("shape_phase", "shape/phase only"), ("in_place", "in place of the faint rule"))
 
 
 def main() -> None:

@@ -241,3 +241,26 @@ def test_sibling_product_shape_decides_at_the_difference_frequency():
     kept, _ = find_combinations(f[[0, 1, 3]], a[[0, 1, 3]], shapes[[0, 1, 3]], 0.5,
                                 phases=ph[[0, 1, 3]])
     assert not kept[2]
+
+
+def test_faint_ratio_rejects_tiny_products_unless_phase_or_sibling_says_otherwise():
+    """A candidate 1e-4 of its parents' product power whose shape follows nothing (the
+    quantisation's products): rejected with ``faint_ratio`` only, and kept when its phase is
+    not the product's."""
+    rng = np.random.default_rng(7)
+    s1, s2 = smooth_shape(rng), smooth_shape(rng)
+    noise_like = unit(rng.standard_normal((N, N, 2)))
+    f = np.array([113.0, 96.0, 226.0])
+    a = np.array([1.0, 0.5, 1e-2])  # P = 1e-4 of the harmonic's reference P_0^2 / P_0
+    ph = np.array([0.2, 1.1, 0.4])
+    shapes = np.stack([s1, s2, noise_like])
+    kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph)
+    assert kept.all()  # shape and phase alone: the envelope does not follow
+    kept, products = find_combinations(f, a, shapes, 0.5, phases=ph, faint_ratio=0.01)
+    assert kept.tolist() == [True, True, False]
+    assert products[0]["test"] == "faint" and products[0]["product"] == "2 x 113.0 Hz"
+    kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph + [0, 0, 1.0], faint_ratio=0.01)
+    assert kept.all()  # a phase of its own
+    a[2] = 0.2  # 0.04 of the reference: not faint
+    kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph, faint_ratio=0.01)
+    assert kept.all()

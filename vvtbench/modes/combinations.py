@@ -270,6 +270,16 @@ def _sibling(shapes: NDArray, f: NDArray[np.float64], k: int, comb: Combination,
                 best = (int(j), mac)
     return best
 
+def _faint(a: NDArray[np.float64], k: int, comb: Combination, ratio: float) -> bool:
+    """Whether candidate ``k`` has less than ``ratio`` times the power a product of ``comb``'s
+    parents is expected to have, ``prod_p P_p^|n_p| / P_max^(order - 1)`` (``P = a**2``, the
+    strongest candidate's ``P_max``: a product grows with its parents' amplitudes)."""
+    log_p = 2.0 * np.log(np.maximum(a, 1e-300))
+    ref = sum(abs(n) * log_p[p] for p, n in zip(comb.parents, comb.coefficients, strict=True))
+    ref -= (comb.order - 1) * float(np.max(log_p))
+    return bool(log_p[k] < math.log(ratio) + ref)
+
+
 def find_combinations(
     frequencies: ArrayLike,
     amplitudes: ArrayLike,
@@ -287,6 +297,7 @@ def find_combinations(
     sibling_amplitude_ratio: float = 1.1,
     sigma_px: float = 4.0,
     third_order_parents: int = 10,
+    faint_ratio: float | None = None,
 ) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
     """Which candidate peaks are products of stronger ones (see the module's docstring).
 
@@ -340,6 +351,15 @@ def find_combinations(
     third_order_parents : int, default 10
         Third-order combinations are formed from the strongest this many candidates only
         (their number grows as the cube of the parents').
+    faint_ratio : float, optional
+        A candidate that fails the envelope test (with no informative sibling) is still a
+        product when it passed the phase test and has less than this fraction of the power
+        its parents' product is expected to have, ``prod_p P_p^|n_p| / P_max^(order - 1)``
+        (``P = amplitude**2``, ``P_max`` the strongest candidate's).  The products of a
+        sensor's quantisation (a staircase, not a smooth non-linearity) do not follow their
+        parents' envelope; they are tiny.  A true mode that faint at a combination is still
+        kept when its phase or its sibling's shape shows it is not the product.  Default
+        None: shape and phase alone decide.
 
     Returns
     -------
@@ -347,7 +367,8 @@ def find_combinations(
         ``(k,)`` bool.
     products : list of dict
         One per rejected candidate: ``index``, ``reason`` (``"product"``), ``product`` (e.g.
-        ``"3 x 113.0 Hz"``), ``kind``, ``order``, ``parents`` (indices), ``parents_hz``,
+        ``"3 x 113.0 Hz"``), ``test`` (``"sibling"``, ``"envelope"`` or ``"faint"``: what
+        showed it), ``kind``, ``order``, ``parents`` (indices), ``parents_hz``,
         ``parents_rejected`` (which parents are products themselves), ``coefficients``,
         ``expected_hz``, ``frequency_error_bins``, ``phase_residual_rad`` (None without
         phases), ``envelope_correlation``, ``sibling_hz`` and ``sibling_mac`` (None without
@@ -399,24 +420,28 @@ def find_combinations(
                 if a[sib] <= sibling_amplitude_ratio * a[k]:
                     continue  # unlike its sibling product and as strong: a mode of its own
                 sib = None  # the stronger sibling holds a mode: the envelope decides
+            test = "sibling" if sib is not None else "envelope"
             if sib is None and env < min_envelope_correlation:
-                continue
+                if faint_ratio is None or not _faint(a, k, comb, faint_ratio):
+                    continue
+                test = "faint"
             # a product of products is named by the fewest root modes it needs
             n_roots = sum(abs(n) * int(root_order[p]) for p, n in
                           zip(comb.parents, comb.coefficients, strict=True))
             evidence = env if sib is None else sib_mac
             key = (n_roots, sum(not kept[p] for p in comb.parents), -evidence)
             if best is None or key < best[0]:
-                best = (key, comb, float(seen[m]), err, res, env, sib, sib_mac)
+                best = (key, comb, float(seen[m]), err, res, env, sib, sib_mac, test)
         if best is None:
             continue
-        _, comb, seen, err, res, env, sib, sib_mac = best
+        _, comb, seen, err, res, env, sib, sib_mac, test = best
         kept[k] = False
         root_order[k] = best[0][0]
         out.append({
             "index": int(k),
             "reason": "product",
             "product": comb.label(f),
+            "test": test,
             "kind": comb.kind,
             "order": comb.order,
             "parents": [int(p) for p in comb.parents],
@@ -450,7 +475,8 @@ def reject_combinations(ms: ModeSet, *, weights: ArrayLike | str | None = "confi
     **options
         Passed to :func:`find_combinations` (``max_order``, ``tolerance_bins``,
         ``max_phase_residual``, ``min_sibling_mac``, ``sibling_amplitude_ratio``,
-        ``min_envelope_correlation``, ``sigma_px``, ``third_order_parents``).
+        ``min_envelope_correlation``, ``sigma_px``, ``third_order_parents``,
+        ``faint_ratio``).
 
     Returns
     -------
