@@ -34,7 +34,7 @@ from vvtbench.scene import load_scene
 def field_suite(scene: str, formats: list[str], crfs: list[int], clicks: int, noise: float,
                 seeds: list[int], n_modes: int, duration: float | None = None,
                 click_seeds: list[int] | None = None,
-                bitrates: list[float] | None = None) -> dict:
+                bitrates: list[float] | None = None, mesh: str = "auto") -> dict:
     """The comparison as a suite: the paper suite's extraction (its ``modes`` track's) and
     vvt settings; one true-camera track, one field track per format (per H.264 ``crf``) and
     click seed (None: the row's seed)."""
@@ -50,9 +50,10 @@ def field_suite(scene: str, formats: list[str], crfs: list[int], clicks: int, no
                   for b in bitrates or []]
     for label, encoding in encodings:
         for cs in click_seeds or [None]:
-            field = {**encoding, "clicks": clicks, "click_noise_px": noise,
+            field = {**encoding, "clicks": clicks, "click_noise_px": noise, "mesh": mesh,
                      **({} if cs is None else {"click_seed": cs})}
-            name = f"{label}" + ("" if cs is None else f"_c{cs}")
+            name = f"{label}" + ("" if mesh == "auto" else f"_{mesh}") + (
+                "" if cs is None else f"_c{cs}")
             tracks.append({"name": name, **common, "field": field})
     return {"name": "field_bench", "solvers": ["vvt"], "seeds": seeds,
             "defaults": {**paper["defaults"], "n_modes": n_modes,
@@ -102,11 +103,14 @@ def main() -> None:
     p.add_argument("--click-seeds", type=int, nargs="+", default=None,
                    help="one field track per click-noise seed (default: the row's seed)")
     p.add_argument("--n-modes", type=int, default=10)
+    p.add_argument("--mesh", choices=["auto", "tet"], default="auto",
+                   help="how the STL is meshed (auto: a block as its voxel grid)")
     p.add_argument("--duration", type=float, default=None,
                    help="simulated seconds (default: the scene's; 1.0 renders 6x faster)")
     a = p.parse_args()
     suite = parse_suite(field_suite(a.scene, a.formats, a.crf, a.clicks, a.noise, a.seeds,
-                                    a.n_modes, a.duration, a.click_seeds, a.bitrate_mbps),
+                                    a.n_modes, a.duration, a.click_seeds, a.bitrate_mbps,
+                                    a.mesh),
                         "bench_field_path")
     a.out.mkdir(parents=True, exist_ok=True)
     if a.sample is not None:
