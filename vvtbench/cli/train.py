@@ -24,6 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, type=Path, help="the weights file (.npz)")
     p.add_argument("--n", type=positive_int, default=200, help="train instances (200)")
     p.add_argument("--start", type=bounded(int, ge=0), default=0, help="first instance (0)")
+    p.add_argument("--val", type=bounded(int, ge=0), default=50,
+                   help="val instances for model selection (50; 0: none)")
     p.add_argument("--data", type=Path, default=None,
                    help="where the train instances are generated (default data/FAMILY/train)")
     p.add_argument("--modes", type=positive_int, default=20, help="observed modes (20)")
@@ -36,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main_train(argv: list[str] | None = None) -> int:
-    from ..data import instances, iter_instances
+    from ..data import iter_instances
     from ..families import load_family
     from ..plugins import load_solver, parse_overrides
     from .generate import main as generate_main
@@ -60,23 +62,56 @@ def main_train(argv: list[str] | None = None) -> int:
                         "--workers", str(args.workers), "--no-progress"])
     if rc:
         return rc
-    wanted = set(range(args.start, args.start + args.n))
-    chosen = [(name, src) for name, src in instances(data, "train")
-              if name.startswith(f"{family.name}-train-") and int(name.rsplit("-", 1)[1])
-              in wanted]
+    val_data = data.parent / "val" if data.name == "train" else data.parent / f"{data.name}-val"
+    if args.val:
+        rc = generate_main([str(family.source), "--split", "val", "--n", str(args.val),
+                            "-o", str(val_data), "--no-video", "--workers", str(args.workers),
+                            "--no-progress"])
+        if rc:
+            return rc
+    chosen = _chosen(data, family.name, "train", args.start, args.n)
+    held = _chosen(val_data, family.name, "val", 0, args.val) if args.val else []
     options = {"n_modes": args.modes, "visibility": "depth",
                **({"inference_shape": tuple(args.grid)} if args.grid else {})}
+    kwargs = {k: v for k, v in vars(config).items() if k != "weights"}
+    if held:
+        kwargs["val"] = (pair for _, src in held for pair in iter_instances(src, None, **options))
+    t_fit = time.perf_counter()
     weights = module.fit((pair for _, src in chosen
-                          for pair in iter_instances(src, None, **options)),
-                         **{k: v for k, v in vars(config).items() if k != "weights"})
+                          for pair in iter_instances(src, None, **options)), **kwargs)
+    fit_seconds = time.perf_counter() - t_fit
     digest = hashlib.sha256(Path(family.source).read_bytes()).hexdigest()
     meta = {"family": family.name, "family_sha256": digest, "split": "train",
             "indices": [args.start, args.start + args.n - 1],
             "instances": [name for name, _ in chosen], "observe": options,
-            "vvtbench": __version__, "solver": cls.name, "generated_in": str(data)}
+            "vvtbench": __version__, "solver": cls.name, "generated_in": str(data),
+            "train_sha256": _split_digest(chosen), "seed": "instance i of a split is drawn "
+            "from (family, split, i) alone (docs/families.md)", "fit_seconds": fit_seconds}
+    if held:
+        meta.update({"val_split": "val", "val_instances": [name for name, _ in held],
+                     "val_sha256": _split_digest(held)})
     args.output.parent.mkdir(parents=True, exist_ok=True)
     module.save_weights(args.output, weights, meta)
     print(f"{cls.name}: trained on {len(chosen)} {family.name} train instances in "
           f"{time.perf_counter() - t0:.0f} s -> {args.output} (use: --set "
           f"weights={args.output})")
     return 0
+
+
+def _chosen(data: Path, family: str, split: str, start: int, n: int) -> list:
+    from ..data import instances
+
+    wanted = set(range(start, start + n))
+    return [(name, src) for name, src in instances(data, split)
+            if name.startswith(f"{family}-{split}-") and int(name.rsplit("-", 1)[1]) in wanted]
+
+
+def _split_digest(chosen: list) -> str:
+    """sha256 over the instances' names and manifests (each sample's files and their sha256)."""
+    digest = hashlib.sha256()
+    for name, src in chosen:
+        digest.update(name.encode())
+        manifest = Path(src) / "manifest.json" if isinstance(src, Path) else None
+        if manifest is not None and manifest.is_file():
+            digest.update(manifest.read_bytes())
+    return digest.hexdigest()

@@ -1,0 +1,1 @@
+"""Learned-solver building blocks (features of the observation for trainable solvers)."""

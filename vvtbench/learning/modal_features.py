@@ -1,0 +1,219 @@
+"""Per-instance features of the observed modes on a family's reference modal basis.
+
+The ``learned`` solver's inputs (solvers/learned.py). Every instance of a family shares its
+mesh topology (the family varies defects, the box aspect, the camera and the pluck, never the
+cells), so one basis of free-DOF vectors serves all instances: the ``n_basis`` lowest
+homogeneous modes of a reference instance. For one instance, a Rayleigh-Ritz projection of its
+homogeneous model (w = v = 1 on its own geometry) onto that basis gives its homogeneous modes
+psi_c and eigenvalues mu_c in a few milliseconds (no sparse eigensolve). Each observed mode is
+paired (Hungarian, on the MAC of its image-space shape with P psi_c) with one of the first
+``n_slots`` homogeneous modes; the slot of homogeneous mode c then holds
+
+* the eigenvalue misfit log(lam_obs v_hom / (w_mean mu_c)), v_hom the homogeneous density
+  fitted to all pairs (as the ``homogeneous`` solver does), and
+* the observed shape's least-squares coefficients on the projected basis P psi (unit norm,
+  signed so that the coefficient on psi_c is positive): how a defect rotates and mixes the
+  homogeneous shapes, the information that breaks the body's symmetries, which eigenvalues
+  alone cannot;
+
+empty slots are zero and flagged. The body's aspect (the extents of its mesh) closes the
+vector. Only the observation enters: eigenvalues, image-space shapes at visible vertices,
+the observation operator P and the mesh; never the truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.optimize import linear_sum_assignment
+
+from vvtbench.problem import InverseProblem
+
+
+def reference_basis(problem: InverseProblem, n_basis: int) -> np.ndarray:
+    """(n_free, n_basis) lowest homogeneous modes (w = v = 1) of one instance's model."""
+    from vvtbench.fem.modal import eigenmodes
+
+    model = problem.model
+    n = min(n_basis, model.n_free - 1)
+    return eigenmodes(model.K(1.0), model.M(1.0), n).vectors
+
+
+def ritz_modes(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (n_basis,) and free-DOF modes (n_free, n_basis) of the instance's
+    homogeneous model (w = v = 1) in the span of ``basis``."""
+    model = problem.model
+    if basis.shape[0] != model.n_free:
+        raise ValueError(f"learned: the weights' modal basis has {basis.shape[0]} free DOFs, the "
+                         f"problem's model {model.n_free}: weights of another family's mesh")
+    Kb = model.K(1.0) @ basis
+    Mb = model.M(1.0) @ basis
+    Kr = basis.T @ Kb
+    Mr = basis.T @ Mb
+    mu, Q = sla.eigh((Kr + Kr.T) / 2, (Mr + Mr.T) / 2)
+    return mu, basis @ Q
+
+
+def feature_size(n_slots: int, n_basis: int) -> int:
+    """Length of the vector :func:`modal_features` returns."""
+    return n_slots * (2 + n_basis) + 3
+
+
+def modal_features(problem: InverseProblem, basis: np.ndarray, n_slots: int) -> np.ndarray:
+    """The instance's feature vector (see the module docstring), length
+    ``feature_size(n_slots, basis.shape[1])``."""
+    from vvtbench.mac import mac_matrix
+
+    n_basis = basis.shape[1]
+    mu, psi = ritz_modes(problem, basis)
+    A = np.asarray(problem.P @ psi)                      # (n_obs, n_basis)
+    gamma = np.asarray(problem.gamma, dtype=float)       # (k, n_obs)
+    lam = np.asarray(problem.eigenvalues, dtype=float)
+    slots = min(n_slots, n_basis)
+    mac = mac_matrix(gamma, A[:, :slots].T)
+    rows, cols = linear_sum_assignment(-mac)
+    ok = (lam[rows] > 0) & (mu[cols] > 0)
+    rows, cols = rows[ok], cols[ok]
+    log_v = float(np.mean(np.log(problem.w_mean * mu[cols] / lam[rows]))) if len(rows) else 0.0
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    An = A / scale
+    coef, *_ = np.linalg.lstsq(An.T @ An + 1e-6 * np.eye(n_basis), An.T @ gamma[rows].T,
+                               rcond=None)          # (n_basis, n_pairs)
+    misfit = np.zeros(n_slots)
+    flag = np.zeros(n_slots)
+    shapes = np.zeros((n_slots, n_basis))
+    for j, (i, c) in enumerate(zip(rows, cols, strict=True)):
+        a = coef[:, j]
+        norm = np.linalg.norm(a)
+        if norm == 0:
+            continue
+        a = a / norm
+        shapes[c] = a if a[c] >= 0 else -a
+        misfit[c] = np.log(lam[i]) + log_v - np.log(problem.w_mean * mu[c])
+        flag[c] = 1.0
+    points = np.asarray(problem.mesh.points, dtype=float)
+    extent = points.max(axis=0) - points.min(axis=0)
+    aspect = np.zeros(3)
+    spans = extent > 0
+    aspect[:len(extent)][spans] = np.log(extent[spans]) - np.mean(np.log(extent[spans]))
+    return np.concatenate([misfit, flag, shapes.ravel(), aspect])
+
+
+def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_slots: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Observed modes paired with homogeneous modes: (observed index, homogeneous index,
+    least-squares coefficients (n_basis, n_pairs) of each observed shape on P psi, and the
+    log of the fitted homogeneous density ratio v_hom / w_mean)."""
+    from vvtbench.mac import mac_matrix
+
+    n_basis = psi.shape[1]
+    A = np.asarray(problem.P @ psi)
+    gamma = np.asarray(problem.gamma, dtype=float)
+    lam = np.asarray(problem.eigenvalues, dtype=float)
+    slots = min(n_slots, n_basis)
+    rows, cols = linear_sum_assignment(-mac_matrix(gamma, A[:, :slots].T))
+    ok = (lam[rows] > 0) & (mu[cols] > 0)
+    rows, cols = rows[ok], cols[ok]
+    log_v = float(np.mean(np.log(problem.w_mean * mu[cols] / lam[rows]))) if len(rows) else 0.0
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    An = A / scale
+    coef = np.linalg.solve(An.T @ An + 1e-6 * np.eye(n_basis), An.T @ gamma[rows].T)
+    return rows, cols, coef / scale[:, None], log_v
+
+
+def voxel_couplings(problem: InverseProblem, psi: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(n_pairs, n_basis, n_params) psi_d^T K_e psi_c of the unit model for c in ``cols``:
+    how a stiffness change in voxel e moves eigenvalue c (d = c) and mixes mode d into c."""
+    model = problem.model
+    full = np.zeros((model.mesh.n_dofs, psi.shape[1]))
+    full[model.free_dofs] = psi
+    U = full[model.element_dofs]                          # (n_el, n_dof_el, n_basis)
+    KU = np.matmul(model.Ke, U[:, :, cols])               # (n_el, n_dof_el, n_pairs)
+    G = np.matmul(np.transpose(KU, (0, 2, 1)), U)         # (n_el, n_pairs, n_basis)
+    param = model.voxel_map.element_param
+    out = np.zeros((model.n_params, len(cols), psi.shape[1]))
+    np.add.at(out, param, G)
+    return np.transpose(out, (1, 2, 0))
+
+
+def voxel_laplacian(voxel_map) -> np.ndarray:
+    """Dense graph Laplacian (nearest neighbours along each axis) of the active voxels."""
+    shape = tuple(voxel_map.grid.shape)
+    active = np.asarray(voxel_map.active)
+    n = len(active)
+    where = np.full(int(np.prod(shape)), -1)
+    where[active] = np.arange(n)
+    ijk = np.array(np.unravel_index(active, shape)).T
+    L = np.zeros((n, n))
+    for axis in range(len(shape)):
+        nb = ijk.copy()
+        nb[:, axis] += 1
+        ok = nb[:, axis] < shape[axis]
+        j = np.full(n, -1)
+        j[ok] = where[np.ravel_multi_index(nb[ok].T, shape)]
+        i = np.flatnonzero(j >= 0)
+        j = j[i]
+        L[i, j] -= 1
+        L[j, i] -= 1
+        L[i, i] += 1
+        L[j, j] += 1
+    return L
+
+
+def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
+                smooth: tuple[float, ...] = (0.1, 1.0, 10.0), gap: float = 0.02
+                ) -> tuple[np.ndarray, dict]:
+    """One linearized (Born) inversion from the homogeneous model, per voxel.
+
+    Unknown theta_e = log(w_e / w_mean). Equations: the eigenvalue misfits
+    log(lam_obs v_hom / (w_mean mu_c)) = sum_e theta_e psi_c^T K_e psi_c / mu_c, and the
+    observed shapes' mixing coefficients a_d / a_c = sum_e theta_e psi_d^T K_e psi_c /
+    (mu_c - mu_d) for homogeneous modes d whose eigenvalue differs from mu_c by more than
+    ``gap`` (relative; nearer ones mix beyond first order). Solved with a smoothness penalty
+    (voxel Laplacian) of each weight in ``smooth``.
+
+    Returns
+    -------
+    steps : (n_params, len(smooth) + 2) the smoothed steps, then the eigenvalue-only and the
+        shape-only gradients (J^T y of each group, scaled to unit RMS).
+    info : v_hom (homogeneous density) and the number of equations.
+    """
+    mu, psi = ritz_modes(problem, basis)
+    rows, cols, coef, log_v = pair_observed(problem, mu, psi, n_slots)
+    lam = np.asarray(problem.eigenvalues, dtype=float)
+    m = problem.n_params
+    if len(cols) == 0:
+        return np.zeros((m, len(smooth) + 2)), {"v_hom": float(problem.w_mean), "n_eq": 0}
+    G = voxel_couplings(problem, psi, cols)               # (n_pairs, n_basis, m)
+    ar = np.arange(len(cols))
+    J_eig = G[ar, cols, :] / mu[cols, None]
+    y_eig = np.log(lam[rows]) + log_v - np.log(problem.w_mean * mu[cols])
+    J_shape, y_shape = [], []
+    for j, c in enumerate(cols):
+        a = coef[:, j]
+        if a[c] == 0:
+            continue
+        a = a / a[c]
+        far = np.flatnonzero(np.abs(mu - mu[c]) > gap * mu[c])
+        J_shape.append(G[j, far, :] / (mu[c] - mu[far])[:, None])
+        y_shape.append(np.clip(a[far], -1.0, 1.0))
+    J = np.vstack([J_eig, *J_shape])
+    y = np.concatenate([y_eig, *y_shape])
+    scale = np.sqrt(np.mean(J**2)) or 1.0
+    J, y = J / scale, y / scale
+    JTJ = J.T @ J
+    JTy = J.T @ y
+    L = voxel_laplacian(problem.voxel_map)
+    steps = []
+    tr = np.trace(JTJ) / m
+    for alpha in smooth:
+        A = JTJ + alpha * tr * L + 1e-3 * tr * np.eye(m)
+        steps.append(np.linalg.solve(A, JTy))
+    for Jg, yg in ((J_eig, y_eig), (np.vstack(J_shape) if J_shape else np.zeros((0, m)),
+                                   np.concatenate(y_shape) if y_shape else np.zeros(0))):
+        g = Jg.T @ yg
+        steps.append(g / (np.sqrt(np.mean(g**2)) or 1.0))
+    v_hom = float(problem.w_mean * np.exp(log_v))
+    return np.column_stack(steps), {"v_hom": v_hom, "n_eq": len(y)}
