@@ -43,8 +43,9 @@ from .export_card import croissant, dataset_card, sample_revision
 from .io import NoSpaceError, check_free_space, is_disk_full, open_new
 from .packed import FORMAT, FORMAT_VERSION, MODESET_ARRAYS, VIDEO_CHUNK, ExportError
 
-__all__ = ["ExportError", "check_output", "estimate_bytes", "find_extracted", "find_samples",
-           "is_packed_dataset", "pack", "verify_sample"]
+__all__ = ["DEFAULT_SHARD_BYTES", "ExportError", "check_output", "estimate_bytes",
+           "find_extracted", "find_samples", "is_packed_dataset", "pack", "pack_stacked",
+           "scene_parameters", "verify_sample"]
 
 #: Files a Zarr dataset folder written by :func:`pack` holds at its top level.
 _ZARR_TOP = {"zarr.json", "samples", "README.md", "croissant.json", "SHA256SUMS"}
@@ -179,6 +180,12 @@ def is_packed_dataset(path: str | Path) -> bool:
     path = Path(path)
     if path.is_symlink():
         return False
+    if path.is_dir() and (path / STACKED_MARKER).is_file():
+        try:
+            marker = json.loads((path / STACKED_MARKER).read_text())
+        except (OSError, ValueError):
+            return False
+        return isinstance(marker, dict) and marker.get("format") == STACKED_FORMAT
     if path.is_dir():
         meta = path / "zarr.json"
         if meta.is_symlink() or not meta.is_file():
@@ -714,3 +721,401 @@ def _replace(partial: Path, out: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.replace(partial, out)
+
+
+# --------------------------------------------------------------------------- stacked layout
+STACKED_FORMAT = "vvtbench-stacked"
+STACKED_VERSION = 1
+STACKED_MARKER = "dataset.json"  # the marker a stacked export holds at its top level
+INDEX = "index.parquet"
+DEFAULT_SHARD_BYTES = 20 * 10**9  # hubs accept files up to 50 GB; 20 GB leaves room
+MAX_FILES_PER_FOLDER = 10_000
+WRITE_BUFFER_BYTES = 256 * 2**20  # samples are gathered into blocks of at most this size
+
+#: Dimension names of the stacked layout, renamed from the per-sample layout's.
+_STACKED_RENAME = {"node": "vertex", "surface_node": "surface_vertex",
+                   "visible_node": "visible_vertex", "fixed_node": "fixed_vertex",
+                   "element_node": "element_vertex", "xyz": "component",
+                   "voxel_x": "x", "voxel_y": "y", "voxel_z": "z"}
+_COORDS = ("family", "split", "index", "seed", "sample_revision")
+
+
+def _stacked_dims(path: str, ndim: int) -> tuple[str, ...]:
+    """Named dimensions of a truth array in the stacked layout (without ``sample``)."""
+    proposal = _truth_dims(path, "")
+    if path == "voxels/volume":
+        proposal = ("voxel_x", "voxel_y", "voxel_z")
+    if path.startswith("mesh/node_sets/"):
+        proposal = (f"{path.rsplit('/', 1)[1]}_vertex",)
+    if path.startswith("voxels/") and len(proposal) == 3 and ndim < 3:
+        proposal = proposal[:ndim]  # drums: a 2-D voxel grid
+    if len(proposal) != ndim:
+        flat = path.replace("/", "_")
+        proposal = (flat,) if ndim == 1 else tuple(f"{flat}_axis{i}" for i in range(ndim))
+    return tuple(_STACKED_RENAME.get(d, d) for d in proposal)
+
+
+def _variable(path: str) -> str:
+    return path.replace("/", "_")
+
+
+def _instance(sample: Path, position: int) -> dict[str, Any]:
+    """Family, split, index and seed of a sample (from its family.json when it has one)."""
+    truth = json.loads((sample / "truth.json").read_text())
+    fam = {}
+    if (sample / "family.json").is_file():
+        fam = json.loads((sample / "family.json").read_text())
+    return {"sample": str(truth.get("scene", sample.name)),
+            "family": str(fam.get("family") or "samples"),
+            "split": str(fam.get("split") or "all"),
+            "index": int(fam.get("index", position)),
+            "seed": int(fam.get("seed", truth.get("seed", 0))),
+            "sample_revision": sample_revision(sample)}
+
+
+def scene_parameters(sample: Path) -> dict[str, Any]:
+    """The drawn parameters of a sample: every scalar of its resolved scene.toml under a dotted
+    key (``scene.material.E``, ``scene.geometry.size.0``, ...); lists of tables such as
+    ``material.defects`` become a count and a JSON column."""
+    import tomllib
+
+    doc = tomllib.loads((sample / "scene.toml").read_text())
+    out: dict[str, Any] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(f"{prefix}.{k}", v)
+        elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            out[f"{prefix}.count"] = len(value)
+            out[f"{prefix}.json"] = json.dumps(value, sort_keys=True)
+        elif isinstance(value, list):
+            if all(isinstance(v, (int, float, str, bool)) for v in value):
+                for i, v in enumerate(value):
+                    out[f"{prefix}.{i}"] = v
+            else:
+                out[prefix] = json.dumps(value, sort_keys=True)
+        else:
+            out[prefix] = value
+
+    for key, value in doc.items():
+        if key not in ("name", "description"):
+            walk(f"scene.{key}", value)
+    return out
+
+
+class _Plan:
+    """Padded shapes, dtypes and dimension names of one family/split store."""
+
+    def __init__(self, samples: list[Path]):
+        import zarr
+
+        self.shapes: dict[str, list[tuple[int, ...]]] = {}
+        self.dtypes: dict[str, np.dtype] = {}
+        self.dims: dict[str, tuple[str, ...]] = {}
+        self.voxels: list[dict | None] = []
+        for s in samples:
+            truth = zarr.open_group(str(s / "truth.zarr"), mode="r")
+            sizes: dict[str, int] = {}
+            for path, arr in _walk_zarr(truth):
+                dims = self.dims.get(path) or _stacked_dims(path, arr.ndim)
+                if len(dims) != arr.ndim:
+                    raise ExportError(f"{s / 'truth.zarr' / path}: has {arr.ndim} dimensions, "
+                                      f"other samples of the split have {len(dims)}")
+                clash = any(sizes.get(d, n) != n for d, n in zip(dims, arr.shape, strict=True))
+                if clash:
+                    dims = tuple(f"{_variable(path)}_{d}" for d in dims)
+                self.dims[path] = dims
+                sizes.update(zip(dims, arr.shape, strict=True))
+                self.shapes.setdefault(path, []).append(tuple(int(n) for n in arr.shape))
+                prev = self.dtypes.get(path)
+                self.dtypes[path] = arr.dtype if prev is None else np.result_type(prev, arr.dtype)
+            info = json.loads((s / "truth.json").read_text()).get("voxels")
+            self.voxels.append(info if info and len(info.get("shape", [])) ==
+                               len(info.get("origin", [])) else None)
+        n = len(samples)
+        for path, shapes in list(self.shapes.items()):
+            if len(shapes) != n:
+                del self.shapes[path], self.dims[path], self.dtypes[path]
+        self.dim_sizes: dict[str, list[int]] = {}
+        for path, shapes in self.shapes.items():
+            for i, d in enumerate(self.dims[path]):
+                sizes_d = [sh[i] for sh in shapes]
+                self.dim_sizes[d] = [max(a, b) for a, b in
+                                     zip(self.dim_sizes.get(d, sizes_d), sizes_d, strict=True)]
+        self.padded = {d: max(v) for d, v in self.dim_sizes.items()}
+        self.varying = sorted(d for d, v in self.dim_sizes.items() if len(set(v)) > 1)
+
+    def shape(self, path: str) -> tuple[int, ...]:
+        return tuple(self.padded[d] for d in self.dims[path])
+
+    def sample_bytes(self) -> dict[str, int]:
+        """Uncompressed bytes one sample adds to each array."""
+        return {p: int(np.prod(self.shape(p))) * self.dtypes[p].itemsize for p in self.shapes}
+
+
+def _pad_value(dtype: np.dtype) -> Any:
+    if dtype.kind == "f" or dtype.kind == "c":
+        return np.nan
+    if dtype.kind == "b":
+        return False
+    return -1 if dtype.kind == "i" else 0
+
+
+def _create_stacked(group, name: str, shape: tuple[int, ...], dtype, dims: tuple[str, ...],
+                    per_shard: int, attrs: dict) -> Any:
+    from zarr.codecs import BloscCodec
+
+    inner = (1, *(max(1, n) for n in shape[1:]))
+    a = group.create_array(name, shape=shape, dtype=dtype, chunks=inner,
+                           shards=(per_shard, *inner[1:]), dimension_names=list(dims),
+                           fill_value=_pad_value(np.dtype(dtype)) if np.dtype(dtype).kind
+                           != "U" else "",
+                           compressors=BloscCodec(cname="zstd", clevel=5, shuffle="shuffle"))
+    a.attrs.update(attrs)
+    return a
+
+
+def _write_store(store: Path, samples: list[Path], rows: list[dict], shard_bytes: int,
+                 drum: bool) -> dict[str, Any]:
+    """Stream ``samples`` into one Zarr v3 store with a ``sample`` dimension; returns what the
+    index and the card need (samples per shard, shard count, variables)."""
+    import zarr
+
+    plan = _Plan(samples)
+    n = len(samples)
+    per_sample = plan.sample_bytes()
+    biggest = max(per_sample.items(), key=lambda kv: kv[1], default=("", 0))
+    if biggest[1] > shard_bytes:
+        raise ExportError(f"--shard-size {shard_bytes}: smaller than one sample of "
+                          f"{biggest[0]} ({biggest[1]} bytes); allowed: a shard size of at "
+                          f"least {biggest[1]} bytes")
+    per_shard = max(1, min(n, shard_bytes // max(biggest[1], 1)))
+    n_shards = -(-n // per_shard)
+    if n_shards >= MAX_FILES_PER_FOLDER:
+        raise ExportError(f"--shard-size {shard_bytes}: {n_shards} shards per array, more "
+                          f"than {MAX_FILES_PER_FOLDER - 1} files in one folder; allowed: a "
+                          "larger shard size")
+    root = zarr.open_group(str(store), mode="w-", zarr_format=3)
+    rows_dims = ("sample",)
+    arrays: dict[str, Any] = {}
+    for path in plan.shapes:
+        unit = _truth_units(path, drum)
+        attrs = {"truth_path": path,
+                 "long_name": f"{path} of the sample's truth.zarr (docs/dataset.md)",
+                 "padding": "NaN (floats), -1 (integers), False (booleans) beyond a "
+                            "sample's size; see <dim>_mask"}
+        if unit:
+            attrs["units"] = unit
+        arrays[path] = _create_stacked(root, _variable(path), (n, *plan.shape(path)),
+                                       plan.dtypes[path], ("sample", *plan.dims[path]),
+                                       per_shard, attrs)
+    masks = {}
+    for d in plan.varying:
+        masks[d] = _create_stacked(root, f"{d}_mask", (n, plan.padded[d]), bool, ("sample", d),
+                                   per_shard, {"long_name": f"True where {d} holds data "
+                                               "(False: padding)"})
+        masks[f"n_{d}"] = _create_stacked(root, f"n_{d}", (n,), np.int64, rows_dims, per_shard,
+                                          {"long_name": f"number of {d} of the sample"})
+    n_vox = max((len(v["shape"]) for v in plan.voxels if v), default=0)
+    centres = {}
+    for ax in "xyz"[:n_vox]:
+        if ax in plan.padded:
+            centres[ax] = _create_stacked(root, f"voxel_centre_{ax}", (n, plan.padded[ax]),
+                                          np.float64, ("sample", ax), per_shard,
+                                          {"units": "m", "long_name": f"voxel centre {ax}"})
+    coords = {"sample": (str, "instance id (scene name)"), "family": (str, "scene family"),
+              "split": (str, "split (train, val, test; 'all' outside a family)"),
+              "index": (np.int64, "instance index within its split"),
+              "seed": (np.uint64, "the instance's recorded seed"),
+              "sample_revision": (str, "first 16 hex digits of the sha256 of the sample's "
+                                       "manifest.json")}
+    for c, (dtype, desc) in coords.items():
+        a = root.create_array(c, shape=(n,), dtype=dtype, chunks=(n,),
+                              dimension_names=["sample"])
+        a.attrs["long_name"] = desc
+        a[:] = np.array([r[c] for r in rows], dtype=dtype if dtype is not str else object)
+    root.attrs.update({"format": STACKED_FORMAT, "format_version": STACKED_VERSION,
+                       "vvtbench": __version__, "samples_per_shard": per_shard,
+                       "coordinates": " ".join(c for c in coords if c != "sample")})
+    total_sample = sum(per_sample.values()) or 1
+    block = max(1, min(per_shard, WRITE_BUFFER_BYTES // total_sample))
+    # a block never straddles two shards: each shard is written whole, or in aligned blocks
+    block = per_shard // -(-per_shard // block)
+    for start in range(0, n, block):
+        stop = min(n, start + block)
+        bufs = {p: np.full((stop - start, *plan.shape(p)), _pad_value(plan.dtypes[p]),
+                           dtype=plan.dtypes[p]) for p in plan.shapes}
+        for i in range(start, stop):
+            truth = zarr.open_group(str(samples[i] / "truth.zarr"), mode="r")
+            for p in plan.shapes:
+                data = truth[p][...]
+                bufs[p][(i - start, *(slice(0, k) for k in data.shape))] = data
+        for p, a in arrays.items():
+            a[start:stop] = bufs[p]
+        del bufs
+        for d in plan.varying:
+            counts = np.array(plan.dim_sizes[d][start:stop], dtype=np.int64)
+            masks[f"n_{d}"][start:stop] = counts
+            masks[d][start:stop] = np.arange(plan.padded[d])[None, :] < counts[:, None]
+        for ax, a in centres.items():
+            k = "xyz".index(ax)
+            vals = np.full((stop - start, plan.padded[ax]), np.nan)
+            for i in range(start, stop):
+                v = plan.voxels[i]
+                if v and k < len(v["shape"]):
+                    m = int(v["shape"][k])
+                    vals[i - start, :m] = v["origin"][k] + (np.arange(m) + 0.5) * (
+                        v["size"][k] / m)
+            a[start:stop] = vals
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "consolidated metadata is not in the v3 spec"
+        zarr.consolidate_metadata(str(store))
+    return {"samples_per_shard": per_shard, "shards": n_shards,
+            "variables": {_variable(p): {"dims": ["sample", *plan.dims[p]],
+                                         "shape": [n, *plan.shape(p)],
+                                         "dtype": str(plan.dtypes[p]),
+                                         "units": _truth_units(p, drum)}
+                          for p in plan.shapes},
+            "varying": plan.varying}
+
+
+def _index_frame(rows: list[dict]):
+    """The instance index as a pandas DataFrame; a column mixing numbers and text is text."""
+    import pandas as pd
+
+    frame = pd.DataFrame(rows)
+    for col in frame.columns:
+        if frame[col].dtype != object:
+            continue
+        values = [v for v in frame[col] if v is not None and v == v]
+        if values and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                          for v in values):
+            frame[col] = frame[col].astype(float)
+        elif not all(isinstance(v, str) for v in values):
+            frame[col] = [None if v is None or v != v else str(v) for v in frame[col]]
+    if "seed" in frame:
+        frame["seed"] = frame["seed"].astype(np.uint64)
+    return frame
+
+
+def pack_stacked(samples: list[Path], out: str | Path, source: str = "", *,
+                 shard_bytes: int = DEFAULT_SHARD_BYTES, overwrite: bool = False,
+                 inputs: list[Path] | tuple = ()) -> Path:
+    """Write ``samples`` as one Zarr v3 store per family and split with a ``sample`` dimension.
+
+    Layout of the output folder::
+
+        <family>/<split>.zarr   truth arrays stacked on ``sample`` and padded to the split's
+                                largest instance (``<dim>_mask``, ``n_<dim>`` where sizes vary);
+                                coordinates sample (instance id), family, split, index, seed,
+                                sample_revision; sharded along ``sample`` (Zarr v3 sharding
+                                codec), every shard file at most ``shard_bytes``
+        index.parquet           one row per instance: ids, seed, store, row, shard and every
+                                drawn scene parameter
+        README.md, croissant.json (Croissant 1.1), dataset.json, SHA256SUMS
+
+    Video and extracted modes are not part of this layout (:func:`pack` keeps them). Writing
+    follows :func:`pack`: checked output path, the folder lock, a temporary sibling renamed at
+    the end, ``overwrite`` only of a dataset written by this module. Raises
+    :class:`ExportError` with nothing written on bad input.
+    """
+    from .croissant import stacked_croissant
+    from .export_card import stacked_card
+
+    samples = [Path(s) for s in samples]
+    if not samples:
+        raise ExportError("no samples to export")
+    if int(shard_bytes) < 1:
+        raise ExportError(f"--shard-size {shard_bytes}: allowed: a positive number of bytes")
+    out = check_output(out, [*samples, *map(Path, inputs)], "zarr", overwrite)
+    for s in samples:
+        verify_sample(s)
+    rows = [_instance(s, i) for i, s in enumerate(samples)]
+    seen: dict[tuple, Path] = {}
+    for s, r in zip(samples, rows, strict=True):
+        key = (r["family"], r["split"], r["sample"])
+        if key in seen:
+            raise ExportError(f"{s}: instance {r['sample']} of {r['family']}/{r['split']} is "
+                              f"also {seen[key]}; export each instance once")
+        seen[key] = s
+    tag = f"partial-{os.getpid()}"
+    partial = out.with_name(f".{out.name}.{tag}")
+    if partial.exists() or partial.is_symlink():
+        raise ExportError(f"{partial}: a temporary path of this export already exists; remove "
+                          "it (left by an interrupted export)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        check_free_space(out.parent, estimate_bytes(samples, {}, "zarr"),
+                         f"the stacked export of {len(samples)} sample(s)")
+    except NoSpaceError as error:
+        raise ExportError(str(error)) from None
+    from .bench.lock import RunLock, RunLocked
+
+    try:
+        lock = RunLock(out.parent, name=f".{out.name}.lock", remove=True).acquire()
+    except RunLocked as error:
+        raise ExportError(f"{out}: another export is writing it ({error})") from None
+    try:
+        _check_replaceable(out, "zarr", overwrite)
+        partial.mkdir()
+        try:
+            _stacked_locked(samples, rows, partial, out, source or "samples", int(shard_bytes),
+                            stacked_card, stacked_croissant)
+            _replace(partial, out)
+        except BaseException:
+            shutil.rmtree(partial, ignore_errors=True)
+            raise
+        return out
+    except OSError as error:
+        if not is_disk_full(error):
+            raise
+        raise ExportError(f"{out}: the disk holding {out.parent} became full while writing "
+                          f"({error.strerror or error}); nothing was written (the partial "
+                          "output is removed); free some space and export again") from None
+    finally:
+        lock.release()
+
+
+def _safe_name(text: str, what: str, sample: Path) -> str:
+    if not text or text in (".", "..") or "/" in text or "\\" in text or text.startswith("."):
+        raise ExportError(f"{sample / 'family.json'}: {what} {text!r} cannot name a folder; "
+                          "allowed: a name without '/' that does not start with '.'")
+    return text
+
+
+def _stacked_locked(samples, rows, partial: Path, out: Path, source: str, shard_bytes: int,
+                    card_fn, croissant_fn) -> None:
+    from .io import write_json, write_text
+    from .release import file_sums, write_sums
+
+    groups: dict[tuple[str, str], list[int]] = {}
+    for i, r in enumerate(rows):
+        key = (_safe_name(r["family"], "family", samples[i]),
+               _safe_name(r["split"], "split", samples[i]))
+        groups.setdefault(key, []).append(i)
+    stores = {}
+    for (family, split), members in sorted(groups.items()):
+        rel = f"{family}/{split}.zarr"
+        (partial / family).mkdir(exist_ok=True)
+        drum = scene_parameters(samples[members[0]]).get("scene.geometry.kind") == "drum"
+        info = _write_store(partial / rel, [samples[i] for i in members],
+                            [rows[i] for i in members], shard_bytes, drum)
+        stores[rel] = {"family": family, "split": split, "samples": len(members), **info}
+        for row, i in enumerate(members):
+            rows[i].update({"store": rel, "row": row, "shard": row // info["samples_per_shard"]})
+    table = [{**r, **scene_parameters(s)} for s, r in zip(samples, rows, strict=True)]
+    frame = _index_frame(table)
+    tmp = partial / f".{INDEX}.tmp"
+    frame.to_parquet(tmp, index=False)
+    os.replace(tmp, partial / INDEX)
+    write_json(partial / STACKED_MARKER, {"format": STACKED_FORMAT,
+                                          "format_version": STACKED_VERSION,
+                                          "vvtbench": __version__, "source": source,
+                                          "shard_bytes": shard_bytes, "stores": stores},
+               indent=1, sort_keys=True)
+    card = card_fn(frame, stores, source, shard_bytes)
+    write_text(partial / "README.md", card)
+    meta = croissant_fn(out.name, partial, frame, stores, source)
+    write_text(partial / "croissant.json", json.dumps(meta, indent=2) + "\n")
+    write_sums(file_sums(partial, exclude=(SUMS,)), partial / SUMS)

@@ -1,5 +1,6 @@
-"""The dataset card (README.md) and the Croissant 1.0 JSON-LD description written beside a
-dataset packed by :func:`vvtbench.export.pack`."""
+"""The dataset cards (README.md) of :func:`vvtbench.export.pack` and
+:func:`vvtbench.export.pack_stacked`, and the Croissant 1.0 JSON-LD description of the former
+(the stacked layout's Croissant 1.1 file: :mod:`vvtbench.croissant`)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from ._version import __version__
 from .dataset import sha256_file
 from .packed import FORMAT, FORMAT_VERSION
 
-__all__ = ["LICENCE", "LICENSE_URL", "croissant", "dataset_card", "sample_revision"]
+__all__ = ["LICENCE", "LICENSE_URL", "croissant", "dataset_card", "sample_revision",
+           "stacked_card"]
 
 LICENSE_URL = "https://creativecommons.org/licenses/by/4.0/"
 LICENCE = """\
@@ -176,3 +178,85 @@ def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
                        "description": "one record per sample (group samples/<name>)",
                        "field": fields}],
     }
+
+
+def _human_bytes(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} TB"
+
+
+def stacked_card(index, stores: dict[str, dict], source: str, shard_bytes: int) -> str:
+    """The README.md of a stacked export: stores, their variables, the index, loading."""
+    store_rows = "\n".join(
+        f"| `{rel}` | {info['family']} | {info['split']} | {info['samples']} | "
+        f"{info['samples_per_shard']} | {info['shards']} | "
+        f"{', '.join(info['varying']) or '-'} |" for rel, info in stores.items())
+    var_rows = []
+    for rel, info in stores.items():
+        for name, v in info["variables"].items():
+            var_rows.append(f"| `{rel}` | `{name}` | ({', '.join(v['dims'])}) | "
+                            f"{'x'.join(map(str, v['shape']))} | {v['dtype']} | "
+                            f"{v['units'] or '-'} |")
+    params = [c for c in index.columns if c.startswith("scene.")]
+    first = next(iter(stores))
+    return f"""# vvtbench dataset (stacked)
+
+Packed by vvtbench {__version__} from `{source}`: {len(index)} instances in {len(stores)}
+store(s), one Zarr v3 store per family and split with a `sample` dimension. A Croissant 1.1
+description (`croissant.json`), an instance index (`index.parquet`) and the sha256 of every
+file (`SHA256SUMS`) are beside this card.
+
+## Stores
+
+| store | family | split | samples | samples per shard | shards | padded dimensions |
+|---|---|---|---|---|---|---|
+{store_rows}
+
+Shards: every array is chunked one sample per chunk and grouped by the Zarr v3 sharding codec
+into shard files of at most {_human_bytes(shard_bytes)} (uncompressed) each, so an array folder
+holds `c/<shard>/...` and no folder more than {10_000 - 1} files.
+
+Sizes that vary between instances of a split (mesh vertices of drums, visible vertices, ...)
+are padded to the largest: floats with NaN, integers with -1, booleans with False;
+`<dim>_mask` (sample, dim) is True where data is and `n_<dim>` (sample) is the true size.
+
+## Variables
+
+| store | variable | dimensions | shape | dtype | units |
+|---|---|---|---|---|---|
+{chr(10).join(var_rows)}
+
+Every variable's `truth_path` attribute names the array of the sample's `truth.zarr` it holds;
+conventions and units: vvtbench docs/dataset.md. Coordinates on `sample`: the instance id,
+`family`, `split`, `index`, `seed` and `sample_revision` (first 16 hex digits of the sha256 of
+the sample's manifest.json, checked against every file when packing).
+
+Video and extracted modes are not in this layout (`vvtbench export --layout samples` keeps them).
+
+## Index
+
+`index.parquet`: one row per instance with `sample`, `family`, `split`, `index`, `seed`,
+`sample_revision`, `store`, `row` (position on `sample`), `shard` (the shard file holding
+it) and the drawn scene parameters ({len(params)} columns `scene.*`, e.g.
+{", ".join(f"`{c}`" for c in params[:6])}).
+
+## Loading
+
+```python
+import pandas as pd, xarray as xr
+index = pd.read_parquet("index.parquet")
+ds = xr.open_zarr("{first}")            # one Dataset, dims (sample, ...)
+ds.sel(sample=index.sample[0])
+```
+
+## Generator
+
+vvtbench {__version__}; each instance is regenerated from its family, split and index (or its
+resolved scene, in the index's `scene.*` columns, with its seed).
+
+## Licence
+
+{LICENCE.format(version=__version__)}"""

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from vvtbench.dataset import DatasetError
-from vvtbench.export import check_output, find_samples, pack
+from vvtbench.export import DEFAULT_SHARD_BYTES, check_output, find_samples, pack, pack_stacked
 from vvtbench.packed import ExportError
 
 
@@ -28,9 +28,36 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--overwrite", action="store_true",
                    help="replace the output if it is a dataset written by vvtbench export "
                         "(never another file or folder)")
+    p.add_argument("--layout", choices=("samples", "stacked"), default="samples",
+                   help="samples: one group per sample with video and extracted modes (read by "
+                        "vvtbench.packed); stacked: one Zarr store per family and split with a "
+                        "'sample' dimension (xarray.open_zarr), a Parquet index and Croissant "
+                        "1.1 (truth arrays only)")
+    p.add_argument("--shard-size", default=str(DEFAULT_SHARD_BYTES), metavar="BYTES",
+                   help="stacked layout: largest shard file, in bytes or with a unit (500MB, "
+                        "20GB; default 20GB)")
     p.add_argument("--run-dir", default=None, type=Path,
                    help="where a suite's samples are generated (default runs/SUITE)")
     return p
+
+
+_UNITS = {"": 1, "B": 1, "KB": 10**3, "MB": 10**6, "GB": 10**9, "TB": 10**12,
+          "KIB": 2**10, "MIB": 2**20, "GIB": 2**30, "TIB": 2**40}
+
+
+def parse_size(text: str) -> int:
+    """Bytes of a size such as ``20GB``, ``500MiB`` or ``4096``."""
+    t = text.strip().upper().replace(" ", "")
+    digits = t.rstrip("KMGTIB")
+    unit = t[len(digits):]
+    try:
+        value = float(digits) * _UNITS[unit]
+    except (ValueError, KeyError):
+        raise ExportError(f"--shard-size {text!r}: allowed: a number of bytes with an optional "
+                          "unit B, KB, MB, GB, TB, KiB, MiB, GiB, TiB") from None
+    if not value >= 1:
+        raise ExportError(f"--shard-size {text!r}: allowed: at least 1 byte")
+    return int(value)
 
 
 def _format(args: argparse.Namespace) -> str:
@@ -54,6 +81,10 @@ def main(argv: list[str] | None = None) -> int:
     src = Path(args.source)
     fmt = _format(args)
     try:
+        if args.layout == "stacked" and fmt != "zarr":
+            raise ExportError(f"{args.output}: the stacked layout is written as Zarr stores; "
+                              "allowed: --format zarr (an output not ending in .h5/.hdf5/.nc)")
+        shard_bytes = parse_size(args.shard_size)
         if src.is_dir():
             samples = find_samples(src)
             inputs = [src]
@@ -68,8 +99,12 @@ def main(argv: list[str] | None = None) -> int:
             samples = _suite_samples(suite_path, run_dir)
         if not samples:
             raise ExportError(f"{src}: no generated samples found")
-        out = pack(samples, args.output, fmt, str(args.source), overwrite=args.overwrite,
-                   inputs=inputs)
+        if args.layout == "stacked":
+            out = pack_stacked(samples, args.output, str(args.source), shard_bytes=shard_bytes,
+                               overwrite=args.overwrite, inputs=inputs)
+        else:
+            out = pack(samples, args.output, fmt, str(args.source), overwrite=args.overwrite,
+                       inputs=inputs)
     except (ValueError, OSError, DatasetError) as error:  # Export/Suite/SceneError: ValueError
         from . import explain
 
