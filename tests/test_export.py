@@ -434,3 +434,181 @@ inference_shape = [2, 2, 2]
         np.testing.assert_array_equal(p.read_frames(), ds.open_sample(sample).read_frames())
     assert export_main(["no_such_suite", "-o", str(tmp_path / "y.zarr")]) == 2
     assert "no_such_suite" in _err(capsys)
+
+
+# --------------------------------------------------------------------------- stacked layout
+TINY_FAMILY = """
+name = "tiny_defects"
+description = "a 3^3 cube with up to two defects"
+
+[base.geometry]
+kind = "box"
+cells = [3, 3, 3]
+
+[base.excitation]
+kind = "pluck"
+at = [0.05, 0.0, 0.05]
+displacement = 0.002
+
+[base.simulation]
+n_modes = 6
+duration = 0.02
+fps = 1000.0
+
+[base.camera]
+resolution = [32, 32]
+position = [0.16, -0.13, 0.13]
+look_at = [0.025, 0.025, 0.022]
+fov_y_deg = 30.0
+
+[base.render]
+supersample = 1
+
+[defects]
+count = { int = [0, 2] }
+size = { uniform = [0.2, 0.4] }
+
+[excitation]
+at = [{ uniform = [0.0, 1.0] }, { uniform = [0.0, 1.0] }, { uniform = [0.5, 1.0] }]
+
+[camera]
+cone_deg = 25.0
+"""
+
+
+def make_family_samples(root: Path, counts: dict[str, int]) -> Path:
+    """Modes-only samples of a tiny family drawn by ``vvtbench generate``: root/<split>/..."""
+    family = root / "tiny_defects.toml"
+    family.write_text(TINY_FAMILY)
+    for split, n in counts.items():
+        argv = ["generate", str(family), "--split", split, "--n", str(n), "--no-video", "-o",
+                str(root / "samples" / split), "--no-progress"]
+        assert cli_main(argv) == 0
+    return root / "samples"
+
+
+@pytest.fixture(scope="module")
+def family_samples(tmp_path_factory) -> Path:
+    return make_family_samples(tmp_path_factory.mktemp("family"), {"train": 4, "val": 2})
+
+
+@pytest.fixture(scope="module")
+def stacked(family_samples, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("stacked") / "tiny"
+    assert export_main([str(family_samples), "-o", str(out), "--layout", "stacked"]) == 0
+    return out
+
+
+def test_stacked_split_opens_as_one_dataset(stacked, family_samples):
+    import zarr
+
+    ds = xr.open_zarr(stacked / "tiny_defects" / "train.zarr")
+    folders = sorted((family_samples / "train").iterdir())
+    assert list(ds["sample"].values) == [p.name for p in folders]
+    assert not [d for d in ds.dims if "_dim_" in d]
+    assert {"sample", "vertex", "component", "mode", "x", "y", "z"} <= set(ds.dims)
+    assert ds.mesh_points.dims == ("sample", "vertex", "component")
+    assert ds.mesh_points.attrs["units"] == "m" and ds.material_stiffness.attrs["units"] == "Pa"
+    assert list(ds.split.values) == ["train"] * 4
+    assert "visible_vertex_mask" in ds and "n_visible_vertex" in ds
+    for i, folder in enumerate(folders):
+        fam = json.loads((folder / "family.json").read_text())
+        assert int(ds.seed[i]) == fam["seed"] and int(ds["index"][i]) == fam["index"]
+        truth = zarr.open_group(str(folder / "truth.zarr"), mode="r")
+        n_vis = truth["observation/visible_nodes"].shape[0]
+        assert int(ds.n_visible_vertex[i]) == n_vis
+        assert int(ds.visible_vertex_mask[i].sum()) == n_vis
+        for name in ("mesh_points", "modes_frequencies_hz", "voxels_stiffness",
+                     "observation_image_modes", "observation_visible_nodes"):
+            want = truth[ds[name].attrs["truth_path"]][...]
+            got = ds[name][i].values
+            np.testing.assert_array_equal(got[tuple(slice(0, k) for k in want.shape)], want)
+        pad = ds.observation_visible_nodes[i].values[n_vis:]
+        assert (pad == -1).all()
+        assert np.isnan(ds.observation_image_modes[i].values[:, n_vis:]).all()
+    # sizes really vary, so the masks are exercised
+    assert len(set(ds.n_visible_vertex.values.tolist())) > 1
+
+
+def test_stacked_index_round_trips(stacked, family_samples):
+    import tomllib
+
+    import pandas as pd
+
+    index = pd.read_parquet(stacked / "index.parquet")
+    assert len(index) == 6 and set(index.split) == {"train", "val"}
+    for _, r in index.iterrows():
+        folder = family_samples / r["split"] / r["sample"]
+        fam = json.loads((folder / "family.json").read_text())
+        assert (int(r["seed"]), int(r["index"])) == (fam["seed"], fam["index"])
+        scene = tomllib.loads((folder / "scene.toml").read_text())
+        assert r["scene.material.E"] == scene["material"]["E"]
+        assert r["scene.excitation.at.2"] == scene["excitation"]["at"][2]
+        assert r["scene.material.defects.count"] == len(scene["material"].get("defects", [])) \
+            or (pd.isna(r["scene.material.defects.count"]) and not scene["material"].get(
+                "defects"))
+        ds = xr.open_zarr(stacked / r["store"])
+        assert str(ds["sample"].values[r["row"]]) == r["sample"]
+        assert r["shard"] == r["row"] // ds.attrs["samples_per_shard"]
+
+
+def _shard_files(store: Path) -> list[Path]:
+    return [p for p in store.rglob("*") if p.is_file() and "c" in p.relative_to(store).parts]
+
+
+def test_stacked_shards_stay_within_size_and_file_count(stacked, family_samples, tmp_path,
+                                                        capsys):
+    import zarr
+
+    variables = json.loads((stacked / "dataset.json").read_text())["stores"][
+        "tiny_defects/train.zarr"]["variables"]
+    biggest = max(int(np.prod(v["shape"][1:])) * np.dtype(v["dtype"]).itemsize
+                  for v in variables.values())
+    limit = 2 * biggest + 100  # two samples of the largest array per shard
+    out = tmp_path / "sharded"
+    assert export_main([str(family_samples / "train"), "-o", str(out), "--layout", "stacked",
+                        "--shard-size", str(limit)]) == 0
+    store = out / "tiny_defects" / "train.zarr"
+    meta = json.loads((out / "dataset.json").read_text())["stores"]["tiny_defects/train.zarr"]
+    assert meta["samples_per_shard"] == 2 and meta["shards"] == 2
+    for name in meta["variables"]:
+        shards = list((store / name / "c").iterdir())
+        a = zarr.open_array(str(store / name), mode="r")
+        assert len(shards) == -(-4 // meta["samples_per_shard"])
+        assert all(p.stat().st_size <= limit for p in _shard_files(store / name))
+        assert a.shards[0] == meta["samples_per_shard"]
+    assert max(len(list(d.iterdir())) for d in out.rglob("*") if d.is_dir()) < 10_000
+    ds = xr.open_zarr(store)
+    assert ds.sizes["sample"] == 4
+    assert (out / "SHA256SUMS").read_text().count("\n") == \
+        sum(1 for p in out.rglob("*") if p.is_file()) - 1
+    capsys.readouterr()
+    assert export_main([str(family_samples / "train"), "-o", str(tmp_path / "tiny-shards"),
+                        "--layout", "stacked", "--shard-size", "1kB"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--shard-size" in err and "allowed" in err
+    assert not (tmp_path / "tiny-shards").exists()
+    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
+
+
+def test_stacked_refuses_bad_input_and_overwrites_only_its_own(stacked, family_samples,
+                                                               tmp_path, capsys):
+    src = str(family_samples / "val")
+    out = tmp_path / "o"
+    for argv in (["-o", str(tmp_path / "x.h5")], ["-o", str(out), "--shard-size", "lots"],
+                 ["-o", str(family_samples / "val" / "inside")]):
+        capsys.readouterr()
+        assert export_main([src, "--layout", "stacked", *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error:") and "\n" not in err
+    assert export_main([src, "-o", str(out), "--layout", "stacked"]) == 0
+    assert export_main([src, "-o", str(out), "--layout", "stacked"]) == 2  # exists
+    assert export_main([src, "-o", str(out), "--layout", "stacked", "--overwrite"]) == 0
+    (out / "notes.txt").write_text("mine")
+    assert export_main([src, "-o", str(out), "--layout", "stacked", "--overwrite"]) == 2
+    assert (out / "notes.txt").read_text() == "mine"
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "a.txt").write_text("keep")
+    assert export_main([src, "-o", str(user), "--layout", "stacked", "--overwrite"]) == 2
+    assert (user / "a.txt").read_text() == "keep"
