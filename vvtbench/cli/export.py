@@ -111,6 +111,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {explain(error)}", file=sys.stderr)
         return 2
     print(f"{len(samples)} sample(s) -> {out}")
+    if args.layout == "stacked" and any(
+            json.loads((s / "truth.json").read_text())["video"].get("file") for s in samples):
+        print("note: the stacked layout holds the truth arrays; video and extracted modes are "
+              "in --layout samples only", file=sys.stderr)
     return 0
 
 
