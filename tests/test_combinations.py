@@ -261,10 +261,6 @@ def test_faint_ratio_rejects_tiny_products_unless_phase_or_sibling_says_otherwis
     assert products[0]["test"] == "faint" and products[0]["product"] == "2 x 113.0 Hz"
     kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph + [0, 0, 1.0], faint_ratio=0.01)
     assert kept.all()  # a phase of its own
-    smooth = np.stack([s1, s2, smooth_shape(rng)])  # faint but smooth: a mode of its own
-    assert envelope_correlation(smooth[2], smooth[:1], [2]) < 0.4
-    kept, _ = find_combinations(f, a, smooth, 0.5, phases=ph, faint_ratio=0.01)
-    assert kept.all()
     a[2] = 0.2  # 0.04 of the reference: not faint
     kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph, faint_ratio=0.01)
     assert kept.all()

@@ -298,7 +298,6 @@ def find_combinations(
     sigma_px: float = 4.0,
     third_order_parents: int = 10,
     faint_ratio: float | None = None,
-    faint_roughness: float = 0.08,
 ) -> tuple[NDArray[np.bool_], list[dict[str, Any]]]:
     """Which candidate peaks are products of stronger ones (see the module's docstring).
 
@@ -356,14 +355,13 @@ def find_combinations(
         A candidate that fails the envelope test (with no informative sibling) is still a
         product when it passed the phase test and has less than this fraction of the power
         its parents' product is expected to have, ``prod_p P_p^|n_p| / P_max^(order - 1)``
-        (``P = amplitude**2``, ``P_max`` the strongest candidate's), and its shape is rough
-        (:func:`.peaks.roughness` at 2 px above ``faint_roughness``).  The products of a
+        (``P = amplitude**2``, ``P_max`` the strongest candidate's).  The products of a
         sensor's quantisation (a staircase, not a smooth non-linearity) do not follow their
-        parents' envelope; they are tiny and texture-locked.  A true mode that faint at a
-        combination is still kept when it is smooth, or when its phase or its sibling's shape
-        shows it is not the product.  Default None: shape and phase alone decide.
-    faint_roughness : float, default 0.08
-        See ``faint_ratio``.
+        parents' envelope, and on small images they are as smooth as modes; they are tiny.
+        A true mode that faint at a combination is still kept when its phase or its
+        sibling's shape shows it is not the product (a plucked one, whose phase is the
+        product's, and without a sibling, is not).  Default None: shape and phase alone
+        decide.
 
     Returns
     -------
@@ -393,12 +391,6 @@ def find_combinations(
         raise ValueError(f"bin_hz must be > 0, got {bin_hz!r}")
     kept = np.ones(f.size, bool)
     root_order = np.ones(f.size, np.int64)
-    w_rough = None if weights is None else np.asarray(weights, dtype=np.float64)
-
-    def _roughness(i: int) -> float:
-        from .peaks import roughness
-
-        return roughness(np.asarray(s[i], np.float64), w_rough, 2.0)
 
     out: list[dict[str, Any]] = []
     order = np.argsort(-a, kind="stable")
@@ -435,8 +427,6 @@ def find_combinations(
             if sib is None and env < min_envelope_correlation:
                 if faint_ratio is None or not _faint(a, k, comb, faint_ratio):
                     continue
-                if _roughness(k) <= faint_roughness:
-                    continue  # smooth: a faint mode of its own, not a texture-locked product
                 test = "faint"
             # a product of products is named by the fewest root modes it needs
             n_roots = sum(abs(n) * int(root_order[p]) for p, n in
