@@ -391,7 +391,6 @@ def find_combinations(
         raise ValueError(f"bin_hz must be > 0, got {bin_hz!r}")
     kept = np.ones(f.size, bool)
     root_order = np.ones(f.size, np.int64)
-
     out: list[dict[str, Any]] = []
     order = np.argsort(-a, kind="stable")
     pos, coef = _combination_table(f.size, max_order, third_order_parents)
