@@ -612,3 +612,24 @@ def test_stacked_refuses_bad_input_and_overwrites_only_its_own(stacked, family_s
     (user / "a.txt").write_text("keep")
     assert export_main([src, "-o", str(user), "--layout", "stacked", "--overwrite"]) == 2
     assert (user / "a.txt").read_text() == "keep"
+
+
+def test_stacked_streams_one_sample_at_a_time_with_the_same_result(stacked, family_samples,
+                                                                     tmp_path, monkeypatch):
+    import vvtbench.export as export
+
+    monkeypatch.setattr(export, "WRITE_BUFFER_BYTES", 1)  # blocks of one sample in one shard
+    out = export.pack_stacked(sorted((family_samples / "train").iterdir()), tmp_path / "one")
+    a = xr.open_zarr(out / "tiny_defects" / "train.zarr").load()
+    b = xr.open_zarr(stacked / "tiny_defects" / "train.zarr").load()
+    xr.testing.assert_identical(a, b)
+
+
+def test_shard_size_units():
+    from vvtbench.cli.export import parse_size
+
+    assert parse_size("20GB") == 20 * 10**9 and parse_size("500MiB") == 500 * 2**20
+    assert parse_size("4096") == 4096 and parse_size("1.5kB") == 1500
+    for bad in ("", "lots", "0", "-5MB", "3XB"):
+        with pytest.raises(ExportError, match="--shard-size"):
+            parse_size(bad)
