@@ -50,6 +50,7 @@ from .spectrum import (
     pixel_noise_power,
     window_gain,
 )
+from .uncertainty import block_clusters, mode_uncertainty
 
 __all__ = ["confidence_weights", "noise_weights", "noisy_pixel_attenuation",
            "fill_unreliable_pixels", "extract_modes",
@@ -507,6 +508,8 @@ def modes_from_displacements(
             "candidates": lines.log,
         },
     )
+    if lines is not None:
+        meta.update(mode_uncertainty(lines, float(fps), T))
     ms = ModeSet(
         shapes=np.array(shapes, dtype=np.float32).reshape(len(shapes), H, W, 2),
         freqs_hz=freqs,
@@ -610,7 +613,7 @@ def _fit_lines(disp: DisplacementStore | ArrayLike, pk: Peaks, Z: NDArray,
                         window=window, radius=radius,
                         false_alarm=0.01 if false_alarm is None else false_alarm,
                         floor_half_width_bins=floor_half_width_bins, max_mac=max_mac,
-                        max_lines=max_modes)
+                        max_lines=max_modes, clusters=block_clusters(fshape))
     bins = np.clip(np.rint(lines.kappa).astype(np.int64), 1, n_top)
     nf = noise_floor(lines.residual, slice(lo, hi + 1), false_alarm=0.01 if false_alarm is None
                      else false_alarm, half_width_bins=floor_half_width_bins)

@@ -257,6 +257,11 @@ class Lines:
         ``fields`` (other bins are the spectrum's own).
     log : list of dict
         Every residual candidate tried (``bin``, ``kept``, ``reason``).
+    uncertainty : LineUncertainty, optional
+        ``(M,)`` standard errors of every line (:func:`.uncertainty.line_uncertainty`).
+    misfit : ndarray, optional
+        ``(M,)`` residual power of each line's group over the residual's noise floor there
+        (about 1 when the lines explain the group's bins).
     """
 
     kappa: NDArray[np.float64]
@@ -266,6 +271,8 @@ class Lines:
     added: NDArray[np.bool_]
     residual: NDArray[np.float64]
     log: list
+    uncertainty: object | None = None
+    misfit: NDArray[np.float64] | None = None
 
 
 def clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: ArrayLike,
@@ -273,7 +280,7 @@ def clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Array
                 window: str = "hann", radius: int = 4, false_alarm: float = 0.01,
                 floor_half_width_bins: int = 32, max_mac: float = 0.5,
                 min_separation: float = 0.5, max_lines: int | None = None,
-                max_rounds: int = 4) -> Lines:
+                max_rounds: int = 4, clusters: ArrayLike | None = None) -> Lines:
     """Fit the starting lines, then add the significant lines of the residual (CLEAN).
 
     Parameters
@@ -307,6 +314,9 @@ def clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Array
         Most lines in all.
     max_rounds : int, default 4
         Residual searches.
+    clusters : array_like, optional
+        ``(P,)`` cluster of each channel for the lines' covariance
+        (:func:`.uncertainty.block_clusters`); default each channel alone.
 
     Returns
     -------
@@ -317,17 +327,18 @@ def clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Array
     with threadpool_limits(limits=1, user_api="blas"):  # many small dense problems
         return _clean_lines(fields, first_bin, power, kappa0, n_frames, band, weights,
                             window, radius, false_alarm, floor_half_width_bins, max_mac,
-                            min_separation, max_lines, max_rounds)
+                            min_separation, max_lines, max_rounds, clusters)
 
 
 def _clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: ArrayLike,
                  n_frames: int, band: tuple[int, int], weights: ArrayLike | None,
                  window: str, radius: int, false_alarm: float, floor_half_width_bins: int,
                  max_mac: float, min_separation: float, max_lines: int | None,
-                 max_rounds: int) -> Lines:
+                 max_rounds: int, clusters: ArrayLike | None = None) -> Lines:
     from scipy.signal import find_peaks
 
     from .significance import noise_floor
+    from .uncertainty import LineUncertainty, line_uncertainty
 
     S = np.asarray(power, np.float64)
     P = fields.shape[1]
@@ -454,11 +465,26 @@ def _clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Arra
     M = kappa.size
     shapes = np.zeros((M, P), np.complex128)
     pw = np.zeros(M)
+    unc = {name: np.full(M, np.nan) for name in
+           ("kappa_std", "half_width_std", "cov_kappa_half_width", "max_correlation",
+            "shape_mac")}
+    misfit = np.full(M, np.nan)
+    lo_f, hi_f = max(lo_b, first_bin), min(hi_b, last)
+    floor = noise_floor(resid, slice(lo_f, hi_f + 1), false_alarm=false_alarm,
+                        half_width_bins=floor_half_width_bins).floor
+    w_all = None if weights is None else np.asarray(weights, np.float64)
+    cl = None if clusters is None else np.asarray(clusters)
     for idx, f in fits:
         X = deflated(f.bins - first_bin, idx)
         cols = np.flatnonzero(np.any(X != 0, axis=0))
-        shapes[idx] = line_shapes(X[:, cols] @ fields[cols], f.bins, f.kappa, f.half_width,
-                                  n_frames, window)
+        Zg = X[:, cols] @ fields[cols]
+        shapes[idx] = line_shapes(Zg, f.bins, f.kappa, f.half_width, n_frames, window)
         pw[idx] = f.power
+        u = line_uncertainty(Zg, f.bins, f.kappa, f.half_width, n_frames, weights=w_all,
+                             clusters=cl, window=window)
+        for name in unc:
+            unc[name][idx] = getattr(u, name)
+        expected = float(np.sum(floor[f.bins])) * max(f.bins.size - 2 * idx.size, 1) / f.bins.size
+        misfit[idx] = f.rss / expected if expected > 0 else np.inf
     return Lines(kappa=kappa, half_width=hw, power=pw, shapes=shapes, added=added,
-                 residual=resid, log=log)
+                 residual=resid, log=log, uncertainty=LineUncertainty(**unc), misfit=misfit)

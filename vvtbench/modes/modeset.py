@@ -33,7 +33,9 @@ _PER_MODE = (
 )
 
 # metadata lists with one entry per analysed peak (kept and rejected), in the order analysed
-CANDIDATE_LISTS = ("roughness", "roughness_shape", "reliable_fraction", "phase_rad")
+CANDIDATE_LISTS = ("roughness", "roughness_shape", "reliable_fraction", "phase_rad",
+                   "frequency_std_hz", "damping_lo", "damping_hi", "shape_mac_expected",
+                   "close_mode_bias", "line_misfit")
 
 
 @dataclass
@@ -169,13 +171,48 @@ class ModeSet:
         undamped peak, docs/modes.md) and the half-power estimate agrees within a factor 2.
         An undamped scene's peaks fail it (half-power NaN or far off), so no ``zeta`` is
         shown for them.
+
+        Where the set carries the damping's 95 % interval (line fit, :meth:`damping_interval`)
+        it must also be tighter than a factor 2 (``lo > 0`` and ``hi / lo <= 2``), and a mode
+        flagged ``close_mode_bias`` (a close pair whose fit residual or parameter correlation
+        says the two lines bias each other) is not resolved.
         """
         z, zh, f = self.damping, self.damping_half_power, self.frequencies_hz
         df = self.fps / self.n_frames if self.n_frames else np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
             ok = np.isfinite(z) & (z > 0) & (z < 0.3) & (z * f >= 0.05 * df)
             ok &= np.isfinite(zh) & (zh > 0.5 * z) & (zh < 2.0 * z)
+            lo, hi = self.damping_interval()
+            known = np.isfinite(lo) & np.isfinite(hi)
+            ok &= ~known | ((lo > 0) & (hi <= 2.0 * lo))
+        ok &= ~self.close_mode_bias()
         return ok
+
+    def mode_list(self, name: str, default: float = np.nan) -> NDArray[np.float64]:
+        """``(k,)`` each mode's entry of a per-candidate metadata list
+        (:data:`CANDIDATE_LISTS`), ``default`` where the set has none (older files, no line
+        fit, merged sets)."""
+        out = np.full(len(self), default, dtype=np.float64)
+        analysed = self.analysed_index()
+        values = self.metadata.get(name)
+        if analysed is None or not isinstance(values, list):
+            return out
+        for i, a in enumerate(analysed):
+            if a < len(values) and values[a] is not None:
+                out[i] = float(values[a])
+        return out
+
+    def frequency_std_hz(self) -> NDArray[np.float64]:
+        """``(k,)`` standard error of each frequency (Hz) from the line fit, else ``nan``."""
+        return self.mode_list("frequency_std_hz")
+
+    def damping_interval(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(lo, hi)`` 95 % interval of each damping ratio from the line fit, else ``nan``."""
+        return self.mode_list("damping_lo"), self.mode_list("damping_hi")
+
+    def close_mode_bias(self) -> NDArray[np.bool_]:
+        """``(k,)`` whether a mode's line fit is biased by a close neighbour."""
+        return self.mode_list("close_mode_bias", 0.0) > 0
 
     def line_snr(self) -> NDArray[np.float64]:
         """``(k,)`` power at each mode's peak bin over the spectrum's noise floor there.

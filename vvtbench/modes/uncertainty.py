@@ -18,7 +18,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .lines import line_kernel
 
-__all__ = ["LineUncertainty", "Z95", "block_clusters", "damping_interval", "line_uncertainty"]
+__all__ = ["LineUncertainty", "Z95", "block_clusters", "damping_interval", "line_uncertainty",
+           "mode_uncertainty"]
 
 #: two-sided 95 % normal quantile used for the damping interval
 Z95 = 1.959963984540054
@@ -150,3 +151,41 @@ def damping_interval(kappa: ArrayLike, half_width: ArrayLike, half_width_std: Ar
     h = np.asarray(half_width, np.float64)
     s = np.asarray(half_width_std, np.float64)
     return (h - z * s) / k, (h + z * s) / k
+
+
+#: a close pair whose group misfit exceeds this (residual over noise floor) biases itself
+MAX_MISFIT = 3.0
+#: ... or whose parameters correlate more than this
+MAX_CORRELATION = 0.8
+#: lines nearer than this (bins) are a close pair
+CLOSE_BINS = 4.0
+
+
+def mode_uncertainty(lines: object, fps: float, n_frames: int) -> dict[str, list]:
+    """Per-line uncertainty lists of a :class:`.lines.Lines` for a mode set's metadata.
+
+    Returns ``frequency_std_hz``, ``damping_lo``, ``damping_hi`` (95 % interval of the damping
+    ratio), ``shape_mac_expected`` and ``close_mode_bias`` (a line within
+    :data:`CLOSE_BINS` bins of another whose group residual exceeds :data:`MAX_MISFIT` times
+    the noise floor, or whose parameters correlate above :data:`MAX_CORRELATION` with the
+    other's), one entry per line in the order of ``lines.kappa``.
+    """
+    u = lines.uncertainty
+    k = np.asarray(lines.kappa, np.float64)
+    lo, hi = damping_interval(k, lines.half_width, u.half_width_std)
+    gap = np.array([np.min(np.abs(np.delete(k, i) - k[i])) if k.size > 1 else np.inf
+                    for i in range(k.size)])
+    misfit = np.asarray(lines.misfit, np.float64)
+    close = (gap < CLOSE_BINS) & ((misfit > MAX_MISFIT) | (u.max_correlation > MAX_CORRELATION))
+
+    def clean(a: NDArray) -> list:
+        return [float(x) if np.isfinite(x) else None for x in a]
+
+    return {
+        "frequency_std_hz": clean(u.kappa_std * fps / n_frames),
+        "damping_lo": clean(lo),
+        "damping_hi": clean(hi),
+        "shape_mac_expected": clean(u.shape_mac),
+        "close_mode_bias": [bool(c) for c in close],
+        "line_misfit": clean(misfit),
+    }
