@@ -10,6 +10,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from ..modes.modeset import ModeSet
 from ..video import VIDEO_SUFFIXES, open_video
 from . import bounded, nonnegative_float, positive_float, positive_int
@@ -317,11 +319,17 @@ def main_extract(argv: list[str] | None = None) -> int:
     print(f"{len(ms)} modes, T = {ms.n_frames} frames at {ms.fps:g} fps -> {args.out}")
     peak, resolved = ms.peak_displacement_px, ms.damping_resolved()
     start = ms.initial_displacement_px
+    sf, (zlo, zhi) = ms.frequency_std_hz(), ms.damping_interval()
+    biased = ms.close_mode_bias()
     for i, row in enumerate(ms.summary()):
         z = row["damping"]
         print(
-            f"  #{row['index']:2d} {row['frequencies_hz']:10.4f} Hz  zeta "
+            f"  #{row['index']:2d} {row['frequencies_hz']:10.4f}"
+            + (f" +- {sf[i]:.2g}" if np.isfinite(sf[i]) else "")
+            + " Hz  zeta "
             + (f"{z:.4f}" if z is not None and resolved[i] else "  -   ")
+            + (f" [{zlo[i]:.4f}, {zhi[i]:.4f}]" if np.isfinite(zlo[i]) else "")
+            + ("  ! close mode bias" if biased[i] else "")
             + f"  peak {peak[i]:.3g} px"
             + (f" (at the start {start[i]:.3g} px)" if start[i] > 1.05 * peak[i] else "")
             + f"  prominence {row['prominences']:.2f}"

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .modeset import ModeSet
+from .uncertainty import Z95
 
 __all__ = ["plot_mode", "plot_modes", "plot_spectrum"]
 
@@ -82,11 +83,15 @@ def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
                 ax.plot(ms.freqs_hz[k], ms.power[k], "x", color="0.5", ms=7)
         order = np.argsort(ms.frequencies_hz)
         small = len(ms) > 12
+        sf = ms.frequency_std_hz()
         for j, i in enumerate(order):
             k = int(ms.peak_bins[i])
             if not (0 <= k < ms.power.size and x0 <= ms.freqs_hz[k] <= x1):
                 continue
             ax.plot(ms.freqs_hz[k], ms.power[k], "v", color="tab:red", ms=6)
+            if np.isfinite(sf[i]):
+                ax.errorbar(ms.frequencies_hz[i], ms.power[k] * 1.6, xerr=Z95 * sf[i],
+                            fmt="none", ecolor="tab:red", elinewidth=1.2, capsize=2)
             # labels in three staggered rows along the top, a leader line to each peak
             ax.annotate(
                 f"#{i} {ms.frequencies_hz[i]:.{1 if small else 2}f}",
@@ -149,11 +154,19 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     ax.quiver(xx, yy, s[yy, xx, 0], s[yy, xx, 1], color="tab:red", angles="xy", pivot="mid")
     ax.set_title("shape (arrows, image y down)")
     ax.axis("off")
+    lo, hi = ms.damping_interval()
+    sf = ms.frequency_std_hz()[i]
     zeta = (f", zeta = {ms.damping[i]:.4f}" if ms.damping_resolved()[i]
             else ", zeta not resolved")
+    if np.isfinite(lo[i]):
+        zeta += f" [{lo[i]:.4f}, {hi[i]:.4f}]"
+    if ms.close_mode_bias()[i]:
+        zeta += " (biased by a close mode)"
     peak, start = ms.peak_displacement_px[i], ms.initial_displacement_px[i]
     fig.suptitle(
-        f"mode #{i}: {ms.frequencies_hz[i]:.3f} Hz{zeta}, peak displacement {peak:.3g} px"
+        f"mode #{i}: {ms.frequencies_hz[i]:.3f}"
+        + (f" +- {sf:.2g}" if np.isfinite(sf) else "")
+        + f" Hz{zeta}, peak displacement {peak:.3g} px"
         + (f" ({start:.3g} px at the start)" if start > 1.05 * peak else "")
         + " (unit-norm shape shown)"
         + ("  [camera shake]" if ms.camera_shake[i] else "")
@@ -167,10 +180,56 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     return out
 
 
+def plot_uncertainty(ms: ModeSet, path: str | Path) -> Path:
+    """Damping ratio against frequency with the 95 % intervals of both (line fit only):
+    resolved dampings in blue, unresolved in grey, modes biased by a close neighbour
+    ringed in red."""
+    plt = _plt()
+    lo, hi = ms.damping_interval()
+    sf = ms.frequency_std_hz()
+    resolved, biased = ms.damping_resolved(), ms.close_mode_bias()
+    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
+    for i in range(len(ms)):
+        f, z = float(ms.frequencies_hz[i]), float(ms.damping[i])
+        if not np.isfinite(z):
+            continue
+        color = "tab:blue" if resolved[i] else "0.55"
+        yerr = ([[max(z - lo[i], 0.0)], [max(hi[i] - z, 0.0)]] if np.isfinite(lo[i])
+                else None)
+        xerr = Z95 * sf[i] if np.isfinite(sf[i]) else None
+        ax.errorbar(f, max(z, 1e-5), yerr=yerr, xerr=xerr, fmt="o", color=color, ms=4,
+                    capsize=3, lw=1)
+        if biased[i]:
+            ax.plot(f, max(z, 1e-5), "o", mfc="none", mec="tab:red", ms=11, mew=1.5)
+        ax.annotate(f"#{i}", (f, max(z, 1e-5)), textcoords="offset points", xytext=(4, 4),
+                    fontsize=7)
+    ax.errorbar([], [], yerr=[], fmt="o", color="tab:blue", label="damping resolved")
+    ax.errorbar([], [], yerr=[], fmt="o", color="0.55", label="not resolved")
+    ax.plot([], [], "o", mfc="none", mec="tab:red", label="biased by a close mode")
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=1e-4)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("damping ratio zeta (95 % interval)")
+    ax.set_title("Identified modes with their 95 % intervals")
+    ax.grid(True, which="both", alpha=0.2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    out = Path(path)
+    from ..io import atomic_file
+
+    with atomic_file(out) as fh:
+        fig.savefig(fh, format=out.suffix[1:] or "png")
+    plt.close(fig)
+    return out
+
+
 def plot_modes(ms: ModeSet, directory: str | Path) -> list[Path]:
-    """``spectrum.png`` and ``mode_XX.png`` for every mode into ``directory``."""
+    """``spectrum.png``, ``mode_XX.png`` for every mode and, where the modes carry
+    intervals (line fit), ``uncertainty.png`` into ``directory``."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     paths = [plot_spectrum(ms, d / "spectrum.png")]
+    if len(ms) and np.isfinite(ms.damping_interval()[0]).any():
+        paths.append(plot_uncertainty(ms, d / "uncertainty.png"))
     paths += [plot_mode(ms, i, d / f"mode_{i:02d}.png") for i in range(len(ms))]
     return paths
