@@ -8,8 +8,16 @@ difference to the true-camera row.
         --sample /work/tmp/field/jello_cube_defect_top --duration 1.0 \
         [--formats tiff mraw h264] [--crf 18 23] [--bitrate-mbps 50] [--click-seeds 0 1 2]
 
+Measured on 2 cores (2026-11-27; ``jello_cube_defect_top``, 1 s at 2000 FPS, the paper
+suite's extraction, vvt, 10 modes, 8^3 voxels): lossless video and true camera NC w 0.595;
+12-bit TIFF + STL + 10 clicks at 0.5 px NC w 0.564-0.581 over 5 click seeds (mean difference
+-0.026, worst -0.032; -0.022 with noise-free clicks); MRAW identical to TIFF; H.264 crf 12
+-0.050, 100 Mbit/s -0.040, crf 18 -0.139, crf 23 -0.180; the STL tetrahedralized
+(``--mesh tet``) -0.446. Table in docs/suites.md ("Field tracks").
+
 ``--sample``: an already generated sample of the scene (``vvtbench generate
-jello_cube_defect_top --out DIR``; a paper cube takes minutes to render on 2 cores); it is
+jello_cube_defect_top --duration 1.0 --out DIR``; a paper cube takes minutes to render on
+2 cores); it is
 linked into the run's cache as the generate task's output after its resolved scene is checked
 to be the one the suite asks for. Without it the run renders the scene itself.
 """
