@@ -144,3 +144,27 @@ def test_damping_resolved_needs_an_interval_within_a_factor_two(lo_hi, ok):
                  metadata={"analysed_index": [0], "damping_lo": [lo_hi[0]],
                            "damping_hi": [lo_hi[1]]})
     assert bool(ms.damping_resolved()[0]) is ok
+
+
+def test_stability_search_finds_a_mode_at_every_record_length(tmp_path):
+    from vvtbench.modes.plots import plot_modes
+    from vvtbench.modes.stability import record_stability
+
+    rng = np.random.default_rng(SEED + 4)
+    T, H, W, fps = 512, 10, 10, 100.0
+    t = np.arange(T) / fps
+    yy, xx = np.mgrid[0:H, 0:W]
+    shape = np.stack([np.sin(np.pi * xx / W), np.cos(np.pi * yy / H)], -1)
+    sig = np.exp(-2 * np.pi * 23.4 * 0.005 * t) * np.cos(2 * np.pi * 23.4 * t)
+    disp = (0.05 * sig[:, None, None, None] * shape[None]
+            + 2e-3 * rng.normal(size=(T, H, W, 2))).astype(np.float32)
+    st = record_stability(disp, fps, fmax=45)
+    assert st["n_frames"] == [128, 256, 384, 512]
+    for n, peaks in zip(st["n_frames"], st["peaks_hz"], strict=True):
+        assert np.min(np.abs(np.asarray(peaks) - 23.4)) <= fps / n
+    with pytest.raises(ValueError, match="fractions"):
+        record_stability(disp, fps, fractions=(0.0, 1.0))
+    ms = modes_from_displacements(disp, fps, fmax=45, line_fit=True)
+    ms.metadata["stability"] = st
+    names = {p.name for p in plot_modes(ms, tmp_path)}
+    assert {"spectrum.png", "uncertainty.png", "stability.png"} <= names

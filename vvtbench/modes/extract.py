@@ -747,6 +747,7 @@ def extract_modes(
     extractor: Any = "phase",
     extractor_config: Any = None,
     line_fit: bool = False,
+    stability: bool = False,
     roughness_weighting: str = "shape",
     min_reliable_fraction: float | None = None,
     start: int = 0,
@@ -814,6 +815,10 @@ def extract_modes(
         The extractor's ``Config`` (or overrides of its defaults).
     line_fit : bool, default False
         Multi-channel line fit and residual search, see :func:`modes_from_displacements`.
+    stability : bool, default False
+        Also search the first quarter, half and three quarters of the record for peaks
+        (:func:`.stability.record_stability`) into ``metadata["stability"]``, for the
+        stability figure.
     roughness_weighting, min_reliable_fraction :
         Shape tests on the reliable pixels, see :func:`modes_from_displacements` (they use the
         noise weights of ``weighting="noise"``; with other weightings they change nothing).
@@ -939,6 +944,12 @@ def extract_modes(
             roughness_weighting=roughness_weighting,
             min_reliable_fraction=min_reliable_fraction,
         )
+        if stability:
+            from .stability import record_stability
+
+            ms.metadata["stability"] = record_stability(
+                store, eff_fps, weights=weights, fmin=fmin, fmax=fmax,
+                false_alarm=false_alarm, min_bin=min_bin)
     gop = (video.meta.get("lossy") or {}).get("gop")
     if reject_keyframe_comb and gop and len(ms):
         ms = _reject_keyframe_comb(ms, float(fps), int(gop))

@@ -223,13 +223,61 @@ def plot_uncertainty(ms: ModeSet, path: str | Path) -> Path:
     return out
 
 
+def plot_stability(ms: ModeSet, path: str | Path) -> Path:
+    """Stability diagram: the significant peaks of the first quarter, half, three quarters
+    and the whole record (``metadata["stability"]``, :func:`.stability.record_stability`)
+    against frequency, each identified mode a red line with its 95 % frequency interval
+    shaded.  A mode is stable when its column of peaks lines up at every record length."""
+    st = ms.metadata.get("stability")
+    if not isinstance(st, dict) or not st.get("peaks_hz"):
+        raise ValueError("the mode set has no stability search (metadata 'stability')")
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(10, 4.5), dpi=110)
+    sf = ms.frequency_std_hz()
+    for i, f in enumerate(ms.frequencies_hz):
+        ax.axvline(f, color="tab:red", lw=0.6, alpha=0.6)
+        if np.isfinite(sf[i]):
+            ax.axvspan(f - Z95 * sf[i], f + Z95 * sf[i], color="tab:red", alpha=0.15, lw=0)
+    for frac, n, peaks in zip(st["fractions"], st["n_frames"], st["peaks_hz"], strict=True):
+        p = np.asarray(peaks, np.float64)
+        half_bin = 0.5 * ms.fps / n
+        near = np.array([np.min(np.abs(ms.frequencies_hz - x)) <= max(half_bin, 1e-12)
+                         if len(ms) else False for x in p], bool)
+        ax.plot(p[near], np.full(near.sum(), frac), "o", color="tab:blue", ms=4)
+        ax.plot(p[~near], np.full((~near).sum(), frac), "x", color="0.5", ms=4)
+    ax.plot([], [], "o", color="tab:blue", label="peak at an identified mode")
+    ax.plot([], [], "x", color="0.5", label="other significant peak")
+    ax.plot([], [], "-", color="tab:red", label="identified mode (95 % interval)")
+    ax.set_yticks(st["fractions"])
+    ax.set_yticklabels([f"{f:g} ({n / ms.fps:.3g} s)"
+                        for f, n in zip(st["fractions"], st["n_frames"], strict=True)])
+    ax.set_ylim(0, 1.1)
+    ax.set_xlim(float(ms.metadata.get("band_hz", [0, 0])[0]), _xmax(ms))
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("leading part of the record")
+    ax.set_title("Stability: peaks found in the leading part of the record")
+    ax.grid(True, alpha=0.2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    out = Path(path)
+    from ..io import atomic_file
+
+    with atomic_file(out) as fh:
+        fig.savefig(fh, format=out.suffix[1:] or "png")
+    plt.close(fig)
+    return out
+
+
 def plot_modes(ms: ModeSet, directory: str | Path) -> list[Path]:
     """``spectrum.png``, ``mode_XX.png`` for every mode and, where the modes carry
-    intervals (line fit), ``uncertainty.png`` into ``directory``."""
+    intervals (line fit), ``uncertainty.png``, and with a stability search
+    ``stability.png``, into ``directory``."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     paths = [plot_spectrum(ms, d / "spectrum.png")]
     if len(ms) and np.isfinite(ms.damping_interval()[0]).any():
         paths.append(plot_uncertainty(ms, d / "uncertainty.png"))
+    if isinstance(ms.metadata.get("stability"), dict):
+        paths.append(plot_stability(ms, d / "stability.png"))
     paths += [plot_mode(ms, i, d / f"mode_{i:02d}.png") for i in range(len(ms))]
     return paths
