@@ -207,7 +207,12 @@ def plot_uncertainty(ms: ModeSet, path: str | Path) -> Path:
     ax.errorbar([], [], yerr=[], fmt="o", color="0.55", label="not resolved")
     ax.plot([], [], "o", mfc="none", mec="tab:red", label="biased by a close mode")
     ax.set_yscale("log")
-    ax.set_ylim(bottom=1e-4)
+    z = np.asarray(ms.damping, np.float64)
+    top = np.concatenate([z[np.isfinite(z)], hi[np.isfinite(hi)]])
+    bottom = np.concatenate([z[np.isfinite(z) & (z > 0)], lo[np.isfinite(lo) & (lo > 0)]])
+    ax.set_ylim(max(float(bottom.min()) / 2 if bottom.size else 1e-4, 1e-5),
+                max(float(top.max()) * 2 if top.size else 1.0, 1e-3))
+    ax.set_xlim(float(ms.metadata.get("band_hz", [0, 0])[0]), _xmax(ms))
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("damping ratio zeta (95 % interval)")
     ax.set_title("Identified modes with their 95 % intervals")
