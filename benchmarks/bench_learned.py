@@ -72,6 +72,7 @@ def mean_ci(values, n_boot: int = 2000, seed: int = 0) -> tuple[float, float, fl
 
 def main(argv: list[str] | None = None) -> int:
     from solvers.learned import (
+        N_REFERENCE,
         LearnedConfig,
         LearnedSolver,
         fit_features,
@@ -89,13 +90,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--references", nargs="*", default=["homogeneous", "sensitivity"])
     p.add_argument("--curve", type=Path, default=Path("benchmarks/learning_curve.png"))
     p.add_argument("--tmp", type=Path, default=Path("/tmp/bench_learned"))
+    p.add_argument("--rows", type=Path, default=None,
+                   help="JSON of the learning-curve rows: written after training; with "
+                   "--replot read instead (table and figure again, e.g. with more references)")
+    p.add_argument("--replot", action="store_true")
     args = p.parse_args(argv)
+    if args.replot:
+        ref = json.loads(args.reference.read_text())
+        report(json.loads(args.rows.read_text()), ref, args.curve)
+        return 0
 
     ref = reference_scores(args.data, args.references, args.reference)
-    basis, train, val = None, [], []
+    train, val = [], []
     t0 = time.perf_counter()
+    basis = reference_basis([pr for pr, _ in _pairs(args.data, "train", N_REFERENCE)])
     for problem, truth in _pairs(args.data, "train", max(args.sizes)):
-        basis = reference_basis(problem) if basis is None else basis
         train.append(instance_features(problem, truth, basis))
     for problem, truth in _pairs(args.data, "val", args.n_val):
         val.append(instance_features(problem, truth, basis))
@@ -123,6 +132,16 @@ def main(argv: list[str] | None = None) -> int:
                      "test": mean_ci(nc), "seconds": float(np.median(secs))})
         print(f"n={size}: ridge {ridge:g} val {val_nc:+.3f} test {rows[-1]['test'][0]:+.3f}",
               flush=True)
+    if args.rows is not None:
+        from vvtbench.io import write_json
+
+        write_json(args.rows, rows)
+    report(rows, ref, args.curve)
+    return 0
+
+
+def report(rows: list[dict], ref: dict, curve: Path) -> None:
+    """The learning-curve table (markdown, stdout) and figure."""
     print("\n| train instances | ridge (val) | val NC w | test NC w [95 % CI] | s / instance |")
     print("|---|---|---|---|---|")
     for r in rows:
@@ -131,11 +150,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{m:+.3f} [{lo:+.3f}, {hi:+.3f}] | {r['seconds']:.3f} |")
     for name, d in ref.items():
         m, lo, hi = mean_ci(d["nc_w"])
-        print(f"| `{name}` | | | {m:+.3f} [{lo:+.3f}, {hi:+.3f}] | "
-              f"{np.median(d['seconds']):.3f} |")
-    plot_curve(rows, ref, args.curve)
-    print(f"figure: {args.curve}")
-    return 0
+        print(f"| `{name}` ({len(d['nc_w'])} test instances) | | | {m:+.3f} [{lo:+.3f}, "
+              f"{hi:+.3f}] | {np.median(d['seconds']):.3f} |")
+    plot_curve(rows, ref, curve)
+    print(f"figure: {curve}")
 
 
 def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:

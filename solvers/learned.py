@@ -29,6 +29,7 @@ read and solved with that model (:func:`features`).
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 import zipfile
@@ -117,16 +118,18 @@ def features(problem: InverseProblem) -> tuple[np.ndarray, float]:
 
 MODEL = "modal-step-ridge"
 LEGACY_MODEL = "ridge-sensitivity"
-N_BASIS = 40
 N_SLOTS = 20
+N_REFERENCE = 8  # train instances whose homogeneous modes span the basis
 RIDGES = (0.1, 10.0, 1e3, 1e5)
+SMOOTH = (0.3, 1.0, 3.0)  # smoothness weights of the linearized steps (val-chosen range)
 
 
-def reference_basis(problem: InverseProblem, n_basis: int = N_BASIS) -> np.ndarray:
-    """The modal basis the weights carry: ``n_basis`` homogeneous modes of one instance."""
+def reference_basis(problems) -> np.ndarray:
+    """The modal basis the weights carry: the low homogeneous modes of a few train instances
+    (:func:`vvtbench.learning.modal_features.reference_basis`)."""
     from vvtbench.learning.modal_features import reference_basis as basis_of
 
-    return basis_of(problem, n_basis)
+    return basis_of(problems)
 
 
 def voxel_features(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, float]:
@@ -136,12 +139,12 @@ def voxel_features(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarr
     from vvtbench.learning.modal_features import linear_step
 
     with threadpool_limits(limits=1, user_api="blas"):  # small dense algebra: threads only wait
-        steps, info = linear_step(problem, basis, N_SLOTS)
-    steps = steps / (np.sqrt(np.mean(steps**2, axis=0)) + 1e-12)
+        steps, info = linear_step(problem, basis, N_SLOTS, smooth=SMOOTH)
+    unit = steps / (np.sqrt(np.mean(steps**2, axis=0)) + 1e-12)
     grid = problem.voxel_map.grid
     centers = grid.centers()[problem.voxel_map.active]
     pos = (centers - np.asarray(grid.origin)) / np.asarray(grid.size) - 0.5
-    return np.column_stack([steps, steps**2, np.abs(steps), pos, pos**2]), info["v_hom"]
+    return np.column_stack([steps, unit, pos**2]), info["v_hom"]
 
 
 def instance_features(problem: InverseProblem, truth, basis: np.ndarray) -> dict:
@@ -191,12 +194,13 @@ def select_ridge(train: list[dict], val: list[dict], ridges=RIDGES) -> tuple[flo
 def fit(pairs: Iterable, ridge: float = 0.0, val: Iterable = ()) -> dict:
     """Weights from ``(problem, truth)`` pairs of a family's train split; ``ridge`` 0: chosen
     from :data:`RIDGES` by mean NC w on the ``val`` pairs (on train itself without val)."""
-    basis, train = None, []
-    for problem, truth in pairs:
-        basis = reference_basis(problem) if basis is None else basis
-        train.append(instance_features(problem, truth, basis))
-    if not train:
+    pairs = iter(pairs)
+    first = list(itertools.islice(pairs, N_REFERENCE))
+    if not first:
         raise ValueError("no training instances")
+    basis = reference_basis([problem for problem, _ in first])
+    train = [instance_features(problem, truth, basis)
+             for problem, truth in itertools.chain(first, pairs)]
     held = [instance_features(p, t, basis) for p, t in val]
     chosen, score = select_ridge(train, held, RIDGES if ridge <= 0 else (ridge,))
     weights = fit_features(train, basis, chosen)

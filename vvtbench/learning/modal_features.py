@@ -25,18 +25,31 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sp
 from scipy.optimize import linear_sum_assignment
 
 from vvtbench.problem import InverseProblem
 
 
-def reference_basis(problem: InverseProblem, n_basis: int) -> np.ndarray:
-    """(n_free, n_basis) lowest homogeneous modes (w = v = 1) of one instance's model."""
+def reference_basis(problems, n_modes: int = 30, n_basis: int = 120) -> np.ndarray:
+    """(n_free, <= n_basis) orthonormal basis spanning the ``n_modes`` lowest homogeneous
+    modes (w = v = 1) of each of ``problems`` (instances of one family: their geometries
+    differ, e.g. in aspect, so the union spans every instance's low modes far better than
+    one instance's modes)."""
     from vvtbench.fem.modal import eigenmodes
 
-    model = problem.model
-    n = min(n_basis, model.n_free - 1)
-    return eigenmodes(model.K(1.0), model.M(1.0), n).vectors
+    problems = [problems] if isinstance(problems, InverseProblem) else list(problems)
+    blocks = []
+    for problem in problems:
+        model = problem.model
+        if blocks and model.n_free != blocks[0].shape[0]:
+            raise ValueError("learned: the reference instances differ in mesh (free DOFs "
+                             f"{blocks[0].shape[0]} and {model.n_free})")
+        vectors = eigenmodes(model.K(1.0), model.M(1.0), min(n_modes, model.n_free - 1)).vectors
+        blocks.append(vectors / np.linalg.norm(vectors, axis=0))
+    U, sv, _ = np.linalg.svd(np.hstack(blocks), full_matrices=False)
+    keep = min(n_basis, int(np.sum(sv > 1e-6 * sv[0])))
+    return U[:, :keep]
 
 
 def ritz_modes(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -100,6 +113,9 @@ def modal_features(problem: InverseProblem, basis: np.ndarray, n_slots: int) -> 
     return np.concatenate([misfit, flag, shapes.ravel(), aspect])
 
 
+N_FIT = 40  # Ritz modes an observed shape is expanded on (higher ones are poorly resolved)
+
+
 def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_slots: int
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Observed modes paired with homogeneous modes: (observed index, homogeneous index,
@@ -107,8 +123,8 @@ def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_sl
     log of the fitted homogeneous density ratio v_hom / w_mean)."""
     from vvtbench.mac import mac_matrix
 
-    n_basis = psi.shape[1]
-    A = np.asarray(problem.P @ psi)
+    n_basis = min(psi.shape[1], N_FIT)
+    A = np.asarray(problem.P @ psi[:, :n_basis])
     gamma = np.asarray(problem.gamma, dtype=float)
     lam = np.asarray(problem.eigenvalues, dtype=float)
     slots = min(n_slots, n_basis)
@@ -133,8 +149,10 @@ def voxel_couplings(problem: InverseProblem, psi: np.ndarray, cols: np.ndarray) 
     KU = np.matmul(model.Ke, U[:, :, cols])               # (n_el, n_dof_el, n_pairs)
     G = np.matmul(np.transpose(KU, (0, 2, 1)), U)         # (n_el, n_pairs, n_basis)
     param = model.voxel_map.element_param
-    out = np.zeros((model.n_params, len(cols), psi.shape[1]))
-    np.add.at(out, param, G)
+    n_el = len(param)
+    to_voxel = sp.csr_matrix((np.ones(n_el), (param, np.arange(n_el))),
+                             shape=(model.n_params, n_el))
+    out = (to_voxel @ G.reshape(n_el, -1)).reshape(model.n_params, len(cols), psi.shape[1])
     return np.transpose(out, (1, 2, 0))
 
 
@@ -189,6 +207,7 @@ def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
     G = voxel_couplings(problem, psi, cols)               # (n_pairs, n_basis, m)
     ar = np.arange(len(cols))
     J_eig = G[ar, cols, :] / mu[cols, None]
+    J_eig = J_eig - J_eig.mean(axis=0)   # v_hom absorbs a common shift of all eigenvalues
     y_eig = np.log(lam[rows]) + log_v - np.log(problem.w_mean * mu[cols])
     J_shape, y_shape = [], []
     for j, c in enumerate(cols):
@@ -196,7 +215,7 @@ def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
         if a[c] == 0:
             continue
         a = a / a[c]
-        far = np.flatnonzero(np.abs(mu - mu[c]) > gap * mu[c])
+        far = np.flatnonzero(np.abs(mu[:len(a)] - mu[c]) > gap * mu[c])
         J_shape.append(G[j, far, :] / (mu[c] - mu[far])[:, None])
         y_shape.append(np.clip(a[far], -1.0, 1.0))
     J = np.vstack([J_eig, *J_shape])
