@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             est = solver.solve(problem)
             secs.append(time.perf_counter() - t)
             nc.append(normalized_correlation(est.w, truth.w))
-        rows.append({"n_train": size, "ridge": ridge, "val_nc_w": val_nc,
+        rows.append({"n_train": size, "ridge": ridge, "val_nc_w": val_nc, "nc_w": nc,
                      "test": mean_ci(nc), "seconds": float(np.median(secs))})
         print(f"n={size}: ridge {ridge:g} val {val_nc:+.3f} test {rows[-1]['test'][0]:+.3f}",
               flush=True)
@@ -150,8 +150,13 @@ def report(rows: list[dict], ref: dict, curve: Path) -> None:
               f"{m:+.3f} [{lo:+.3f}, {hi:+.3f}] | {r['seconds']:.3f} |")
     for name, d in ref.items():
         m, lo, hi = mean_ci(d["nc_w"])
-        print(f"| `{name}` ({len(d['nc_w'])} test instances) | | | {m:+.3f} [{lo:+.3f}, "
+        k = len(d["nc_w"])
+        print(f"| `{name}` ({k} test instances) | | | {m:+.3f} [{lo:+.3f}, "
               f"{hi:+.3f}] | {np.median(d['seconds']):.3f} |")
+        if rows and k < len(rows[-1]["nc_w"]):
+            m, lo, hi = mean_ci(rows[-1]["nc_w"][:k])
+            print(f"| learned ({rows[-1]['n_train']}) on the same {k} | | | {m:+.3f} "
+                  f"[{lo:+.3f}, {hi:+.3f}] | |")
     plot_curve(rows, ref, curve)
     print(f"figure: {curve}")
 

@@ -1,24 +1,18 @@
-"""Per-instance features of the observed modes on a family's reference modal basis.
+"""A linearized inversion step of the observed modes on a family's modal basis.
 
 The ``learned`` solver's inputs (solvers/learned.py). Every instance of a family shares its
 mesh topology (the family varies defects, the box aspect, the camera and the pluck, never the
-cells), so one basis of free-DOF vectors serves all instances: the ``n_basis`` lowest
-homogeneous modes of a reference instance. For one instance, a Rayleigh-Ritz projection of its
-homogeneous model (w = v = 1 on its own geometry) onto that basis gives its homogeneous modes
-psi_c and eigenvalues mu_c in a few milliseconds (no sparse eigensolve). Each observed mode is
-paired (Hungarian, on the MAC of its image-space shape with P psi_c) with one of the first
-``n_slots`` homogeneous modes; the slot of homogeneous mode c then holds
-
-* the eigenvalue misfit log(lam_obs v_hom / (w_mean mu_c)), v_hom the homogeneous density
-  fitted to all pairs (as the ``homogeneous`` solver does), and
-* the observed shape's least-squares coefficients on the projected basis P psi (unit norm,
-  signed so that the coefficient on psi_c is positive): how a defect rotates and mixes the
-  homogeneous shapes, the information that breaks the body's symmetries, which eigenvalues
-  alone cannot;
-
-empty slots are zero and flagged. The body's aspect (the extents of its mesh) closes the
-vector. Only the observation enters: eigenvalues, image-space shapes at visible vertices,
-the observation operator P and the mesh; never the truth.
+cells), so one basis of free-DOF vectors serves all instances: the span of the low
+homogeneous modes of a few train instances (:func:`reference_basis`; their geometries differ,
+so the union covers any instance's aspect). For one instance a Rayleigh-Ritz projection of
+its homogeneous model (w = v = 1 on its own geometry) onto that basis gives its homogeneous
+modes psi_c and eigenvalues mu_c in milliseconds, without a sparse eigensolve
+(:func:`ritz_modes`). Each observed mode is paired (Hungarian, on the MAC of its image-space
+shape with P psi_c) with one of the first ``n_slots`` homogeneous modes and expanded on the
+projected basis P psi (:func:`pair_observed`). :func:`linear_step` then solves the first-order
+(Born) equations of the eigenvalue misfits and of the mode mixing in each observed shape for
+log(w / w_mean) per voxel. Only the observation enters: eigenvalues, image-space shapes at
+visible vertices, the observation operator P and the mesh; never the truth.
 """
 
 from __future__ import annotations
@@ -65,52 +59,6 @@ def ritz_modes(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, 
     Mr = basis.T @ Mb
     mu, Q = sla.eigh((Kr + Kr.T) / 2, (Mr + Mr.T) / 2)
     return mu, basis @ Q
-
-
-def feature_size(n_slots: int, n_basis: int) -> int:
-    """Length of the vector :func:`modal_features` returns."""
-    return n_slots * (2 + n_basis) + 3
-
-
-def modal_features(problem: InverseProblem, basis: np.ndarray, n_slots: int) -> np.ndarray:
-    """The instance's feature vector (see the module docstring), length
-    ``feature_size(n_slots, basis.shape[1])``."""
-    from vvtbench.mac import mac_matrix
-
-    n_basis = basis.shape[1]
-    mu, psi = ritz_modes(problem, basis)
-    A = np.asarray(problem.P @ psi)                      # (n_obs, n_basis)
-    gamma = np.asarray(problem.gamma, dtype=float)       # (k, n_obs)
-    lam = np.asarray(problem.eigenvalues, dtype=float)
-    slots = min(n_slots, n_basis)
-    mac = mac_matrix(gamma, A[:, :slots].T)
-    rows, cols = linear_sum_assignment(-mac)
-    ok = (lam[rows] > 0) & (mu[cols] > 0)
-    rows, cols = rows[ok], cols[ok]
-    log_v = float(np.mean(np.log(problem.w_mean * mu[cols] / lam[rows]))) if len(rows) else 0.0
-    scale = np.linalg.norm(A, axis=0)
-    scale[scale == 0] = 1.0
-    An = A / scale
-    coef, *_ = np.linalg.lstsq(An.T @ An + 1e-6 * np.eye(n_basis), An.T @ gamma[rows].T,
-                               rcond=None)          # (n_basis, n_pairs)
-    misfit = np.zeros(n_slots)
-    flag = np.zeros(n_slots)
-    shapes = np.zeros((n_slots, n_basis))
-    for j, (i, c) in enumerate(zip(rows, cols, strict=True)):
-        a = coef[:, j]
-        norm = np.linalg.norm(a)
-        if norm == 0:
-            continue
-        a = a / norm
-        shapes[c] = a if a[c] >= 0 else -a
-        misfit[c] = np.log(lam[i]) + log_v - np.log(problem.w_mean * mu[c])
-        flag[c] = 1.0
-    points = np.asarray(problem.mesh.points, dtype=float)
-    extent = points.max(axis=0) - points.min(axis=0)
-    aspect = np.zeros(3)
-    spans = extent > 0
-    aspect[:len(extent)][spans] = np.log(extent[spans]) - np.mean(np.log(extent[spans]))
-    return np.concatenate([misfit, flag, shapes.ravel(), aspect])
 
 
 N_FIT = 40  # Ritz modes an observed shape is expanded on (higher ones are poorly resolved)
