@@ -731,6 +731,9 @@ INDEX = "index.parquet"
 DEFAULT_SHARD_BYTES = 20 * 10**9  # hubs accept files up to 50 GB; 20 GB leaves room
 MAX_FILES_PER_FOLDER = 10_000
 WRITE_BUFFER_BYTES = 256 * 2**20  # samples are gathered into blocks of at most this size
+#: A shard of one array holds at most this many uncompressed bytes: writing a block into a
+#: shard reads and rewrites the shard, so this bounds the memory of an export.
+SHARD_MEMORY_BYTES = 2**30
 
 #: Dimension names of the stacked layout, renamed from the per-sample layout's.
 _STACKED_RENAME = {"node": "vertex", "surface_node": "surface_vertex",
@@ -890,7 +893,7 @@ def _write_store(store: Path, samples: list[Path], rows: list[dict], shard_bytes
         raise ExportError(f"--shard-size {shard_bytes}: smaller than one sample of "
                           f"{biggest[0]} ({biggest[1]} bytes); allowed: a shard size of at "
                           f"least {biggest[1]} bytes")
-    per_shard = max(1, min(n, shard_bytes // max(biggest[1], 1)))
+    per_shard = max(1, min(n, min(shard_bytes, SHARD_MEMORY_BYTES) // max(biggest[1], 1)))
     n_shards = -(-n // per_shard)
     if n_shards >= MAX_FILES_PER_FOLDER:
         raise ExportError(f"--shard-size {shard_bytes}: {n_shards} shards per array, more "
