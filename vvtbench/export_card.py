@@ -216,8 +216,8 @@ file (`SHA256SUMS`) are beside this card.
 {store_rows}
 
 Shards: every array is chunked one sample per chunk and grouped by the Zarr v3 sharding codec
-into shard files of at most {_human_bytes(shard_bytes)} (uncompressed) each, so an array folder
-holds `c/<shard>/...` and no folder more than {10_000 - 1} files.
+into shard files of at most {_human_bytes(min(shard_bytes, 2**30))} (uncompressed) each,
+so an array folder holds `c/<shard>/...` and no folder more than {10_000 - 1} files.
 
 Sizes that vary between instances of a split (mesh vertices of drums, visible vertices, ...)
 are padded to the largest: floats with NaN, integers with -1, booleans with False;
