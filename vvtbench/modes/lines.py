@@ -260,8 +260,8 @@ class Lines:
     uncertainty : LineUncertainty, optional
         ``(M,)`` standard errors of every line (:func:`.uncertainty.line_uncertainty`).
     misfit : ndarray, optional
-        ``(M,)`` residual power of each line's group over the residual's noise floor there
-        (about 1 when the lines explain the group's bins).
+        ``(M,)`` residual power in the five bins around each line over the residual's noise
+        floor there (about 1 when the fitted lines explain those bins).
     """
 
     kappa: NDArray[np.float64]
@@ -484,7 +484,9 @@ def _clean_lines(fields: NDArray, first_bin: int, power: ArrayLike, kappa0: Arra
                              clusters=cl, window=window)
         for name in unc:
             unc[name][idx] = getattr(u, name)
-        expected = float(np.sum(floor[f.bins])) * max(f.bins.size - 2 * idx.size, 1) / f.bins.size
-        misfit[idx] = f.rss / expected if expected > 0 else np.inf
+        for m, k in zip(idx, f.kappa, strict=True):
+            near = np.arange(max(int(round(k)) - 2, first_bin), min(int(round(k)) + 3, last + 1))
+            expected = float(np.sum(floor[near]))
+            misfit[m] = float(np.sum(resid[near])) / expected if expected > 0 else np.inf
     return Lines(kappa=kappa, half_width=hw, power=pw, shapes=shapes, added=added,
                  residual=resid, log=log, uncertainty=LineUncertainty(**unc), misfit=misfit)

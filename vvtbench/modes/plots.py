@@ -180,6 +180,14 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     return out
 
 
+def _modes_xmax(ms: ModeSet) -> float:
+    """Right edge of the per-mode figures: past the highest mode, within :func:`_xmax`."""
+    if not len(ms):
+        return _xmax(ms)
+    top = float(np.max(ms.frequencies_hz))
+    return min(_xmax(ms), max(1.5 * top, top + 20.0 * ms.fps / max(ms.n_frames, 1)))
+
+
 def plot_uncertainty(ms: ModeSet, path: str | Path) -> Path:
     """Damping ratio against frequency with the 95 % intervals of both (line fit only):
     resolved dampings in blue, unresolved in grey, modes biased by a close neighbour
@@ -212,7 +220,7 @@ def plot_uncertainty(ms: ModeSet, path: str | Path) -> Path:
     bottom = np.concatenate([z[np.isfinite(z) & (z > 0)], lo[np.isfinite(lo) & (lo > 0)]])
     ax.set_ylim(max(float(bottom.min()) / 2 if bottom.size else 1e-4, 1e-5),
                 max(float(top.max()) * 2 if top.size else 1.0, 1e-3))
-    ax.set_xlim(float(ms.metadata.get("band_hz", [0, 0])[0]), _xmax(ms))
+    ax.set_xlim(float(ms.metadata.get("band_hz", [0, 0])[0]), _modes_xmax(ms))
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("damping ratio zeta (95 % interval)")
     ax.set_title("Identified modes with their 95 % intervals")
@@ -257,7 +265,7 @@ def plot_stability(ms: ModeSet, path: str | Path) -> Path:
     ax.set_yticklabels([f"{f:g} ({n / ms.fps:.3g} s)"
                         for f, n in zip(st["fractions"], st["n_frames"], strict=True)])
     ax.set_ylim(0, 1.1)
-    ax.set_xlim(float(ms.metadata.get("band_hz", [0, 0])[0]), _xmax(ms))
+    ax.set_xlim(float(ms.metadata.get("band_hz", [0, 0])[0]), _modes_xmax(ms))
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("leading part of the record")
     ax.set_title("Stability: peaks found in the leading part of the record")
