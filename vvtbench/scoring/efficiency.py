@@ -241,9 +241,11 @@ def band_information(rest_dn: ArrayLike, n_scales: int = 3) -> dict[str, float]:
     ``W(w) = sum_s radial_s(|w|)^2`` (1 in the middle octaves, tapering to 0 at ``pi`` and
     below ``pi / 2^(n_scales + 1)``).  Returns ``kept`` ``= sum W g^2 / sum g^2`` (``g^2 =
     |w|^2 |F|^2``) and ``weighted`` ``= (sum W g^2)^2 / (sum W^2 g^2 sum g^2)``: the
-    efficiency of a least-squares shift from the band-filtered images treated as white (the
-    weighting the phase method uses), and ``above_band``, ``below_band``: the shares at
-    ``|w| > pi / 2`` and ``|w| < pi / 2^(n_scales + 1)``.
+    efficiency of a linear least-squares shift from the band-filtered image treated as white
+    noise, and ``above_band``, ``below_band``: the shares at ``|w| > pi / 2`` and ``|w| < pi /
+    2^(n_scales + 1)``.  A description of the texture's spectrum against the band, not a bound
+    on the phase extractor (which is not that linear estimator: on coarse speckle it measures
+    above ``kept``).
     """
     from ..motion.pyramid import radial_filter
 
