@@ -297,7 +297,28 @@ class ModeSet:
 
     # ---------------------------------------------------------------- persistence
     def save(self, directory: str | Path) -> Path:
-        """Write ``modes.npz`` and ``modes.json`` into ``directory`` (created if needed)."""
+        """Write ``modes.npz`` and ``modes.json`` into ``directory`` (created if needed).
+
+        With the line fit, every entry of ``modes.json``'s ``modes`` also carries (and
+        ``metadata`` holds the same as per-candidate lists, one entry per analysed peak, mapped
+        by ``analysed_index``), each a scalar per mode, ``null`` where not computed:
+
+        - ``frequency_std_hz`` (float64, Hz): standard error of the frequency;
+        - ``damping_lo``, ``damping_hi`` (float64, dimensionless): 95 % interval of the
+          damping ratio;
+        - ``shape_mac_expected`` (float64 in ``[0, 1]``): expected MAC of the shape with the
+          noiseless shape, ``signal / (signal + noise)`` energy;
+        - ``close_mode_bias`` (bool): a line within 4 bins of another whose residual (over 3
+          times the noise floor around it) or parameter correlation (over 0.8) says the two
+          bias each other; its damping is then not resolved;
+        - ``line_misfit`` (float64): residual power in the five bins around the line over the
+          noise floor there (about 1 for a clean fit).
+
+        ``metadata["stability"]`` (with ``extract_modes(stability=True)``) holds
+        ``fractions``, ``n_frames`` and ``peaks_hz`` of the peak search on leading parts of
+        the record.  Files without these keys load; the accessors then return ``nan`` /
+        ``False``.
+        """
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         arrays = {name: getattr(self, name) for name in (*_PER_MODE, "shapes", "freqs_hz", "power")}
