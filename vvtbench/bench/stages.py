@@ -158,6 +158,10 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
     else:
         spec = str(opened.path / "scene.toml")
     obj = resolve_object(spec, inference_shape=shape)
+    if settings.object == "stl":  # recorded as the task folder's file, not its temporary path
+        import dataclasses
+
+        obj = dataclasses.replace(obj, spec=f"object.stl:mesh={settings.mesh}")
     true_camera = opened.camera
     width, height = int(true_camera.width), int(true_camera.height)
     vertices, X, uv = simulate_clicks(obj.mesh.points, obj.mesh.surface, obj.corner_nodes(),
