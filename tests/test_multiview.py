@@ -335,3 +335,59 @@ def test_solvers_take_the_two_view_extracted_problem_unchanged(samples, solver):
     est, _, info = solve_sealed(solver, config, problem, timeout=300)
     assert est.w.shape == (problem.n_params,) and info["sandbox"] in ("bwrap", "none")
     assert invalid_reason(est.w, est.v, problem.n_params) is None or solver == "vvt"
+
+
+VIEWS_SUITE = """
+name = "views_micro"
+scenes = ["jello_cube_defect_top"]
+solvers = ["homogeneous", "sensitivity"]
+seeds = [0]
+observations = ["extracted"]
+
+[defaults]
+"geometry.cells" = [5, 5, 5]
+"simulation.n_modes" = 12
+"simulation.fps" = 400.0
+"simulation.duration" = 1.0
+"camera.resolution" = [96, 96]
+"camera.rig.views" = 2
+"render.supersample" = 2
+"excitation.displacement" = 0.0006
+n_modes = 5
+inference_shape = [3, 3, 3]
+
+[extract]
+max_modes = 8
+fmax = 150.0
+
+[solver.sensitivity]
+max_iter = 2
+
+[[tracks]]
+name = "views"
+scenes = ["jello_cube_defect_top"]
+[tracks.sweep]
+views = [1, 2]
+"""
+
+
+def test_a_suite_track_extracts_every_view_and_observes_them_joined(tmp_path):
+    """`views` on an extracted track of a rig sample: one extraction per view (view 0's shared
+    with the one-view variation), one problem stacking both views."""
+    import json
+
+    from vvtbench.bench import run_suite
+
+    suite_file = tmp_path / "views.toml"
+    suite_file.write_text(VIEWS_SUITE)
+    df = run_suite(str(suite_file), None, tmp_path / "run", progress=False)
+    assert (df["status"] == "ok").all(), df[["variation", "solver", "error"]]
+    stats = {s: v["computed"] for s, v in df.attrs["stats"].items()}
+    assert stats["generate"] == 1 and stats["extract"] == 2 and stats["observe"] == 2
+    metas = {}
+    for f in (tmp_path / "run" / "cache" / "observe").rglob("problem.json"):
+        meta = json.loads(f.read_text())["meta"]
+        metas[meta.get("views", 1)] = meta
+    assert set(metas) == {1, 2}
+    assert len(metas[2]["n_visible_per_view"]) == 2
+    assert metas[2]["observed_dof_fraction"] > metas[1]["observed_dof_fraction"]

@@ -282,7 +282,19 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                 ext_keys = []
                 extract_opts, extract_key = extract_options(suite, obs, track.extract)
                 ext_rev = extraction_revision(extract_opts)
-                if observation_kind(obs) == "extracted":
+                n_views = int(var.inference.get("views", 1))
+                if observation_kind(obs) == "extracted" and n_views > 1:
+                    if len(gen_keys) > 1:
+                        raise SuiteError(f"{suite.source}: track {track.name!r}: key 'views' = "
+                                         f"{n_views} with a group of {len(gen_keys)} videos; "
+                                         "allowed: 1, or one scene per group (its views are "
+                                         "joined, not merged)")
+                    ext_keys = [add("extract", [extract_key, ext_rev,
+                                                *([{"view": i}] if i else [])], [gen_keys[0]],
+                                    {"options": extract_opts, "view": i},
+                                    f"{scene_dicts[0]['name']} view {i}")
+                                for i in range(n_views)]
+                elif observation_kind(obs) == "extracted":
                     ext_keys = [add("extract", [extract_key, ext_rev,
                                                 *([field_key["video"], FIELD_REVISION]
                                                   if fs else [])], [g],

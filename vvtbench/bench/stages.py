@@ -49,7 +49,8 @@ def _stage_extract(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
     limits = ctx.get("limits") or {}
     field = task.payload.get("field")
     scratch = None
-    video, extra = sample.video_path, {}
+    view = int(task.payload.get("view", 0))
+    video, extra = (sample.view(view).video_path if view else sample.video_path), {}
     try:
         if field is not None:  # the video as a camera writes it, read back by its reader
             # a temporary of the stage folder: a killed run's is removed by the next run
@@ -116,7 +117,8 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     opened = open_sample(sample_path(cache, sample))  # verified once, read twice
     problem, truth = observe(opened, opts)
     if kind == "extracted":
-        truth.meta["extraction"] = extraction_scores(opened, opts.modes,
+        scored = opts.modes[:1] if opts.views > 1 else opts.modes  # view 0: the sample's truth
+        truth.meta["extraction"] = extraction_scores(opened, scored,
                                                      (p.get("extract") or {}).get("fmax"))
     problem.save(out)
     truth.save(out)
