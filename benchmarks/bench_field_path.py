@@ -4,8 +4,8 @@ the true camera and the lossless video, then handed over as a field user hands i
 scored again, same solver, same extraction options. Prints NC of w and v per row and the
 difference to the true-camera row.
 
-    .venv/bin/python benchmarks/bench_field_path.py --out /work/tmp/field/run \\
-        --sample /work/tmp/field/jello_cube_defect_top --duration 1.0 \
+    .venv/bin/python benchmarks/bench_field_path.py --out runs/field/run \\
+        --sample runs/field/jello_cube_defect_top --duration 1.0 \
         [--formats tiff mraw h264] [--crf 18 23] [--bitrate-mbps 50] [--click-seeds 0 1 2]
 
 Measured on 2 cores (2026-11-27; ``jello_cube_defect_top``, 1 s at 2000 FPS, the paper
