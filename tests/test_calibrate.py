@@ -127,7 +127,9 @@ def test_surface_and_scene_objects(tmp_path):
 
     stl = tmp_path / "block.stl"
     trimesh.creation.box(extents=(0.04, 0.03, 0.02)).export(stl)
-    obj = resolve_object(str(stl))
+    block = resolve_object(str(stl))  # a block is meshed as its voxel grid by default
+    assert block.mesh.element == "hex8"
+    obj = resolve_object(f"{stl}:mesh=tet")
     assert obj.kind == "mesh" and obj.mesh.element == "tet4"
     assert np.allclose(obj.mesh.points.min(0), 0) and np.allclose(
         obj.mesh.points.max(0), (0.04, 0.03, 0.02), atol=1e-3)

@@ -241,7 +241,8 @@ def test_an_stl_block_is_meshed_as_the_box(tmp_path):
         assert obj.info["meshed_as"] == "block" and obj.mesh.element == "hex8"
         np.testing.assert_allclose(obj.mesh.points, box.mesh.points, atol=1e-12)
         np.testing.assert_array_equal(obj.fixed_nodes, box.fixed_nodes)
-    assert resolve_object(str(stl)).mesh.element == "tet4"  # the default: tetrahedra
+    assert resolve_object(str(stl)).mesh.element == "hex8"  # the default: auto
+    assert resolve_object(f"{stl}:mesh=tet").mesh.element == "tet4"
     ball = tmp_path / "ball.stl"
     trimesh.creation.icosphere(subdivisions=1, radius=0.02).export(ball)
     assert resolve_object(f"{ball}:mesh=auto").mesh.element == "tet4"

@@ -10,10 +10,11 @@ Accepted forms (:func:`resolve_object`):
 * ``path/to/surface.stl`` (``.obj``, ``.ply``) -- a closed surface in metres,
   tetrahedralized as the shipped bunny is (:func:`vvtbench.fem.mesh.tet_mesh`), lowest
   corner moved to the origin, bottom nodes clamped; options ``:up=y``, ``:scale_to=0.1``,
-  ``:fixed=none``, ``:mesh=auto`` (a surface that is an axis-aligned rectangular block, its
-  enclosed volume that of its bounding box, is meshed as that block's hexahedral voxel grid,
-  as ``box:`` is; any other is tetrahedralized), ``:mesh=block`` (the same, an error when the
-  surface is not a block); the default ``:mesh=tet`` tetrahedralizes every surface.
+  ``:fixed=none``, ``:mesh=auto`` (the default: a surface that is an axis-aligned
+  rectangular block, its enclosed volume that of its bounding box, is meshed as that block's
+  hexahedral voxel grid, as ``box:`` is; any other is tetrahedralized), ``:mesh=block`` (the
+  same, an error when the surface is not a block), ``:mesh=tet`` (tetrahedralize every
+  surface; on a block this costs accuracy: benchmarks/bench_field_path.py).
 * ``path/to/scene.toml`` -- a scene file: its geometry and boundary, never its material.
 
 Every object is in its own frame: metres, lowest corner at the origin, z up. Clicked 3-D
@@ -189,7 +190,7 @@ def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
         shape = tuple(inference_shape or default_voxel_shape("box"))
         try:
             v, f = load_surface(path, opts.get("up", "z"), scale_to, target_faces=3000)
-            how = opts.get("mesh", "tet")
+            how = opts.get("mesh", "auto")
             block = how != "tet" and len(shape) == 3 and is_block(v, f)
             if how == "block" and not block:
                 raise ValueError(f"{path}: option mesh=block, but the surface is not an "
