@@ -18,21 +18,22 @@ from vvtbench.scoring.efficiency import (
 
 
 def test_frames_are_the_shifted_texture_with_the_sensor_noise():
-    st = EfficiencySetting(amplitude_px=0.5, noise=0.01, bit_depth=12, size=32, repeats=2,
-                           directions=2, seed=3)
-    rest = rest_image(st)
-    frames = np.stack(list(iter_frames(st)))
-    shifts = true_shifts(st)
-    assert frames.shape == (4, 32, 32) and np.allclose(np.hypot(*shifts.T), 0.5)
-    # an integer shift of the periodic texture is a roll: compare through np.roll
-    whole = EfficiencySetting(amplitude_px=1.0, noise=0.0, bit_depth=16, size=32, repeats=2,
+    from scipy.ndimage import fourier_shift
+
+    clean = EfficiencySetting(amplitude_px=0.7, noise=0.0, bit_depth=16, size=32, repeats=2,
                               directions=4, seed=3)
-    s = true_shifts(whole)[0]
-    assert not np.allclose(s, np.round(s))
-    resid = frames - rest[None]
-    sd = float(crb.noise_variance_dn2(0.5, 12, 0.01 * 4095, False, 1e4)) ** 0.5
-    # noise sd ~ model, plus the motion's contribution
-    assert resid.std() > 0.8 * sd
+    rest = rest_image(clean)
+    shifts = true_shifts(clean)
+    assert np.allclose(np.hypot(*shifts.T), 0.7) and len(np.unique(shifts[:, 0])) == 4
+    for frame, (dx, dy) in zip(iter_frames(clean), shifts, strict=True):
+        moved = np.fft.ifft2(fourier_shift(np.fft.fft2(rest), (dy, dx))).real
+        assert np.abs(frame - np.rint(moved)).max() <= 1.0
+        assert np.abs(frame - rest).max() > 100  # it did move
+    noisy = EfficiencySetting(amplitude_px=0.0, noise=0.01, bit_depth=12, size=64, repeats=4,
+                              directions=2, seed=4)
+    resid = np.stack(list(iter_frames(noisy))) - rest_image(noisy)[None]
+    model = float(crb.noise_variance_dn2(0.5, 12, 0.01 * 4095, False, 1e4))
+    assert resid.var() == pytest.approx(model, rel=0.05)
 
 
 def test_known_texture_estimator_reaches_the_bound():
