@@ -358,7 +358,10 @@ def test_extractors_are_ranked_on_the_same_videos(micro, tmp_path):
     table = extraction_table(df, "main")
     assert table.observation.tolist() == ["extracted", "extracted:farneback"]
     lb = build(out / "results.parquet", tmp_path / "lb")
-    assert "extractors ranked on the same videos" in (lb / "index.html").read_text()
+    page = (lb / "index.html").read_text()
+    assert "extractors ranked on the same videos" in page
+    assert "how far an extractor is from what the video physically allows" in page
+    assert "The Cramér–Rao ruler" in (lb / "README.md").read_text()
     one = extraction_table(df[df.observation == "extracted"], "main")
     assert "observation" not in one.columns and extractor_ranking(
         df[df.observation == "extracted"], "main") is None

@@ -811,11 +811,13 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
                 ("extraction (detected modes against the true ones)",
                  extraction_table(df, track))):
             if frame is not None:
-                md.append(f"### {md_cell(track)} — {title}\n\n" + _md_frame(frame) + "\n")
+                md.append(f"### {md_cell(track)} — {title}\n\n" + _md_frame(frame) + "\n\n"
+                          + RULER_NOTE + "\n")
                 body.append(f"<h3>{html.escape(track)} — {html.escape(title)}</h3>"
                             + '<div class="scroll">'
                             + frame.to_html(index=False, float_format=lambda x: f"{x:.3f}",
-                                            na_rep="–", border=0) + "</div>")
+                                            na_rep="–", border=0) + "</div>"
+                            + f"<p>{html.escape(RULER_NOTE)}</p>")
         for caption, rel in figs[track]:
             md.append(f"**{md_cell(track)}: {md_cell(caption)}**\n\n"
                       f"![{md_cell(track)}: {md_cell(caption)}]({rel})\n")
@@ -878,6 +880,13 @@ def _md_frame(t) -> str:
               for row in t.itertuples(index=False)]
     return "\n".join(lines)
 
+
+#: What the extraction columns measure against the physical limit.
+RULER_NOTE = ("A true mode is detectable when its Cramér-Rao-limited SNR over the visible "
+              "pixels in the recorded length exceeds the sample's threshold (docs/dataset.md, "
+              "'The Cramér–Rao ruler'): recall (detectable) below 1 is how far an extractor "
+              "is from what the video physically allows; recall (all in band) also counts the "
+              "modes below that limit, which no extractor is expected to find.")
 
 _EXTRACTION_NAMES = {"extraction_precision": "precision",
                      "extraction_recall": "recall (detectable)",
