@@ -142,6 +142,7 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     H, W = s.shape[:2]
     vmax = float(np.quantile(np.abs(s), 0.995)) or float(np.max(np.abs(s))) or 1.0
     fig, axes = plt.subplots(1, 3, figsize=(12, 4), dpi=100)
+    fig.subplots_adjust(top=0.8)
     for ax, c, name in ((axes[0], 0, "dx"), (axes[1], 1, "dy")):
         im = ax.imshow(s[..., c], cmap="RdBu_r", vmin=-vmax, vmax=vmax)
         ax.set_title(name)
@@ -166,7 +167,7 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
     fig.suptitle(
         f"mode #{i}: {ms.frequencies_hz[i]:.3f}"
         + (f" +- {sf:.2g}" if np.isfinite(sf) else "")
-        + f" Hz{zeta}, peak displacement {peak:.3g} px"
+        + f" Hz{zeta},\npeak displacement {peak:.3g} px"
         + (f" ({start:.3g} px at the start)" if start > 1.05 * peak else "")
         + " (unit-norm shape shown)"
         + ("  [camera shake]" if ms.camera_shake[i] else "")
