@@ -254,8 +254,8 @@ def plot_stability(ms: ModeSet, path: str | Path) -> Path:
             ax.axvspan(f - Z95 * sf[i], f + Z95 * sf[i], color="tab:red", alpha=0.15, lw=0)
     for frac, n, peaks in zip(st["fractions"], st["n_frames"], st["peaks_hz"], strict=True):
         p = np.asarray(peaks, np.float64)
-        half_bin = 0.5 * ms.fps / n
-        near = np.array([np.min(np.abs(ms.frequencies_hz - x)) <= max(half_bin, 1e-12)
+        one_bin = ms.fps / n
+        near = np.array([np.min(np.abs(ms.frequencies_hz - x)) <= max(one_bin, 1e-12)
                          if len(ms) else False for x in p], bool)
         ax.plot(p[near], np.full(near.sum(), frac), "o", color="tab:blue", ms=4)
         ax.plot(p[~near], np.full((~near).sum(), frac), "x", color="0.5", ms=4)

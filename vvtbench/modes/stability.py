@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .peaks import pick_peaks
+from .peaks import pick_peaks, refine_frequency
 from .spectrum import DisplacementStore, _as_store, _detrend, window_weights
 
 __all__ = ["DEFAULT_FRACTIONS", "record_stability"]
@@ -47,7 +47,7 @@ def record_stability(disp: DisplacementStore | ArrayLike, fps: float, *,
     -------
     dict
         JSON-ready: ``fractions``, ``n_frames`` (frames of each part) and ``peaks_hz`` (one
-        list of peak bin frequencies, Hz, per part).
+        list of peak frequencies, Hz, sub-bin refined, per part).
     """
     fr = [float(f) for f in fractions]
     if not fr or any(not 0.0 < f <= 1.0 for f in fr):
@@ -71,5 +71,5 @@ def record_stability(disp: DisplacementStore | ArrayLike, fps: float, *,
         freqs = np.fft.rfftfreq(n, 1.0 / fps)
         pk = pick_peaks(freqs, S, fps, fmin=fmin, fmax=fmax, prominence=0.0,
                         false_alarm=false_alarm, min_bin=min_bin, max_peaks=max_peaks)
-        peaks.append([float(f) for f in pk.frequencies_hz])
+        peaks.append([float(refine_frequency(freqs, S, int(k))) for k in pk.bins])
     return {"fractions": fr, "n_frames": lengths, "peaks_hz": peaks}
