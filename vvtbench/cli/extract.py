@@ -329,7 +329,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             + (f" +- {sf[i]:.2g}" if np.isfinite(sf[i]) else "")
             + " Hz  zeta "
             + (f"{z:.4f}" if z is not None and resolved[i] else "  -   ")
-            + (f" [{zlo[i]:.4f}, {zhi[i]:.4f}]" if np.isfinite(zlo[i]) else "")
+            + (f" [{zlo[i]:.3g}, {zhi[i]:.3g}]" if np.isfinite(zlo[i]) else "")
             + ("  ! close mode bias" if biased[i] else "")
             + f"  peak {peak[i]:.3g} px"
             + (f" (at the start {start[i]:.3g} px)" if start[i] > 1.05 * peak[i] else "")
