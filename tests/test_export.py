@@ -633,3 +633,20 @@ def test_shard_size_units():
     for bad in ("", "lots", "0", "-5MB", "3XB"):
         with pytest.raises(ExportError, match="--shard-size"):
             parse_size(bad)
+
+
+def test_verify_checks_a_stacked_export(stacked, tmp_path):
+    import shutil
+
+    from vvtbench.cli.verify import verify_path
+
+    assert verify_path(stacked) == []
+    copy = tmp_path / "copy"
+    shutil.copytree(stacked, copy)
+    shard = max((f for f in copy.rglob("*") if f.is_file() and "/c/" in f.as_posix()),
+                key=lambda f: f.stat().st_size)
+    data = bytearray(shard.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    shard.write_bytes(bytes(data))
+    problems = verify_path(copy)
+    assert problems and any(shard.name in p for p in problems)

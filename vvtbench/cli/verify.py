@@ -26,6 +26,8 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
+
 __all__ = ["build_parser", "main_verify", "verify_path"]
 
 
@@ -51,8 +53,10 @@ def _kind(path: Path) -> str:
             return "run"
         if (path / "zarr.json").is_file() or (path / ".zgroup").is_file():
             return "dataset"
+        if (path / "dataset.json").is_file():
+            return "stacked"
         raise ValueError(f"{path}: not a sample folder (no manifest.json), a run folder (no "
-                         "cache/) or an exported Zarr dataset (no zarr.json)")
+                         "cache/) or an exported dataset (no zarr.json, no dataset.json)")
     if path.is_file():
         with open(path, "rb") as f:
             if f.read(8) == b"\x89HDF\r\n\x1a\n":
@@ -216,6 +220,49 @@ def verify_dataset(path: Path) -> Iterator[str]:
                 yield f"{where}: the sample was filmed but the dataset holds no video"
 
 
+def verify_stacked(path: Path) -> Iterator[str]:
+    """Problems of a stacked export (``--layout stacked``): every file's sha256, its marker's
+    format and version, and every store it lists opened by xarray with every variable read
+    (one shard at a time)."""
+    from ..export import STACKED_FORMAT, STACKED_MARKER, STACKED_VERSION
+
+    yield from verify_dataset_files(path)
+    try:
+        marker = json.loads((path / STACKED_MARKER).read_text())
+        stores = dict(marker["stores"])
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        yield f"{path / STACKED_MARKER}: unreadable ({type(error).__name__}: {error})"
+        return
+    if marker.get("format") != STACKED_FORMAT:
+        yield f"{path / STACKED_MARKER}: format {marker.get('format')!r}, not {STACKED_FORMAT!r}"
+        return
+    if marker.get("format_version") != STACKED_VERSION:
+        yield (f"{path / STACKED_MARKER}: format_version {marker.get('format_version')!r}, "
+               f"this vvtbench reads {STACKED_VERSION}")
+    import xarray as xr
+
+    for rel, info in stores.items():
+        where = path / rel
+        try:
+            ds = xr.open_zarr(where)
+        except Exception as error:  # noqa: BLE001 -- any failure is the export's
+            yield f"{where}: cannot be opened by xarray ({type(error).__name__}: {error})"
+            continue
+        with ds:
+            n = ds.sizes.get("sample")
+            if n != info.get("samples"):
+                yield f"{where}: {n} samples, {STACKED_MARKER} lists {info.get('samples')}"
+            for name, var in ds.variables.items():
+                try:
+                    if "sample" in var.dims:  # a few samples at a time: memory stays bounded
+                        for i in range(0, var.sizes["sample"], 8):
+                            np.asarray(var.isel(sample=slice(i, i + 8)))
+                    else:
+                        np.asarray(var)
+                except Exception as error:  # noqa: BLE001
+                    yield f"{where}/{name}: unreadable ({type(error).__name__}: {error})"
+
+
 def verify_path(path: str | Path, *, full: bool = True) -> list[str]:
     """Every problem found under ``path`` (a sample, a run folder or an exported dataset),
     one line each; raises ``FileNotFoundError``/``ValueError`` when ``path`` is none of
@@ -226,6 +273,8 @@ def verify_path(path: str | Path, *, full: bool = True) -> list[str]:
         return verify_sample(path, full=full)
     if kind == "run":
         return list(verify_run(path, full=full))
+    if kind == "stacked":
+        return list(verify_stacked(path))
     return list(verify_dataset(path))
 
 
