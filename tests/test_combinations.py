@@ -264,3 +264,16 @@ def test_faint_ratio_rejects_tiny_products_unless_phase_or_sibling_says_otherwis
     a[2] = 0.2  # 0.04 of the reference: not faint
     kept, _ = find_combinations(f, a, shapes, 0.5, phases=ph, faint_ratio=0.01)
     assert kept.all()
+
+
+def test_extract_modes_applies_the_product_test_when_asked():
+    from vvtbench.modes import extract_modes
+
+    clip = _rendered_clip()
+    plain = extract_modes(clip, 400.0, faint_product_ratio=None)
+    assert {15.0, 104.0} <= set(np.round(plain.frequencies_hz).tolist())
+    ms = extract_modes(clip, 400.0, faint_product_ratio=None, reject_products=True)
+    assert np.round(ms.frequencies_hz).tolist() == [37.0, 52.0, 89.0]
+    products = {round(r["frequency_hz"]) for r in ms.metadata["rejected"]
+                if r["reason"] == "product"}
+    assert products == {15, 104}

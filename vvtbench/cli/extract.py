@@ -210,6 +210,10 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
+    ap.add_argument("--reject-products", action="store_true",
+                    help="also reject harmonics and intermodulation products of stronger modes "
+                    "judged by phase and shape (opt-in; docs/modes.md, 'False modes of the "
+                    "extractor's own making')")
     ap.add_argument("--shape-fill", action="store_true",
                     help="fill the noisiest pixels of the mode shapes in from their reliable "
                     "neighbours (opt-in; docs/modes.md, 'Reliable pixels')")
@@ -297,6 +301,7 @@ def main_extract(argv: list[str] | None = None) -> int:
         reject_distortion=not args.keep_distortion,
         memory_budget=int(args.memory_budget_mb * (1 << 20)), progress=False,
         line_fit=args.line_fit, stability=not args.no_plots,
+        reject_products=args.reject_products,
         product_roughness=args.product_roughness,
         faint_product_ratio=args.faint_product_ratio, product_scaling=args.product_scaling,
         shape_attenuation=args.shape_attenuation, shape_fill=args.shape_fill,
@@ -344,6 +349,8 @@ def main_extract(argv: list[str] | None = None) -> int:
         elif r["reason"] == "keyframe":
             why = (f"harmonic {r['harmonic']} of the keyframe rate {r['comb_hz']:.3f} Hz, "
                    f"a keyframe every {r['gop']} frames")
+        elif r["reason"] == "product":
+            why = f"{r['product']} ({r['test']})"
         elif r["reason"] == "unreliable":
             why = f"reliable fraction {r['reliable_fraction']:.3f}"
         else:

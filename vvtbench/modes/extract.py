@@ -754,6 +754,7 @@ def extract_modes(
     stop: int | None = None,
     bit_depth: int | None = None,
     reject_keyframe_comb: bool = True,
+    reject_products: bool = False,
 ) -> ModeSet:
     """Extract image-space modes from a video end to end.
 
@@ -829,6 +830,12 @@ def extract_modes(
         For a lossy video with a keyframe interval (``metadata["lossy"]["gop"]``), reject the
         peaks within two bins (the Hann window's main lobe) of a multiple of ``fps / gop``
         (reason ``"keyframe"``, :func:`peaks.keyframe_comb`).
+    reject_products : bool, default False
+        With ``reject_distortion``, also apply
+        :func:`vvtbench.modes.combinations.reject_combinations`: a mode at a harmonic or
+        intermodulation of up to three stronger ones whose phase and shape say it is their
+        product is rejected (reason ``"product"``; docs/modes.md, "False modes of the
+        extractor's own making").
 
     Returns
     -------
@@ -953,6 +960,10 @@ def extract_modes(
     gop = (video.meta.get("lossy") or {}).get("gop")
     if reject_keyframe_comb and gop and len(ms):
         ms = _reject_keyframe_comb(ms, float(fps), int(gop))
+    if reject_products and reject_distortion and len(ms) > 1:
+        from .combinations import reject_combinations
+
+        ms = reject_combinations(ms)
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
     return ms
