@@ -125,6 +125,9 @@ class ExtractOptions(_Strict):
     shape_fill: bool | None = Field(
         None, description="true or false (noisiest pixels of the mode shapes filled in from "
         "their neighbours)")
+    reject_products: bool | None = Field(
+        None, description="true or false (harmonics and intermodulation products of stronger "
+        "modes rejected by phase and shape)")
     roughness_weighting: Literal["shape", "spectrum"] | None = Field(
         None, description="'shape' or 'spectrum' (pixel weights of the roughness tests)")
     min_reliable_fraction: NonNegativeNumber | None = Field(
