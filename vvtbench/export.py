@@ -639,11 +639,16 @@ def pack(samples: list[Path], out: str | Path, fmt: str = "zarr", source: str = 
     except OSError as error:
         if not is_disk_full(error):
             raise
-        raise ExportError(f"{out}: the disk holding {out.parent} became full while writing "
-                          f"({error.strerror or error}); nothing was written (the partial "
-                          "output is removed); free some space and export again") from None
+        raise _disk_full(out, error) from None
     finally:
         lock.release()
+
+
+def _disk_full(out: Path, error: OSError) -> ExportError:
+    """The one-line error of an export whose disk filled up (its partial output removed)."""
+    return ExportError(f"{out}: the disk holding {out.parent} became full while writing "
+                       f"({error.strerror or error}); nothing was written (the partial "
+                       "output is removed); free some space and export again")
 
 
 def _check_replaceable(out: Path, fmt: str, overwrite: bool) -> None:
@@ -1073,9 +1078,7 @@ def pack_stacked(samples: list[Path], out: str | Path, source: str = "", *,
     except OSError as error:
         if not is_disk_full(error):
             raise
-        raise ExportError(f"{out}: the disk holding {out.parent} became full while writing "
-                          f"({error.strerror or error}); nothing was written (the partial "
-                          "output is removed); free some space and export again") from None
+        raise _disk_full(out, error) from None
     finally:
         lock.release()
 
