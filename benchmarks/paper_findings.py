@@ -14,7 +14,13 @@ Prints, from the results table and the evaluated fields it points to:
    widths x1.0 ... x1.4 (paper: a 30 % error still localizes the defect);
 5. intrinsic resolution sigma* of w at 10 modes (paper: 1.4 voxels);
 6. the other tracks (bunny, Poisson and element-order mismatch, regularization, drums) as
-   NC tables.
+   NC tables;
+7. the field path: NC w of the field tracks (the video re-encoded as a camera writes it, the
+   camera from noisy clicks, the object as an STL) against the same samples through the
+   modes track at 10 extracted modes (lossless video, true camera), paired per scene;
+8. with ``--before OLD.csv`` (an earlier board's results table): per solver, how many rows
+   changed status (invalid -> scored, scored -> invalid) and how the NC w of rows valid in both
+   moved.
 """
 
 from __future__ import annotations
@@ -51,6 +57,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", nargs="?", default="runs/paper/results.parquet")
     ap.add_argument("--solver", default="vvt", help="solver for the findings (default vvt)")
+    ap.add_argument("--before", help="an earlier board's results table (.csv/.parquet) to "
+                    "compare every row with")
     a = ap.parse_args(argv)
     path = Path(a.results)
     df = pd.read_parquet(path)
@@ -108,6 +116,61 @@ def main(argv: list[str] | None = None) -> None:
             tab = t.pivot_table(index=["scene", "variation", "observation"], columns="solver",
                                 values=["nc_w", "nc_v"])
             print(f"\n{track}:\n{_fmt(tab)}")
+
+    field_findings(df)
+    if a.before:
+        before = Path(a.before)
+        old = pd.read_csv(before) if before.suffix == ".csv" else pd.read_parquet(before)
+        changes(old, df, str(before))
+
+
+def _cell(row) -> str:
+    return f"{row.nc_w:.3f}" if row.status == "ok" else row.status
+
+
+def field_findings(df: pd.DataFrame) -> None:
+    """Section 7: field tracks against the modes track's lossless rows at 10 modes."""
+    tracks = [t for t in dict.fromkeys(df.track) if str(t).startswith("field")]
+    if not tracks:
+        return
+    print("\n7. the field path: NC w through each field track against the modes track at 10 "
+          "extracted modes (lossless video, true camera); 'invalid' rows are never scored")
+    ref = df[(df.track == "modes") & (df.observation == "extracted") & (df.n_modes == 10)]
+    ref = ref.set_index(["solver", "scene"])
+    for track in tracks:
+        rows = []
+        for r in df[df.track == track].itertuples(index=False):
+            base = ref.loc[(r.solver, r.scene)] if (r.solver, r.scene) in ref.index else None
+            diff = (f"{r.nc_w - base.nc_w:+.3f}" if base is not None and r.status == "ok"
+                    and base.status == "ok" else "--")
+            rows.append({"solver": r.solver, "scene": r.scene,
+                         "lossless": _cell(base) if base is not None else "--",
+                         track: _cell(r), "difference": diff,
+                         "modes observed": r.n_modes_observed})
+        print(f"\n{track}:\n{pd.DataFrame(rows).to_string(index=False)}")
+
+
+def changes(old: pd.DataFrame, new: pd.DataFrame, name: str) -> None:
+    """Section 8: every row present in both tables, per solver."""
+    keys = ["track", "solver", "scene", "variation", "observation", "seed"]
+    both = old.merge(new, on=keys, suffixes=("_old", "_new"))
+    print(f"\n8. against {name}: {len(both)} rows in both tables "
+          f"({len(new) - len(both)} new, {len(old) - len(both)} gone)")
+    for solver, g in both.groupby("solver"):
+        ok_old, ok_new = g.status_old == "ok", g.status_new == "ok"
+        same = ok_old & ok_new
+        d = (g.nc_w_new - g.nc_w_old)[same]
+        moved = int((d.abs() > 5e-4).sum())
+        line = (f"  {solver}: {int((~ok_old & ok_new).sum())} invalid -> scored, "
+                f"{int((ok_old & ~ok_new).sum())} scored -> not scored, {int(same.sum())} "
+                f"scored in both ({int(same.sum()) - moved} within 0.0005")
+        if moved:
+            line += (f"; {moved} moved, mean {d[d.abs() > 5e-4].mean():+.3f}, "
+                     f"range [{d.min():+.3f}, {d.max():+.3f}]")
+        print(line + ")")
+        for r in g[~ok_old & ok_new].itertuples(index=False):
+            print(f"    now scored: {r.track} {r.scene} {r.variation} {r.observation}: "
+                  f"NC w {r.nc_w_new:.3f}")
 
 
 if __name__ == "__main__":
