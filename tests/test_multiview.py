@@ -391,3 +391,54 @@ def test_a_suite_track_extracts_every_view_and_observes_them_joined(tmp_path):
     assert set(metas) == {1, 2}
     assert len(metas[2]["n_visible_per_view"]) == 2
     assert metas[2]["observed_dof_fraction"] > metas[1]["observed_dof_fraction"]
+
+
+VIEWS_TRACKS = ("cube_views_video", "bunny_views_video", "damped_views_video")
+
+
+@pytest.mark.parametrize("name", ["standard", "standard_val"])
+def test_the_standard_views_tracks_film_each_instance_with_a_ring_of_four(name):
+    from vvtbench.bench.suite import load_suite
+
+    tracks = {t.name: t for t in load_suite(name).tracks}
+    for track in (tracks[n] for n in VIEWS_TRACKS):
+        assert track.observations == ["extracted"] and "learned" not in track.solvers
+        assert [v.inference["views"] for v in track.variations] == [1, 2, 3, 4]
+        assert {v.scene_overrides["camera.rig.views"] for v in track.variations} == {4}
+        split = "val" if name == "standard_val" else "test"
+        assert all(f":{split}:" in g[0] for g in track.scenes if g[0].startswith("family:"))
+    damped = tracks["damped_views_video"]
+    if name == "standard":
+        assert all(g[0].startswith("jello_cube_damped_") and len(g) == 1 for g in damped.scenes)
+    else:
+        pairs = {tuple(map(tuple, v.scene_overrides["damping.pairs"]))
+                 for v in damped.variations}
+        assert pairs == {((12.5, 0.01749), (15.5, 0.01999))}
+
+
+@pytest.mark.parametrize("name", ["standard", "standard_val"])
+def test_a_views_track_renders_once_extracts_each_view_once_and_nests_the_views(name):
+    """One generate task (4 views) per instance, one extract task per view, and the N-view
+    observation joins the first N of those extractions: the cost is linear in the views."""
+    import dataclasses
+
+    from vvtbench.bench import build_graph
+    from vvtbench.bench.suite import load_suite
+
+    suite = load_suite(name)
+    track = next(t for t in suite.tracks if t.name == "damped_views_video")
+    one = dataclasses.replace(suite, tracks=[dataclasses.replace(track, scenes=track.scenes[:1])])
+    tasks, _ = build_graph(one, ["homogeneous"], until="observe")
+    by_stage = {s: [t for t in tasks.values() if t.stage == s]
+                for s in ("generate", "extract", "observe")}
+    (gen,), extracts, observes = by_stage["generate"], by_stage["extract"], by_stage["observe"]
+    scene = gen.payload["scene"]
+    assert gen.payload["video"] and scene["camera"]["rig"]["views"] == 4
+    assert scene["damping"]["pairs"] == [[12.5, 0.01749], [15.5, 0.01999]]
+    view_of = {t.key: t.payload.get("view", 0) for t in extracts}  # view 0: the one-view key
+    assert sorted(view_of.values()) == [0, 1, 2, 3]
+    assert all(t.deps == [gen.key] for t in extracts)
+    assert len(observes) == 4
+    for t in observes:
+        n = t.payload["inference"]["views"]
+        assert t.deps[0] == gen.key and [view_of[k] for k in t.deps[1:]] == list(range(n))
