@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..motion.phase import upsample_periodic
 from ..video import average_frames, open_video
 from .damping import damping_half_power, damping_lorentzian
+from .jackknife import peak_uncertainty
 from .lines import Lines, clean_lines, peak_gain
 from .modeset import ModeSet
 from .peaks import (
@@ -50,7 +51,7 @@ from .spectrum import (
     pixel_noise_power,
     window_gain,
 )
-from .uncertainty import block_clusters, mode_uncertainty
+from .uncertainty import LINE_FIT_METHOD, block_clusters, mode_uncertainty
 
 __all__ = ["confidence_weights", "noise_weights", "noisy_pixel_attenuation",
            "fill_unreliable_pixels", "extract_modes",
@@ -509,7 +510,13 @@ def modes_from_displacements(
         },
     )
     if lines is not None:
-        meta.update(mode_uncertainty(lines, float(fps), T))
+        meta.update(mode_uncertainty(lines, float(fps), T), uncertainty_method=LINE_FIT_METHOD)
+    elif len(pk):
+        meta.update(peak_uncertainty(
+            disp, freqs, pk.bins, float(fps), frequency_hz=rows["frequencies_hz"],
+            damping=rows["damping"], spectrum_weights=sw, shape_weights=w, detrend=detrend,
+            window=window, band=band, floor_half_width_bins=floor_half_width_bins,
+            block_bytes=block_bytes))
     ms = ModeSet(
         shapes=np.array(shapes, dtype=np.float32).reshape(len(shapes), H, W, 2),
         freqs_hz=freqs,

@@ -18,11 +18,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from .lines import line_kernel
 
-__all__ = ["LineUncertainty", "Z95", "block_clusters", "damping_interval", "line_uncertainty",
-           "mode_uncertainty"]
+__all__ = ["LINE_FIT_METHOD", "LineUncertainty", "Z95", "block_clusters", "damping_interval",
+           "line_uncertainty", "mode_uncertainty"]
 
 #: two-sided 95 % normal quantile used for the damping interval
 Z95 = 1.959963984540054
+#: the value of a mode set's ``metadata["uncertainty_method"]`` when its lines were fitted
+#: (peak-picked modes: :data:`.jackknife.METHOD`)
+LINE_FIT_METHOD = "line_fit_sandwich"
 
 
 @dataclass(frozen=True)
