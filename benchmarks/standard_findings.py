@@ -13,7 +13,12 @@ Prints, per track (instances of the families' test split):
    all modes in band (mean [CI] over the instances); with several extractors, their ranking
    (the leaderboard's) and each solver's paired NC w between them on the same videos;
 5. calibration: the 95 % interval coverage of the solvers that state standard deviations;
-6. runtimes: median and maximum per solver, and the run's wall time from run.json.
+6. runtimes: median and maximum per solver, and the run's wall time from run.json;
+7. tracks that sweep ``views`` (several cameras): per solver and number of views, the fraction
+   of DOFs observed, NC w, the paired difference against one view on the same instances, and the
+   cost per instance (the views' extractions, the observation and the solve, from the run's
+   cache); then NC w against the fraction of DOFs observed (the pooled within-instance slope of
+   the gain in NC w over the gain in DOFs observed, bootstrap over instances).
 
 Every interval is :func:`vvtbench.stats.summarize` / :func:`vvtbench.stats.paired_comparison`
 (percentile bootstrap over instances, 2000 resamples, seed 0), the leaderboard's statistics.
@@ -62,6 +67,9 @@ def main() -> None:
               f"{run.get('workers')}, vvtbench {run.get('vvtbench')}")
     for track in order:
         d = df[df.track == track]
+        if _views_of(d).nunique() > 1:
+            _views(d, Path(args.results).parent)
+            continue
         for obs in dict.fromkeys(d.observation):
             dt = d[d.observation == obs]
             ok = dt[dt.status == "ok"]
@@ -139,6 +147,105 @@ def _extractors(d) -> None:
                       if np.isfinite(p["ci_low"]) else " (no interval)")
                 print(f"  {solver}: paired NC w extracted - {other}: {p['mean_diff']:+.3f}{ci}"
                       f" ({p['n']} videos)")
+
+
+def _views_of(d):
+    """The number of cameras of each row (1 when its variation does not say)."""
+    return d.variation_options.map(lambda o: int(json.loads(o or "{}").get("views", 1)))
+
+
+def _task(cache: Path, key: str) -> dict:
+    path = cache / key / "task.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _observed(run_dir: Path, estimate_path) -> tuple[float, float, float]:
+    """(fraction of DOFs observed, seconds of the views' extractions and the observation,
+    seconds of the shared generation) of a row, from its cached tasks; NaN when not cached."""
+    nan = (float("nan"),) * 3
+    if not isinstance(estimate_path, str) or not estimate_path:
+        return nan
+    fields = Path(estimate_path)  # cache/evaluate/KEY/fields.npz
+    cache = run_dir / fields.parents[2]
+    deps = _task(cache, f"{fields.parts[-3]}/{fields.parts[-2]}").get("deps", [])
+    if len(deps) < 2:
+        return nan
+    observe = _task(cache, deps[1])
+    problem = cache / deps[1] / "problem.json"
+    if not observe or not problem.is_file():
+        return nan
+    dof = json.loads(problem.read_text())["meta"].get("observed_dof_fraction", float("nan"))
+    gen, *extracts = observe["deps"]
+    seconds = observe.get("seconds", float("nan")) + sum(
+        _task(cache, k).get("seconds", float("nan")) for k in extracts)
+    return float(dof), float(seconds), float(_task(cache, gen).get("seconds", float("nan")))
+
+
+def _views(d, run_dir: Path) -> None:
+    """NC w against the number of views and the fraction of DOFs observed, paired against one
+    view on the same instances, with the cost per instance."""
+    d = d.assign(views=_views_of(d))
+    cached = [_observed(run_dir, p) for p in d.estimate_path]
+    d = d.assign(dof=[c[0] for c in cached], prep_s=[c[1] for c in cached],
+                 generate_s=[c[2] for c in cached])
+    track = d.track.iloc[0]
+    for obs in dict.fromkeys(d.observation):
+        dt = d[d.observation == obs]
+        ok = dt[dt.status == "ok"]
+        gen = dt.groupby("scene").generate_s.first()
+        print(f"\n== {track} ({obs} modes): {dt.scene.nunique()} instances, views "
+              f"{sorted(set(dt.views))}; generating an instance (every view): median "
+              f"{gen.median():.0f} s")
+        print("  solver | views | DOFs observed | NC w mean [95 % CI] | paired vs 1 view "
+              "[95 % CI] | win rate | valid | s per instance (extract + observe + solve)")
+        for solver in sorted(set(dt.solver)):
+            w = ok[ok.solver == solver].pivot_table(index="scene", columns="views",
+                                                    values="nc_w", aggfunc="first")
+            for n in sorted(set(dt.views)):
+                rows = dt[(dt.solver == solver) & (dt.views == n)]
+                good = rows[rows.status == "ok"]
+                s = summarize(good.nc_w.astype(float))
+                paired = "--"
+                if n != 1 and 1 in w and n in w:
+                    p = paired_comparison(w[n], w[1])
+                    paired = (f"{p['mean_diff']:+.3f} [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}] "
+                              f"| {p['win_rate']:.2f}") if np.isfinite(p["ci_low"]) else (
+                        f"{p['mean_diff']:+.3f} (n={p['n']}) | {p['win_rate']:.2f}")
+                cost = (good.prep_s + good.runtime_s).median()
+                print(f"  {solver} | {n} | {rows.dof.mean():.3f} | {s['mean']:.3f} "
+                      f"[{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}] | {paired}"
+                      f"{' | --' if paired == '--' else ''} | {len(good)}/{len(rows)} | "
+                      f"{cost:.0f}")
+        for solver in sorted(set(ok.solver)):
+            _dof_slope(ok[ok.solver == solver], solver)
+
+
+def _dof_slope(ok, solver: str) -> None:
+    """The within-instance slope of NC w on the fraction of DOFs observed (gain over one view
+    against the gain in DOFs observed, pooled), with a bootstrap interval over instances."""
+    from vvtbench.stats import bootstrap_ci
+
+    one = ok[ok.views == 1].set_index("scene")
+    more = ok[(ok.views > 1) & ok.scene.isin(one.index)]
+    gain = more.nc_w.to_numpy(float) - one.nc_w.reindex(more.scene).to_numpy(float)
+    reach = more.dof.to_numpy(float) - one.dof.reindex(more.scene).to_numpy(float)
+    keep = np.isfinite(gain) & np.isfinite(reach)
+    scenes = more.scene.to_numpy()[keep]
+    gain, reach = gain[keep], reach[keep]
+    names = sorted(set(scenes))
+    if not names or not np.any(reach):
+        return
+    index = np.searchsorted(names, scenes)
+
+    def slope(picked) -> float:
+        rows = np.concatenate([np.flatnonzero(index == int(i)) for i in picked])
+        den = float(reach[rows] @ reach[rows])
+        return float(gain[rows] @ reach[rows]) / den if den > 0 else float("nan")
+
+    lo, hi = bootstrap_ci(np.arange(len(names), dtype=float), stat=slope)
+    print(f"  {solver}: NC w against DOFs observed: {0.1 * slope(range(len(names))):+.3f} NC w "
+          f"per +0.1 of the DOFs observed [{0.1 * lo:+.3f}, {0.1 * hi:+.3f}] "
+          f"({len(names)} instances, {len(gain)} pairs with 2+ views)")
 
 
 if __name__ == "__main__":

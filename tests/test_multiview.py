@@ -371,9 +371,10 @@ views = [1, 2]
 """
 
 
-def test_a_suite_track_extracts_every_view_and_observes_them_joined(tmp_path):
+def test_a_suite_track_extracts_every_view_and_observes_them_joined(tmp_path, capsys):
     """`views` on an extracted track of a rig sample: one extraction per view (view 0's shared
-    with the one-view variation), one problem stacking both views."""
+    with the one-view variation), one problem stacking both views; the findings script reads
+    each row's DOFs observed and cost back from the run's cache."""
     import json
 
     from vvtbench.bench import run_suite
@@ -391,6 +392,28 @@ def test_a_suite_track_extracts_every_view_and_observes_them_joined(tmp_path):
     assert set(metas) == {1, 2}
     assert len(metas[2]["n_visible_per_view"]) == 2
     assert metas[2]["observed_dof_fraction"] > metas[1]["observed_dof_fraction"]
+    _findings_read_the_views_back(df, tmp_path / "run", metas, capsys)
+
+
+def _findings_read_the_views_back(df, run_dir: Path, metas: dict, capsys) -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from standard_findings import _observed, _views, _views_of
+
+    assert _views_of(df).tolist() == [json.loads(o)["views"] for o in df.variation_options]
+    capsys.readouterr()
+    _views(df, run_dir)
+    out = capsys.readouterr().out
+    table = [line.split(" | ") for line in out.splitlines() if line.startswith("  sensitivity |")]
+    assert [(int(r[1]), float(r[2])) for r in table] == [
+        (n, round(metas[n]["observed_dof_fraction"], 3)) for n in (1, 2)]
+    assert table[1][4] != "--" and float(table[1][-1]) > float(table[0][-1]) > 0
+    assert "NC w against DOFs observed" in out
+    one, two = (df[(_views_of(df) == n) & (df.solver == "sensitivity")].iloc[0] for n in (1, 2))
+    (dof1, prep1, gen1), (dof2, prep2, gen2) = (_observed(run_dir, r.estimate_path)
+                                                for r in (one, two))
+    assert prep2 > prep1 > 0 and gen1 == gen2 > 0  # two extractions against one; one render
 
 
 VIEWS_TRACKS = ("cube_views_video", "bunny_views_video", "damped_views_video")
