@@ -35,7 +35,7 @@ from .fem.voxels import VoxelMap
 from .problem import InverseProblem
 from .truth import Truth
 
-__all__ = ["ObserveError", "ObserveOptions", "RealVideo", "Truth", "observe"]
+__all__ = ["ObserveError", "ObserveOptions", "RealVideo", "Truth", "observe", "sample_truth"]
 
 OBSERVATIONS = ("true", "extracted")
 VISIBILITY = ("depth", "normals")
@@ -841,6 +841,72 @@ def _voxel_truth(rec: _Record, model: ParametricModel, scale: np.ndarray):
             res[empty] = values[nearest]
         out.append(res)
     return out[0], out[1]
+
+
+# --------------------------------------------------------------------------- truth of a sample
+
+
+def sample_truth(sample: Any, problem: InverseProblem) -> tuple[InverseProblem, Truth]:
+    """The truth of ``sample`` on a problem built without it, and that problem's modes paired.
+
+    For a problem observed from what a field user has (typically :func:`observe` of a
+    :class:`RealVideo` whose video, camera and object come from the sample), this is what
+    :func:`observe` of the sample itself returns as truth, computed on ``problem``'s
+    inference mesh instead of one built from the scene.
+
+    Parameters
+    ----------
+    sample : a sample folder or :class:`~vvtbench.dataset.Sample`, or an entry of an
+        exported dataset.
+    problem : an :class:`~vvtbench.problem.InverseProblem` whose inference mesh lies in the
+        sample's coordinates (metres, no geometry scale) and whose ``gamma`` rows are unit
+        image-space modes.
+
+    Returns
+    -------
+    (InverseProblem, Truth)
+        ``problem`` with its modes ordered and signed to match the truth (``mode_snr``
+        missing is NaN); the truth holds the sample's material averaged over each voxel of
+        the problem's grid, its rigid-body-free modes at the problem's nodes seen through
+        ``problem.P`` (the modes ``P`` does not see at all left out), and each observed
+        mode paired with a true one by MAC (``matched``, ``extraction_mac``).
+
+    Raises
+    ------
+    DatasetError
+        When the sample lacks an array the truth needs.
+    ObserveError
+        When ``sample`` cannot be read as a sample.
+    """
+    if isinstance(sample, (str, Path)) and Path(sample).is_dir():
+        from .dataset import open_sample
+
+        sample = open_sample(Path(sample))
+    if not (hasattr(sample, "scene") and hasattr(sample, "info")):
+        raise ObserveError(f"cannot take the truth of a {type(sample).__name__} ({sample}): "
+                           "give a sample folder, a Sample or an entry of an exported dataset")
+    rec, _ = _without_rigid_body_modes(_record_from_sample(sample))
+    scene = rec.scene
+    model = problem.model
+    unit = np.ones(3)
+    k = len(rec.eigenvalues)
+    U = _true_modes(rec, model, unit, k).reshape(-1, k)[model.free_dofs]
+    gamma = (problem.P @ U).T
+    norms = np.linalg.norm(gamma, axis=1)
+    seen = norms > 0
+    U, gamma = U[:, seen] / norms[seen], gamma[seen] / norms[seen, None]
+    lam = rec.eigenvalues[:k][seen]
+    w_true, v_true = _voxel_truth(rec, model, unit)
+    truth = Truth(w=w_true, v=v_true, modes_3d=U, eigenvalues=lam, matched=np.arange(len(lam)),
+                  image_modes=gamma, true_eigenvalues=lam,
+                  meta={"scene": scene.name, "source": rec.origin,
+                        "simulation_element": rec.mesh.element,
+                        "simulation_cells": int(rec.mesh.n_elements)})
+    freqs = np.sqrt(np.asarray(problem.eigenvalues, dtype=float)) / (2 * np.pi)
+    snr = problem.mode_snr if problem.mode_snr is not None else np.full(len(freqs), np.nan)
+    info = {key: problem.meta[key] for key in ("source", "n_modes_extracted")
+            if key in problem.meta}
+    return _matched(problem, truth, np.asarray(problem.gamma), freqs, np.asarray(snr), info)
 
 
 # --------------------------------------------------------------------------- real videos

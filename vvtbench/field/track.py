@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -340,12 +339,10 @@ def field_observe(sample: Any, obj: Any, camera: Any, modesets: list, inference:
     through its observation operator, each extracted mode paired with a true one by MAC.
     """
     from .. import observe as obs
-    from ..truth import Truth
+    from ..fem.elements import get_element
 
-    rec, _ = obs._without_rigid_body_modes(obs._record_from_sample(sample))
-    scene = rec.scene
-    membrane = rec.mesh.dofs_per_node == 1
-    m = scene.material
+    membrane = get_element(sample.info["mesh"]["element"]).dofs_per_node == 1
+    m = sample.scene.material
     base_w = m.tension if membrane else m.E
     base_v = m.areal_density if membrane else m.rho
     nu = inference.get("nu")
@@ -360,23 +357,4 @@ def field_observe(sample: Any, obj: Any, camera: Any, modesets: list, inference:
     problem, _ = obs.observe(real, options)
     if inference.get("w_mean") is not None:
         problem = replace(problem, w_mean=float(inference["w_mean"]))
-    model = problem.model
-    ones = np.ones(3)
-    k = len(rec.eigenvalues)
-    U = obs._true_modes(rec, model, ones, k).reshape(-1, k)[model.free_dofs]
-    gamma = (problem.P @ U).T
-    norms = np.linalg.norm(gamma, axis=1)
-    seen = norms > 0
-    U, gamma, lam = U[:, seen] / norms[seen], gamma[seen] / norms[seen, None], \
-        rec.eigenvalues[:k][seen]
-    w_true, v_true = obs._voxel_truth(rec, model, ones)
-    truth = Truth(w=w_true, v=v_true, modes_3d=U, eigenvalues=lam, matched=np.arange(len(lam)),
-                  image_modes=gamma, true_eigenvalues=lam,
-                  meta={"scene": scene.name, "source": rec.origin,
-                        "simulation_element": rec.mesh.element,
-                        "simulation_cells": int(rec.mesh.n_elements)})
-    freqs = np.sqrt(np.asarray(problem.eigenvalues, dtype=float)) / (2 * math.pi)
-    snr = problem.mode_snr if problem.mode_snr is not None else np.full(len(freqs), np.nan)
-    info = {k: problem.meta[k] for k in ("source", "n_modes_extracted") if k in problem.meta}
-    return obs._matched(problem, truth, np.asarray(problem.gamma), freqs, np.asarray(snr),
-                        info)
+    return obs.sample_truth(sample, problem)
