@@ -8,7 +8,9 @@
   (frame rate, size, frame count, colour bits 8/12/16, effective bit depth and side); frames
   are read from the ``.mraw`` by offset (12-bit data is packed, two pixels in three bytes).
 * **Phantom** ``.cine``: CINEFILEHEADER, BITMAPINFOHEADER, SETUP (``FrameRate``,
-  ``RealBPP``) and the table of image offsets; 8- and 16-bit uncompressed images.
+  ``RealBPP``) and the table of image offsets; gray images uncompressed at 8 or 16 bits, or
+  packed: P10 (10-bit log-encoded samples, linearised to 12 bits through Phantom's table)
+  and P12L (12-bit linear), both most significant bit first (see :func:`open_phantom`).
 * **NumPy** ``.npy`` ``(T, H, W)`` or ``(T, H, W, C)``: real numbers only; NaN or infinite
   values are refused at the frame that holds them.
 
@@ -25,6 +27,7 @@ above that range is an error (the stated depth is wrong).
 from __future__ import annotations
 
 import glob
+import math
 import os
 import re
 import struct
@@ -49,6 +52,7 @@ __all__ = [
     "open_npy",
     "open_phantom",
     "open_photron",
+    "unpack_msb_first",
     "write_cine",
 ]
 
@@ -386,10 +390,102 @@ _SETUP_FRAMERATE16 = 0
 _SETUP_FRAMERATE = 768
 _SETUP_REALBPP = 896
 _SETUP_MIN_SIZE = _SETUP_REALBPP + 4
+#: biCompression of the packed gray images: (name, bits per stored sample)
+CINE_PACKINGS = {256: ("P10", 10), 1024: ("P12L", 12)}
+_PACKING_CODES = {name: (code, bits) for code, (name, bits) in CINE_PACKINGS.items()}
+_CINE_SUPPORTED = ("gray images, uncompressed at 8 or 16 bits (biCompression 0) or packed at "
+                   "10 bits (256, P10) or 12 bits (1024, P12L)")
+
+#: Steps of Phantom's linearisation of P10 samples, from 2 at code 0 to 4064 at code 1014;
+#: codes 1015..1023 read 4095 (the table of the Phantom SDK, used likewise by pycine).
+_P10_STEPS = (
+    "3111111111111011111111111111110111111111111111011111111111111101111111111111111011111111"
+    "1111111011111111111111110111111111111111011111111111101111111111111111121111111112111111"
+    "2111121112111211121121121121121211212121121212121212122121221212212212212212221222122212"
+    "2222122222221222222222222222222222223222222232222232223222322232232232232232323223232323"
+    "2323232332323233233233233233323332333233333233333333233333333333333333334333333334333343"
+    "3334333433433343343433434334343434343434343443434434434434434443444344443444444344444444"
+    "4444444444444444445444445444454445444544544544544545454454545454545545454554554554554555"
+    "4555455554555555455555555555555555555555556555555655556555655565565565565655656565656565"
+    "6565656656656566566656665666566665666666665666666666666667666666667666676666766676676676"
+    "6767667676767676767676767767677677677767776777677777677777777777677777877777777777877777"
+    "8777787778778778778778787877878787878878787887887887887888788887888887888888888888888888"
+    "8888888988888988889888988988988988989898898988"
+)
+
+
+def _p10_table() -> NDArray[np.uint16]:
+    """The 1024-entry table mapping a P10 code to a 12-bit linear value."""
+    steps = np.frombuffer(_P10_STEPS.encode(), np.uint8) - ord("0")
+    head = 2 + np.concatenate([[0], np.cumsum(steps)])
+    return np.concatenate([head, np.full(1024 - head.size, 4095)]).astype(np.uint16)
+
+
+P10_TO_LINEAR = _p10_table()
+
+
+def unpack_msb_first(buf: bytes, bits: int, n: int) -> NDArray[np.uint16]:
+    """The first ``n`` samples of ``bits`` bits each packed most significant bit first.
+
+    The bytes are one big-endian bit stream: the first sample takes the high bits of the
+    first byte, and a sample that crosses a byte boundary continues in the next byte's high
+    bits. For 10 bits, five bytes ``b0..b4`` hold four samples ``b0<<2 | b1>>6``,
+    ``(b1&0x3F)<<4 | b2>>4``, ``(b2&0x0F)<<6 | b3>>2``, ``(b3&0x03)<<8 | b4``; for 12 bits,
+    three bytes hold two samples ``b0<<4 | b1>>4`` and ``(b1&0x0F)<<8 | b2``.
+
+    Parameters
+    ----------
+    buf : the packed bytes (at least ``ceil(n * bits / 8)``).
+    bits : 10 or 12.
+    n : number of samples to return.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n,)`` uint16.
+    """
+    per = {10: 4, 12: 2}[bits]
+    group = per * bits // 8
+    raw = np.frombuffer(buf, np.uint8)
+    n_groups = -(-n // per)
+    if raw.size < n_groups * group:
+        raw = np.concatenate([raw, np.zeros(n_groups * group - raw.size, np.uint8)])
+    words = np.zeros(n_groups, np.uint64)
+    for b in raw[: n_groups * group].reshape(n_groups, group).T:
+        words = (words << np.uint64(8)) | b.astype(np.uint64)
+    shifts = np.arange(per - 1, -1, -1, dtype=np.uint64) * np.uint64(bits)
+    samples = (words[:, None] >> shifts[None, :]) & np.uint64((1 << bits) - 1)
+    return samples.reshape(-1)[:n].astype(np.uint16)
+
+
+def _pack_msb_first(values: NDArray, bits: int) -> bytes:
+    """Inverse of :func:`unpack_msb_first`: ``values`` packed into ``ceil(n * bits / 8)``
+    bytes (the last group padded with zero samples)."""
+    per = {10: 4, 12: 2}[bits]
+    group = per * bits // 8
+    flat = np.asarray(values, np.uint64).reshape(-1)
+    n = flat.size
+    flat = np.concatenate([flat, np.zeros(-n % per, np.uint64)]).reshape(-1, per)
+    words = np.zeros(flat.shape[0], np.uint64)
+    for column in flat.T:
+        words = (words << np.uint64(bits)) | column
+    shifts = np.arange(group - 1, -1, -1, dtype=np.uint64) * np.uint64(8)
+    out = ((words[:, None] >> shifts[None, :]) & np.uint64(0xFF)).astype(np.uint8)
+    return out.reshape(-1)[: -(-n * bits // 8)].tobytes()
 
 
 def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFile:
-    """A Phantom ``.cine`` file of uncompressed 8- or 16-bit gray images."""
+    """A Phantom ``.cine`` file of gray images: uncompressed 8 or 16 bits, or packed.
+
+    Packed images (``biCompression`` 256 "P10" and 1024 "P12L") are stored top row first,
+    rows back to back with no padding, the samples packed most significant bit first
+    (:func:`unpack_msb_first`: P10 four samples in five bytes, P12L two in three). P10
+    samples are log-encoded: they are mapped through Phantom's linearisation table
+    (:data:`P10_TO_LINEAR`) to 12-bit linear values, so a P10 file reads as 12 bits; P12L
+    samples are 12-bit linear ("L"), read as ``RealBPP`` bits (12 when it is not set).
+    Uncompressed images are stored bottom row first unless ``biHeight`` is negative, rows
+    padded to 4 bytes. Colour, raw Bayer and other compressions are refused.
+    """
     path = Path(path)
     size = path.stat().st_size
     with open(path, "rb") as fh:
@@ -410,11 +506,13 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
         table = fh.read(8 * count)
     if compression != 0:
         raise VideoError(f"{path}: CINEFILEHEADER Compression is {compression}; only gray "
-                         "images (0) are read (colour and raw-Bayer .cine are not supported)")
-    if bi_compression != 0 or bit_count not in (8, 16):
+                         f"images (0) are read (colour and raw-Bayer .cine are not supported; "
+                         f"read are {_CINE_SUPPORTED})")
+    packing = CINE_PACKINGS.get(bi_compression)
+    if packing is None and (bi_compression != 0 or bit_count not in (8, 16)):
         raise VideoError(f"{path}: images of {bit_count} bits, biCompression {bi_compression}; "
-                         "only uncompressed 8- and 16-bit images are read (packed 10/12-bit "
-                         ".cine is not supported: save as 16-bit in the Phantom software)")
+                         f"read are {_CINE_SUPPORTED} (colour, raw Bayer and other "
+                         "compressions are not)")
     if len(table) < 8 * count:
         found = len(table) // 8
         raise VideoError(f"{path}: truncated: the header says {count} images, the offsets "
@@ -427,9 +525,15 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
         realbpp = struct.unpack_from("<I", setup, _SETUP_REALBPP)[0]
     if not rate and len(setup) >= 2:
         rate = struct.unpack_from("<H", setup, _SETUP_FRAMERATE16)[0]
-    bytes_pp = bit_count // 8
-    row_bytes = ((w * bytes_pp + 3) // 4) * 4
-    frame_bytes = row_bytes * h
+    if packing is None:
+        stored_bits = container = int(bit_count)
+        row_bytes: int | None = ((w * bit_count // 8 + 3) // 4) * 4
+        frame_bytes = row_bytes * h
+    else:
+        stored_bits, container = packing[1], 12
+        aligned = w % (8 // math.gcd(8, stored_bits)) == 0  # rows start on a byte
+        row_bytes = w * stored_bits // 8 if aligned else None
+        frame_bytes = -(-w * h * stored_bits // 8)
     annotation = np.empty(0)
     if count:
         with open(path, "rb") as fh:
@@ -444,18 +548,35 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
             int(np.count_nonzero(ends + int(annotation[0]) <= size))
         raise VideoError(f"{path}: truncated: the header says {count} images, the file holds "
                          f"{found}")
-    _check_bit_depth(bit_depth, bit_count, str(path))
-    bits = int(bit_depth) if bit_depth is not None else (
-        int(realbpp) if 0 < realbpp <= bit_count else bit_count)
+    if packing is not None and count:
+        with open(path, "rb") as fh:
+            fh.seek(int(offsets[0]))
+            ann_size = struct.unpack("<I", fh.read(4))[0]
+            fh.seek(int(offsets[0]) + ann_size - 4)
+            image_size = struct.unpack("<I", fh.read(4))[0]
+        if image_size != frame_bytes:
+            raise VideoError(f"{path}: ImageSize of image 0 is {image_size} bytes; {packing[0]} "
+                             f"images of {w}x{h} take {frame_bytes} (rows unpadded)")
+    _check_bit_depth(bit_depth, container, str(path))
+    if packing is not None and packing[0] == "P10":
+        file_bits, source = 12, "P10 linearisation (12-bit)"
+    elif 0 < realbpp <= container:
+        file_bits, source = int(realbpp), "RealBPP"
+    else:
+        file_bits, source = container, ("biBitCount" if packing is None else packing[0])
+    bits = int(bit_depth) if bit_depth is not None else file_bits
+    bottom_up = packing is None and height > 0
     meta = {"cine_version": int(version), "first_image_no": int(first_no),
             "first_movie_image": int(first_movie), "total_image_count": int(total),
             "bit_count": int(bit_count), "real_bpp": int(realbpp),
-            "bit_depth_source": "--bit-depth" if bit_depth is not None else (
-                "RealBPP" if 0 < realbpp <= bit_count else "biBitCount"),
-            "bottom_up": bool(height > 0), "header_size": int(header_size),
+            "bi_compression": int(bi_compression),
+            "packing": packing[0] if packing is not None else None,
+            "stored_bits": stored_bits,
+            "bit_depth_source": "--bit-depth" if bit_depth is not None else source,
+            "bottom_up": bool(bottom_up), "header_size": int(header_size),
             "trigger_time": int(trigger)}
     dtype = np.uint8 if bit_count == 8 else np.dtype("<u2")
-    bottom_up = height > 0
+    bytes_pp = bit_count // 8
 
     def read_rows(k: int, y0: int, y1: int) -> NDArray:
         fd = os.open(path, os.O_RDONLY)
@@ -465,34 +586,76 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
             data = off + ann_size
             # stored rows: bottom-up images keep the top row last
             s0, s1 = (h - y1, h - y0) if bottom_up else (y0, y1)
-            buf = _pread(fd, (s1 - s0) * row_bytes, data + s0 * row_bytes, path)
+            if row_bytes is not None:
+                buf = _pread(fd, (s1 - s0) * row_bytes, data + s0 * row_bytes, path)
+            else:
+                buf = _pread(fd, frame_bytes, data, path)
         finally:
             os.close(fd)
-        a = np.frombuffer(buf, np.uint8).reshape(s1 - s0, row_bytes)[:, :w * bytes_pp]
-        a = a.copy().view(dtype).reshape(s1 - s0, w)
-        return a[::-1] if bottom_up else a
+        if packing is None:
+            a = np.frombuffer(buf, np.uint8).reshape(s1 - s0, row_bytes)[:, :w * bytes_pp]
+            a = a.copy().view(dtype).reshape(s1 - s0, w)
+            return a[::-1] if bottom_up else a
+        if row_bytes is not None:
+            a = unpack_msb_first(buf, stored_bits, (y1 - y0) * w).reshape(y1 - y0, w)
+        else:
+            a = unpack_msb_first(buf, stored_bits, h * w).reshape(h, w)[y0:y1]
+        return P10_TO_LINEAR[a] if packing[0] == "P10" else a
 
     fps = Fraction(int(rate)) if rate else None
     return CameraFile("phantom", path, h, w, int(count), bits, fps, meta, read_rows)
 
 
 def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | None = None,
-               annotation: bytes = b"") -> Path:
-    """Write gray frames ``(T, H, W)`` (uint8 or uint16) as an uncompressed ``.cine`` file.
+               annotation: bytes = b"", packing: str | None = None) -> Path:
+    """Write gray frames ``(T, H, W)`` as a ``.cine`` file, uncompressed or packed.
 
-    The layout is the documented one: CINEFILEHEADER, BITMAPINFOHEADER (bottom-up rows
-    padded to 4 bytes), a SETUP block holding ``FrameRate`` and ``RealBPP``, the table of
-    64-bit image offsets, then each image after its annotation block (``AnnotationSize``,
-    the annotation, ``ImageSize``). Written to a temporary name and renamed into place.
+    The layout is the documented one: CINEFILEHEADER, BITMAPINFOHEADER, a SETUP block
+    holding ``FrameRate`` and ``RealBPP``, the table of 64-bit image offsets, then each
+    image after its annotation block (``AnnotationSize``, the annotation, ``ImageSize``).
+    Uncompressed images (uint8 or uint16 frames) are stored bottom row first, rows padded
+    to 4 bytes. With ``packing="P12L"`` (12-bit values) or ``"P10"`` (10-bit codes, which a
+    reader maps through :data:`P10_TO_LINEAR`) the samples are packed most significant bit
+    first, top row first, rows unpadded (:func:`unpack_msb_first`). Written to a temporary
+    name and renamed into place.
+
+    Parameters
+    ----------
+    path : the ``.cine`` file to write.
+    frames : ``(T, H, W)`` unsigned integers.
+    fps : frame rate stored in SETUP.
+    real_bpp : ``RealBPP`` (default: the stored bits per sample).
+    annotation : bytes stored in each image's annotation block.
+    packing : None (uncompressed), ``"P10"`` or ``"P12L"``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     frames = np.asarray(frames)
-    if frames.ndim != 3 or frames.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"frames must be (T, H, W) uint8 or uint16, got {frames.shape} "
-                         f"{frames.dtype}")
+    if packing is not None:
+        if packing not in _PACKING_CODES:
+            raise ValueError(f"packing {packing!r}; allowed: None, "
+                             f"{', '.join(map(repr, _PACKING_CODES))}")
+        bi_compression, stored = _PACKING_CODES[packing]
+        top = (1 << stored) - 1
+        if frames.ndim != 3 or frames.dtype.kind != "u" or (frames.size and frames.max() > top):
+            raise ValueError(f"frames must be (T, H, W) unsigned integers up to {top} for "
+                             f"{packing}, got {frames.shape} {frames.dtype}")
+        bit_count = stored
+    else:
+        if frames.ndim != 3 or frames.dtype not in (np.uint8, np.uint16):
+            raise ValueError(f"frames must be (T, H, W) uint8 or uint16, got {frames.shape} "
+                             f"{frames.dtype}")
+        bi_compression, bit_count = 0, frames.dtype.itemsize * 8
     t, h, w = frames.shape
-    bit_count = frames.dtype.itemsize * 8
-    row_bytes = ((w * frames.dtype.itemsize + 3) // 4) * 4
-    frame_bytes = row_bytes * h
+    if packing is not None:
+        frame_bytes = -(-w * h * bit_count // 8)
+        row_bytes = 0
+    else:
+        row_bytes = ((w * frames.dtype.itemsize + 3) // 4) * 4
+        frame_bytes = row_bytes * h
     setup_size = 5816  # SETUP size of current cine files
     off_bitmap = _CINE_HEADER.size
     off_setup = off_bitmap + _BITMAP_HEADER.size
@@ -510,13 +673,16 @@ def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | N
         with open(tmp, "wb") as fh:
             fh.write(_CINE_HEADER.pack(b"CI", _CINE_HEADER.size, 0, 1, 0, t, 0, t, off_bitmap,
                                        off_setup, off_offsets, 0))
-            fh.write(_BITMAP_HEADER.pack(_BITMAP_HEADER.size, w, h, 1, bit_count, 0,
-                                         frame_bytes, 0, 0, 0, 0))
+            fh.write(_BITMAP_HEADER.pack(_BITMAP_HEADER.size, w, h, 1, bit_count,
+                                         bi_compression, frame_bytes, 0, 0, 0, 0))
             fh.write(bytes(setup))
             fh.write(offsets.astype("<i8").tobytes())
             for f in frames:
                 fh.write(struct.pack("<I", ann_size) + annotation
                          + struct.pack("<I", frame_bytes))
+                if packing is not None:
+                    fh.write(_pack_msb_first(f, bit_count))
+                    continue
                 rows = np.zeros((h, row_bytes), np.uint8)
                 rows[:, :w * frames.dtype.itemsize] = \
                     np.ascontiguousarray(f[::-1]).astype(f.dtype.newbyteorder("<")) \
