@@ -319,3 +319,33 @@ def test_a_tiny_field_track_end_to_end(tmp_path):
     (video,) = cache.glob("extract/*/field_video.json")
     assert json.loads(video.read_text())["files"] == 160  # 0.8 s at 200 fps
     assert not [p for p in (cache / "extract").iterdir() if ".tmp-" in p.name]
+
+
+def test_sample_truth_is_the_truth_observe_gives(tmp_path):
+    """On the problem ``observe`` builds from a sample, the truth ``sample_truth`` computes
+    without the scene's inference settings is observe's own: same voxel material, each mode
+    paired with itself (MAC 1, same sign and eigenvalue)."""
+    from vvtbench.generate import generate
+    from vvtbench.observe import ObserveError, observe, sample_truth
+    from vvtbench.scene import parse_scene
+
+    scene = parse_scene({
+        "name": "tiny_truth", "seed": 5, "geometry": {"kind": "box", "cells": [3, 3, 3]},
+        "material": {"E": 9000.0, "rho": 1270.0, "nu": 0.3, "defects": [
+            {"shape": "box", "center": [0.04, 0.04, 0.04], "size": [0.03, 0.03, 0.03],
+             "E": 3.0e4, "rho": 1800.0}]},
+        "simulation": {"n_modes": 6}, "camera": {"resolution": [48, 48]}}, "tiny_truth")
+    sample = generate(scene, tmp_path, progress=False, video=False)
+    problem, truth = observe(sample, observation="true", n_modes=4, inference_shape=(2, 2, 2),
+                             visibility="normals")
+    paired, got = sample_truth(sample, problem)
+    np.testing.assert_array_equal(got.w, truth.w)
+    np.testing.assert_array_equal(got.v, truth.v)
+    np.testing.assert_array_equal(got.matched, np.arange(4))
+    np.testing.assert_allclose(got.extraction_mac, 1.0, atol=1e-12)
+    np.testing.assert_allclose(got.modes_3d, truth.modes_3d, atol=1e-12)
+    np.testing.assert_allclose(got.eigenvalues, truth.eigenvalues, rtol=1e-12)
+    np.testing.assert_array_equal(paired.gamma, problem.gamma)
+    assert np.isnan(paired.mode_snr).all() and got.meta["scene"] == "tiny_truth"
+    with pytest.raises(ObserveError, match="cannot take the truth of a str"):
+        sample_truth(str(tmp_path / "nowhere"), problem)
