@@ -142,6 +142,8 @@ def test_what_is_not_read_is_one_line_naming_the_file(tmp_path: Path) -> None:
     with pytest.raises(VideoError, match="ImageSize of image 0 is 99 bytes; P12L images of "
                                          "8x4 take 48"):
         open_video(_patched(path, first + 4, "<I", 99))
+    with pytest.raises(VideoError, match="AnnotationSize of image 0 is 4; the block holds"):
+        open_video(_patched(path, first, "<I", 4))
     with pytest.raises(ValueError, match="up to 1023 for P10"):
         write_cine(tmp_path / "x.cine", np.full((1, 2, 4), 1024, np.uint16), 500,
                    packing="P10")

@@ -44,7 +44,9 @@ from ..video import VideoError
 
 __all__ = [
     "CAMERA_SUFFIXES",
+    "CINE_PACKINGS",
     "IMAGE_SUFFIXES",
+    "P10_TO_LINEAR",
     "CameraFile",
     "is_camera_source",
     "open_camera_file",
@@ -505,9 +507,8 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
         fh.seek(off_offsets)
         table = fh.read(8 * count)
     if compression != 0:
-        raise VideoError(f"{path}: CINEFILEHEADER Compression is {compression}; only gray "
-                         f"images (0) are read (colour and raw-Bayer .cine are not supported; "
-                         f"read are {_CINE_SUPPORTED})")
+        raise VideoError(f"{path}: CINEFILEHEADER Compression is {compression} (1: JPEG, 2: "
+                         f"raw Bayer), not 0 (gray); read are {_CINE_SUPPORTED}")
     packing = CINE_PACKINGS.get(bi_compression)
     if packing is None and (bi_compression != 0 or bit_count not in (8, 16)):
         raise VideoError(f"{path}: images of {bit_count} bits, biCompression {bi_compression}; "
@@ -553,7 +554,10 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
             fh.seek(int(offsets[0]))
             ann_size = struct.unpack("<I", fh.read(4))[0]
             fh.seek(int(offsets[0]) + ann_size - 4)
-            image_size = struct.unpack("<I", fh.read(4))[0]
+            image_size = struct.unpack("<I", fh.read(4))[0] if ann_size >= 8 else -1
+        if ann_size < 8:
+            raise VideoError(f"{path}: AnnotationSize of image 0 is {ann_size}; the block holds "
+                             "at least its own size and ImageSize (8 bytes)")
         if image_size != frame_bytes:
             raise VideoError(f"{path}: ImageSize of image 0 is {image_size} bytes; {packing[0]} "
                              f"images of {w}x{h} take {frame_bytes} (rows unpadded)")
