@@ -127,7 +127,7 @@ def test_peak_picked_modes_carry_the_uncertainty_fields(tmp_path):
     ms.save(tmp_path)
     row = json.loads((tmp_path / "modes.json").read_text())["modes"][i]
     assert 0.9 < row["shape_mac_expected"] <= 1.0
-    assert row["close_mode_bias"] is False and row["line_misfit"] is None
+    assert row["close_mode_bias"] is False and 0.5 < row["line_misfit"] < 2.0
     back = ModeSet.load(tmp_path)
     np.testing.assert_allclose(back.damping_interval()[1], hi)
     assert back.metadata["uncertainty_method"] == METHOD
@@ -145,6 +145,34 @@ def test_a_noise_peak_next_to_a_mode_is_not_resolved():
     assert near.sum() >= 2
     assert ms.close_mode_bias()[near].all()
     assert not ms.damping_resolved()[near].any()
+
+
+def test_two_modes_under_one_peak_are_flagged_by_the_blend_misfit():
+    """A line of one mode gives a misfit near 1; a second mode of another shape a bin away,
+    under the same peak, biases zeta and is flagged, so its damping is not resolved."""
+    rng = np.random.default_rng(SEED + 4)
+    T, H, W, fps = 512, 16, 16, 100.0
+    t = np.arange(T) / fps
+    yy, xx = np.mgrid[0:H, 0:W]
+    sa = np.stack([np.sin(np.pi * (xx + 0.5) / W), np.cos(np.pi * (yy + 0.5) / H)], -1)
+    sb = np.stack([np.cos(2 * np.pi * (yy + 0.5) / H), np.sin(2 * np.pi * (xx + 0.5) / W)], -1)
+
+    def mode(f, amp, shape):
+        sig = np.exp(-2 * np.pi * f * 0.01 * t) * np.cos(2 * np.pi * f * t)
+        return amp * sig[:, None, None, None] * shape[None]
+
+    noise = 1e-3 * rng.normal(size=(T, H, W, 2))
+    one = modes_from_displacements((mode(23.4, 0.05, sa) + noise).astype(np.float32), fps,
+                                   fmax=45)
+    blend = modes_from_displacements(
+        (mode(23.4, 0.05, sa) + mode(23.4 + fps / T, 0.04, sb) + noise).astype(np.float32),
+        fps, fmax=45)
+    assert len(one) == 1 and len(blend) == 1
+    assert 0.7 < one.mode_list("line_misfit")[0] < 1.6
+    assert not one.close_mode_bias()[0] and one.damping_resolved()[0]
+    assert blend.damping[0] > 0.0105  # the blend's line is broader
+    assert blend.mode_list("line_misfit")[0] > 3 and blend.close_mode_bias()[0]
+    assert not blend.damping_resolved()[0]
 
 
 def test_extract_prints_the_interval_of_peak_picked_modes(tmp_path, capsys):

@@ -15,8 +15,9 @@ is the variance of the estimate from the whole record and all pixels: every re-e
 the full record, so no scaling with record length is needed.  Assumptions: the noise of
 different groups is independent, and every group sees the same line shape at the peak (one
 mode under it, so a group's share of the mode's energy moves no estimate: frequency and
-damping do not depend on the line's height).  Two modes under one peak break the second one
-(each group sees another mix), which widens the interval rather than narrows it.
+damping do not depend on the line's height).  Two modes under one peak break the second one:
+each group sees another mix, which widens the interval somewhat, but the blend's bias (a
+broader, shifted line) is not a spread and is not covered; :func:`blend_misfit` detects it.
 
 Why pixel groups and not segments of the record: a damped mode decays within the first
 segment of a record several decay times long, so later segments hold noise only, segments
@@ -24,12 +25,14 @@ are not exchangeable, and a segment's line is ``K`` times narrower in bins than 
 record's, which moves the damping below what a segment resolves; the spread of segment
 estimates then says little about the full-record estimate.  Pixel groups share the record.
 
-The interval is ``theta +- t_(G-1) sd`` (Student's ``t`` with ``G - 1`` degrees of freedom, the
-jackknife variance's).  The intervals count noise only, not the estimators' own bias (the
-parabola of :func:`.peaks.refine_frequency` is off by up to a few hundredths of a bin for a
-Hann-windowed line) nor a neighbouring mode's leakage; a mode with another analysed peak
-within :data:`.uncertainty.CLOSE_BINS` bins is flagged ``close_mode_bias``.  No random draw
-is made: groups are assigned deterministically.
+The damping interval is ``zeta +- t_(G-1) sd`` (Student's ``t`` with ``G - 1`` degrees of
+freedom, the jackknife variance's).  ``frequency_std_hz`` adds in quadrature the bias of the
+parabola of :func:`.peaks.refine_frequency` on the model line with the spectrum's noise floor
+(:func:`refine_bias_bins`, up to a few hundredths of a bin), a root-mean-square error.  A mode
+with another analysed peak within :data:`.uncertainty.CLOSE_BINS` bins, or whose fields at its
+three bins are not one line (:func:`blend_misfit` above :data:`.uncertainty.MAX_MISFIT`,
+stored as ``line_misfit``), is flagged ``close_mode_bias``; its damping is then not resolved.
+No random draw is made: groups are assigned deterministically.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from .damping import damping_lorentzian
 from .peaks import refine_frequency
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks
-from .uncertainty import CLOSE_BINS, block_clusters
+from .uncertainty import CLOSE_BINS, MAX_MISFIT, block_clusters
 
 __all__ = ["DEFAULT_GROUPS", "METHOD", "group_labels", "group_spectra", "jackknife_uncertainty",
            "peak_uncertainty"]
@@ -87,7 +90,8 @@ def group_labels(frame_shape: tuple[int, ...], n_groups: int = DEFAULT_GROUPS,
 def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_groups: int, *,
                   weights: ArrayLike | None = None, shape_weights: ArrayLike | None = None,
                   detrend: str = "mean", window: Window = "hann",
-                  block_bytes: int = 64 << 20) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                  block_bytes: int = 64 << 20, cross_bins: ArrayLike | None = None,
+                  ) -> tuple[NDArray[np.float64], ...]:
     """Weighted motion power spectra of pixel groups, in one pass over the displacements.
 
     Parameters
@@ -103,6 +107,10 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         (default 1).
     detrend, window, block_bytes :
         As :func:`.spectrum.motion_power_spectrum`.
+    cross_bins : array_like of int, optional
+        ``(M,)`` peak bins: also return, for each, the ``(3, 3)`` cross-spectral matrix
+        ``C_ab = sum_p w_p X_p(k + a) conj(X_p(k + b))``, ``a, b`` in ``-1, 0, 1``, with
+        ``weights`` (:func:`blend_misfit`).
 
     Returns
     -------
@@ -111,6 +119,8 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         ``weights``.
     shape_power : ndarray
         ``(T // 2 + 1,)`` the spectrum with ``shape_weights``.
+    cross : ndarray
+        ``(M, 3, 3)`` complex, with ``cross_bins`` only.
     """
     store = _as_store(disp)
     H, W = store.frame_shape[:2]
@@ -129,6 +139,11 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
     wg, ws = columns(weights), columns(shape_weights)
     F = store.n_frames // 2 + 1
     out = np.zeros((F, n_groups + 1))
+    kb = None if cross_bins is None else np.atleast_1d(np.asarray(cross_bins, np.int64))
+    if kb is not None and kb.size and (kb.min() < 1 or kb.max() > F - 2):
+        raise ValueError(f"cross_bins must lie in [1, {F - 2}]")
+    cross = None if kb is None else np.zeros((kb.size, 3, 3), np.complex128)
+    rows = None if kb is None else (kb[:, None] + np.arange(-1, 2)[None, :]).reshape(-1)
     for sl, x in _iter_blocks(store, block_bytes, detrend, window):
         X = np.fft.rfft(x, axis=0)
         p = X.real**2 + X.imag**2
@@ -136,7 +151,11 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         M[np.arange(x.shape[1]), lab[sl]] = wg[sl]
         M[:, n_groups] = ws[sl]
         out += p @ M
-    return np.ascontiguousarray(out[:, :n_groups].T), out[:, n_groups]
+        if cross is not None:
+            Xs = X[rows].reshape(kb.size, 3, -1)
+            cross += np.einsum("map,mbp->mab", Xs * wg[sl], Xs.conj())
+    spectra = (np.ascontiguousarray(out[:, :n_groups].T), out[:, n_groups])
+    return spectra if cross is None else (*spectra, cross)
 
 
 def _t95(dof: int) -> float:
@@ -171,11 +190,13 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
     Returns
     -------
     dict of ndarray
-        ``frequency_std_hz`` (root-mean-square error: the jackknife variance plus the square
-        of :func:`refine_bias_bins`), ``frequency_jackknife_std_hz``, ``frequency_bias_hz``,
-        ``damping_std``, ``damping_lo``, ``damping_hi`` (``(M,)``;
-        an interval of ``[0, 0.3]``, which says nothing, where fewer than half the
-        leave-one-out damping fits succeed; ``nan`` where the estimate itself is not
+        ``noise`` (``(F,)`` mean noise power of the summed spectrum: its floor times the
+        mean over the median of its chi-square law), ``frequency_std_hz`` (root-mean-square
+        error: the jackknife variance plus the square of :func:`refine_bias_bins`),
+        ``frequency_jackknife_std_hz``, ``frequency_bias_hz``, ``damping_std``,
+        ``damping_lo``, ``damping_hi`` (``(M,)``; an interval of ``[0, 0.3]``, which says
+        nothing, where fewer than half the leave-one-out damping fits succeed; ``nan`` where
+        the estimate itself is not
         finite) and ``t95`` (the quantile used).
     """
     f = np.asarray(freqs, np.float64)
@@ -222,7 +243,8 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         sz[i] = math.sqrt((n - 1) / n * float(np.sum((z - z.mean()) ** 2)))
         q = _t95(n - 1)
         lo[i], hi[i] = z0[i] - q * sz[i], z0[i] + q * sz[i]
-    return {"frequency_std_hz": np.hypot(sf, bias), "frequency_jackknife_std_hz": sf,
+    return {"noise": noise, "frequency_std_hz": np.hypot(sf, bias),
+            "frequency_jackknife_std_hz": sf,
             "frequency_bias_hz": bias, "damping_std": sz, "damping_lo": lo, "damping_hi": hi,
             "t95": np.full(k.size, t95)}
 
@@ -257,6 +279,51 @@ def refine_bias_bins(power: ArrayLike, bin_: int, nu: float, gamma: float, noise
         return refine_frequency(axis, model, k) - centre
 
     return float(bias(nu - bias(nu)))
+
+
+def _window_bin_cov(window: Window) -> NDArray[np.float64]:
+    """Covariance of white noise's windowed DFT at three consecutive bins (unwindowed
+    variance 1)."""
+    if window == "none":
+        return np.eye(3)
+    return np.array([[0.375, -0.25, 0.0625], [-0.25, 0.375, -0.25], [0.0625, -0.25, 0.375]])
+
+
+def blend_misfit(cross: ArrayLike, noise: ArrayLike, window: Window = "hann") -> NDArray:
+    """How far the fields at a peak's three bins are from one line: the second generalized
+    eigenvalue of the cross-spectral matrix (:func:`group_spectra`) against the window's
+    noise covariance, over the noise.
+
+    One line (a mode, of any shape, phase or damping) puts the same field, scaled, in the
+    three bins: rank one.  Two modes under one peak that differ in shape and frequency add a
+    second direction.  Noise alone gives eigenvalues near ``noise / 0.375`` (Hann); the
+    misfit is about 1 for a single line and grows with a blended one.
+
+    Parameters
+    ----------
+    cross : array_like
+        ``(M, 3, 3)`` cross-spectral matrices.
+    noise : array_like
+        ``(M,)`` mean noise power at each peak bin in the windowed spectrum (same weights).
+    window : {"hann", "none"}
+
+    Returns
+    -------
+    ndarray
+        ``(M,)``.
+    """
+    from scipy.linalg import eigh
+
+    C = np.asarray(cross, np.complex128)
+    n = np.asarray(noise, np.float64)
+    Sb = _window_bin_cov(window)
+    out = np.full(C.shape[0], np.nan)
+    for m in range(C.shape[0]):
+        if not n[m] > 0:
+            continue
+        lam = eigh(0.5 * (C[m] + C[m].conj().T), Sb.astype(np.complex128), eigvals_only=True)
+        out[m] = float(lam[-2]) * Sb[1, 1] / n[m]
+    return out
 
 
 def _expected_shape_mac(shape_power: NDArray[np.float64], bins: NDArray[np.int64],
@@ -333,9 +400,11 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         return {**empty, "frequency_std_hz": none, "damping_lo": none, "damping_hi": none,
                 "shape_mac_expected": none, "close_mode_bias": [False] * M,
                 "line_misfit": none, "uncertainty_groups": None}
-    Pg, Ps = group_spectra(store, labels, G, weights=spectrum_weights,
-                           shape_weights=shape_weights, detrend=detrend, window=window,
-                           block_bytes=block_bytes)
+    F = f.size
+    inner = (k >= 1) & (k <= F - 2)
+    Pg, Ps, cross = group_spectra(store, labels, G, weights=spectrum_weights,
+                                  shape_weights=shape_weights, detrend=detrend, window=window,
+                                  block_bytes=block_bytes, cross_bins=np.clip(k, 1, F - 2))
     df = f[1] - f[0]
     lo_bin = 1 if band is None else max(1, int(math.ceil(band[0] / df - 1e-9)))
     hi_bin = f.size - 1 if band is None else min(f.size - 1, int(math.floor(band[1] / df + 1e-9)))
@@ -344,6 +413,8 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                                damping=damping, band=in_band,
                                floor_half_width_bins=floor_half_width_bins)
     mac = _expected_shape_mac(Ps, k, in_band, floor_half_width_bins)
+    misfit = np.where(inner, blend_misfit(cross, ju["noise"][np.clip(k, 0, F - 1)], window),
+                      np.nan)
     fr = np.asarray(frequency_hz, np.float64) / df
     gap = np.array([np.min(np.abs(np.delete(fr, i) - fr[i])) if M > 1 else np.inf
                     for i in range(M)])
@@ -356,8 +427,9 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         "damping_lo": clean(ju["damping_lo"]),
         "damping_hi": clean(ju["damping_hi"]),
         "shape_mac_expected": clean(mac),
-        "close_mode_bias": [bool(g < CLOSE_BINS) for g in gap],
-        "line_misfit": none,
+        "close_mode_bias": [bool(g < CLOSE_BINS or m > MAX_MISFIT)
+                            for g, m in zip(gap, misfit, strict=True)],
+        "line_misfit": clean(misfit),
         "uncertainty_method": METHOD,
         "uncertainty_groups": {"groups": int(G), "block_px": int(block),
                                "t95": float(ju["t95"][0])},
