@@ -88,9 +88,15 @@ def test_probe_catches_broken_pages(tmp_path):
     assert found["console"] == ["error: boom"] and any("boom" in c for c in console)
 
 
-def test_leaderboard_page_in_headless_chromium(tmp_path):
-    run = make_run(tmp_path / "run")
-    out = build(run / "results.csv", tmp_path / "lb")
+@pytest.fixture(scope="module")
+def board(tmp_path_factory):
+    """The leaderboard of the synthetic run, built once: the tests below only read it."""
+    root = tmp_path_factory.mktemp("board")
+    return build(make_run(root / "run") / "results.csv", root / "lb")
+
+
+def test_leaderboard_page_in_headless_chromium(board, tmp_path):
+    out = board
     shot = tmp_path / "leaderboard.png"
     found, console = load_in_chromium(out / "index.html", tmp_path, screenshot=shot)
     assert not console and not found["console"] and not found["errors"], (console, found)
@@ -105,12 +111,10 @@ def test_leaderboard_page_in_headless_chromium(tmp_path):
 
 
 @pytest.mark.parametrize("width", [900, 1400])
-def test_no_table_overflows_its_container(tmp_path, width):
+def test_no_table_overflows_its_container(board, tmp_path, width):
     """At 900 and 1400 px every table fits inside its container and the window: cells wrap,
     nothing hides behind a horizontal scroll bar."""
-    run = make_run(tmp_path / "run")
-    out = build(run / "results.csv", tmp_path / "lb")
-    found, _ = load_in_chromium(out / "index.html", tmp_path, width=width)
+    found, _ = load_in_chromium(board / "index.html", tmp_path, width=width)
     assert found["viewport"] <= width and found["viewport"] > width - 40, found["viewport"]
     assert not found["overflow"], found["overflow"]
 

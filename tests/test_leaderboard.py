@@ -58,6 +58,12 @@ def table(tmp_path_factory):
     return make_run(tmp_path_factory.mktemp("run"))
 
 
+@pytest.fixture(scope="module")
+def board(table, tmp_path_factory):
+    """The leaderboard of ``table``, built once; a test that changes it works on a copy."""
+    return build(table / "results.csv", tmp_path_factory.mktemp("board") / "lb")
+
+
 def make_run(root):
     """A run folder: tracks `zeta_first` (2 scenes, an n_modes sweep, 2 seeds, both sources),
     `drums` (membranes) and `alpha` (a vvt.alpha_v sweep) in that order; one invalid row."""
@@ -301,9 +307,8 @@ def test_paired_comparison_only_on_shared_instances_and_failures_counted(tmp_pat
     assert next(r for r in summary(df) if r["track"] == "t")["best"]["solver"] == "a"
 
 
-def test_build_writes_every_figure_kind_and_a_summary(table, tmp_path):
-    out = tmp_path / "lb"
-    build(table / "results.csv", out)
+def test_build_writes_every_figure_kind_and_a_summary(board):
+    out = board
     manifest = json.loads((out / "leaderboard.json").read_text())
     assert manifest["generator"] == "vvtbench"
     files = set(manifest["files"])
@@ -362,9 +367,11 @@ def test_output_refuses_foreign_files_and_keeps_them_with_overwrite(table, tmp_p
     assert (out / "README.md").read_text().startswith("# vvtbench leaderboard")
 
 
-def test_rebuild_replaces_only_own_files(table, tmp_path):
+def test_rebuild_replaces_only_own_files(table, board, tmp_path):
+    import shutil
+
     out = tmp_path / "lb"
-    build(table / "results.csv", out)
+    shutil.copytree(board, out, symlinks=True)  # as an earlier build left it
     (out / "figures" / "old_only_mine.png").write_bytes(b"x")
     m = json.loads((out / "leaderboard.json").read_text())
     m["files"] += ["figures/old_only_mine.png", "../outside.txt"]
