@@ -287,7 +287,7 @@ def test_two_concurrent_cli_runs_on_one_folder(tiny, tmp_path):
                               "--no-progress"], env=env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
     try:
-        _wait_for_plugin("Sleep")
+        _wait_for_plugin(plugin, "Sleep")
         second = subprocess.run([sys.executable, "-m", "vvtbench.cli", "run", str(suite), "-o",
                                  str(out), "--no-progress"], env=env, capture_output=True,
                                 text=True, timeout=120)
@@ -396,9 +396,11 @@ def test_check_results_accepts_true_only_and_rejects_tampered(tiny, tmp_path):
         lambda d: d.assign(status="invalid", error="non-finite w", nc_w=np.nan))
 
 
-def _wait_for_plugin(cls: str, timeout: float = 90.0) -> int:
-    """The host pid of the sealed child solving with the plug-in class ``cls`` (found by its
-    command line and its spec: the plug-in itself can write nowhere the test can see)."""
+def _wait_for_plugin(plugin: Path, cls: str, timeout: float = 90.0) -> int:
+    """The host pid of the sealed child solving with the class ``cls`` of the plug-in file
+    ``plugin`` (found by its command line and its spec: the plug-in itself can write nowhere
+    the test can see; the file's path tells this test's child from a concurrent test's)."""
+    target = f"{Path(plugin).resolve()}:{cls}"
     t0 = time.time()
     while time.time() - t0 < timeout:
         for entry in os.listdir("/proc"):
@@ -412,7 +414,7 @@ def _wait_for_plugin(cls: str, timeout: float = 90.0) -> int:
                 spec = json.loads(Path(argv[3].decode()).read_text())
             except (OSError, ValueError, IndexError):
                 continue
-            if spec.get("job") == "solve" and spec.get("target", "").endswith(f":{cls}"):
+            if spec.get("job") == "solve" and spec.get("target") == target:
                 return int(entry)
         time.sleep(0.1)
     raise AssertionError(f"no sealed child solving with {cls} after {timeout:g} s")
@@ -433,7 +435,7 @@ def test_ctrl_c_stops_cleanly(tiny, tmp_path, workers):
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
                             preexec_fn=_default_sigint)
     try:
-        child = _wait_for_plugin("Sleep")
+        child = _wait_for_plugin(plugin, "Sleep")
         time.sleep(0.5)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=180)  # a loaded machine exits slowly
