@@ -8,8 +8,9 @@ interval per solver and view count, and the paired difference against one view.
     python benchmarks/bench_views.py --family cube_defects --split test --n 12 \\
         --views 1 2 3 4 --solvers sensitivity vvt --modes 20
 
-or, from the cache of a `vvtbench run views` (finished or not: every cached solve is scored
-against its observation's truth):
+or, from the cache of a `vvtbench run` of a views track (finished or not: every cached solve
+is scored against its observation's truth; from video, the last column is the median cost per
+instance: the views' extractions, the observation and the solve, in seconds):
 
     python benchmarks/bench_views.py --cache runs/views/cache --solvers sensitivity vvt oracle
 """
@@ -94,21 +95,26 @@ def main(argv: list[str] | None = None) -> int:
 def rows_from_cache(cache: Path) -> list[dict]:
     """One row per cached solve of a views run: its NC w against its observation's truth."""
     from vvtbench.bench.stages import load_estimate_arrays, load_observation
-    from vvtbench.metrics import invalid_reason, normalized_correlation
+    from vvtbench.metrics import invalid_reason, is_constant, normalized_correlation
 
     rows = []
     for task in sorted((cache / "solve").glob("*/task.json")):
         info = json.loads(task.read_text())
         observe_key = info["deps"][0]
-        inference = json.loads((cache / observe_key / "task.json").read_text())["payload"][
-            "inference"]
+        observe = json.loads((cache / observe_key / "task.json").read_text())
+        inference = observe["payload"]["inference"]
+        extracts = [json.loads((cache / k / "task.json").read_text()).get("seconds", np.nan)
+                    for k in observe["deps"][1:]]
         problem, truth = load_observation(cache, observe_key, truth=True)
         w, v, _ = load_estimate_arrays(task.parent / "estimate.npz")
         reason = invalid_reason(w, v, problem.n_params)
         rows.append({"instance": truth.meta["scene"], "views": inference.get("views", 1),
                      "solver": info["payload"]["solver"], "invalid": reason,
-                     "nc_w": float("nan") if reason else normalized_correlation(w, truth.w),
-                     "dof_fraction": problem.meta["observed_dof_fraction"]})
+                     "nc_w": float("nan") if reason or is_constant(truth.w)
+                     else normalized_correlation(w, truth.w),  # no defect: NC undefined
+                     "dof_fraction": problem.meta["observed_dof_fraction"],
+                     "cost_s": float(sum(extracts) + observe.get("seconds", np.nan)
+                                     + info.get("seconds", np.nan))})
     return rows
 
 
@@ -116,9 +122,10 @@ def table(rows: list[dict], args, title: str) -> None:
     from vvtbench.stats import paired_comparison, summarize
 
     print(f"\n{title}\n")
-    print("| family | solver | views | DOFs observed | mean NC w [95 % CI] | valid | paired vs "
-          "1 view [95 % CI] | win rate |")
-    print("|---|---|---|---|---|---|---|---|")
+    cost = all("cost_s" in r for r in rows)
+    print("| family | solver | views | DOFs observed | mean NC w [95 % CI] | scored | paired vs "
+          "1 view [95 % CI] | win rate |" + (" s per instance |" if cost else ""))
+    print("|---|---|---|---|---|---|---|---|" + ("---|" if cost else ""))
     families = sorted({r["instance"].rsplit("-", 2)[0] for r in rows})
     for family, solver in ((f, s) for f in families for s in args.solvers):
         mine = [r for r in rows if r["instance"].startswith(family) and r["solver"] == solver]
@@ -142,7 +149,8 @@ def table(rows: list[dict], args, title: str) -> None:
                 win = f"{c['win_rate']:.2f}"
             print(f"| {family} | {solver} | {views} | {frac:.3f} | {s['mean']:.3f} "
                   f"[{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}] | {valid}/{len(sel)} | "
-                  f"{paired} | {win} |")
+                  f"{paired} | {win} |"
+                  + (f" {np.median([r['cost_s'] for r in sel]):.0f} |" if cost else ""))
 
 
 if __name__ == "__main__":
