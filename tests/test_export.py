@@ -18,6 +18,7 @@ import xarray as xr
 from vvtbench import dataset as ds
 from vvtbench.cli import main as cli_main
 from vvtbench.cli.export import main as export_main
+from vvtbench.croissant import CONTEXT
 from vvtbench.export import pack
 from vvtbench.generate import generate
 from vvtbench.modes import ModeSet
@@ -244,15 +245,16 @@ def test_croissant_file(packed):
     fmt, out, _ = packed
     path = out / "croissant.json" if fmt == "zarr" else Path(f"{out}.croissant.json")
     meta = json.loads(path.read_text())
-    assert meta["@type"] == "sc:Dataset" and meta["conformsTo"].endswith("croissant/1.0")
-    assert meta["@context"]["cr"] == "http://mlcommons.org/croissant/"
+    assert meta["@type"] == "sc:Dataset" and meta["conformsTo"].endswith("croissant/1.1")
+    assert meta["@context"] == CONTEXT  # one context for both layouts
     assert meta["license"].startswith("https://creativecommons.org/licenses/by/4.0")
     assert meta["name"] and meta["description"]
     files = [d for d in meta["distribution"] if d["@type"] == "cr:FileObject"]
     target = out / "zarr.json" if fmt == "zarr" else out
     assert files[0]["sha256"] == _sha256(target)
-    (rs,) = meta["recordSet"]
-    names = {f["name"] for f in rs["field"]}
+    sets = {rs["name"]: rs for rs in meta["recordSet"]}
+    assert set(sets) == {"sample_index", "view_index", "samples"}  # no views: no "views" set
+    names = {f["name"] for f in sets["samples"]["field"]}
     assert {"video", "frequencies_hz", "stiffness", "density"} <= names
     card = out / "README.md" if fmt == "zarr" else Path(f"{out}.README.md")
     assert card.read_text().startswith("# vvtbench dataset")

@@ -18,7 +18,7 @@ netCDF-4 convention) and a ``units`` attribute where it has a unit, so
 named dimensions and coordinates. The reader is :mod:`vvtbench.packed`
 (``open_dataset(path)[name]`` gives a :class:`~vvtbench.packed.PackedSample` with the read
 interface of :class:`vvtbench.dataset.Sample`); the dataset card and the Croissant file are
-written by :mod:`vvtbench.export_card`.
+written by :mod:`vvtbench.export_card` and :mod:`vvtbench.croissant`.
 
 Safety: :func:`pack` never writes into or through a path it did not create. The output may
 not be, contain or lie inside an input; an existing output is replaced only with
@@ -39,9 +39,18 @@ from typing import Any
 import numpy as np
 
 from ._version import __version__
-from .export_card import croissant, dataset_card, sample_revision
+from .croissant import samples_croissant
+from .dataset import VIEW_GROUPS
+from .export_card import dataset_card, sample_revision
 from .io import NoSpaceError, check_free_space, is_disk_full, open_new
-from .packed import FORMAT, FORMAT_VERSION, MODESET_ARRAYS, VIDEO_CHUNK, ExportError
+from .packed import (
+    FORMAT,
+    FORMAT_VERSION,
+    MODESET_ARRAYS,
+    VIDEO_CHUNK,
+    ExportError,
+    view_truth_path,
+)
 
 __all__ = ["DEFAULT_SHARD_BYTES", "ExportError", "check_output", "estimate_bytes",
            "find_extracted", "find_samples", "is_packed_dataset", "pack", "pack_stacked",
@@ -136,9 +145,10 @@ def _raw_bytes(sample: Path, mode_dirs: list[Path]) -> int:
 
     s = open_sample(sample, verify=False)
     total = 0
-    if s.has_video:
-        pixel = 2 if s.info["video"]["pixel_format"] == "gray16le" else 1
-        total += s.n_frames * s.shape[0] * s.shape[1] * pixel
+    pixel = 2 if s.info["video"]["pixel_format"] == "gray16le" else 1
+    for v in (s.view(i) for i in range(s.n_views)):
+        if v.has_video:
+            total += v.n_frames * v.shape[0] * v.shape[1] * pixel
     total += sum(int(np.prod(a.shape)) * a.dtype.itemsize
                  for _, a in _walk_zarr(zarr.open_group(str(sample / "truth.zarr"), mode="r")))
     for d in mode_dirs:
@@ -482,6 +492,67 @@ def _json_attr(doc: Any) -> str:
     return json.dumps(doc, sort_keys=True)
 
 
+def _write_video(w, path: str, s, dims: tuple[str, str, str]) -> Any:
+    """Stream the video of ``s`` (a sample or one of its views) into ``path``; returns the
+    array (HDF5 flushes its chunk cache when it is released: the caller holding it to the
+    end of the sample keeps the file's layout the same from one export to the next)."""
+    T, (H, W) = s.n_frames, s.shape
+    dtype = np.uint16 if s.info["video"]["pixel_format"] == "gray16le" else np.uint8
+    ch = (min(VIDEO_CHUNK, max(T, 1)), H, W)
+    video = w.create(path, (T, H, W), dtype, dims, ch,
+                     {"units": "DN", "long_name": "video frames (digital numbers)",
+                      "bit_depth": int(s.bit_depth)})
+    buf: list[np.ndarray] = []
+    start = 0
+    for f in s.frames():
+        buf.append(f.astype(dtype))
+        if len(buf) == ch[0]:
+            video[start:start + len(buf)] = np.stack(buf)
+            start += len(buf)
+            buf = []
+    if buf:
+        video[start:start + len(buf)] = np.stack(buf)
+        start += len(buf)
+    if start != T:
+        raise ExportError(f"{s.video_path}: holds {start} frames, truth.json says {T}; "
+                          "regenerate the sample")
+    return video
+
+
+def _view_pixel_dims(s, shape: tuple[int, int]) -> dict[int, dict[str, str]]:
+    """Views 1.. of ``s``, each with the renaming of its pixel dimensions: ``row``/``col``
+    when its frames are the size of view 0's (the sample's coordinates serve), else
+    ``view_row``/``view_col`` (xarray aligns a group with its parents by name)."""
+    out = {}
+    for i in range(1, s.n_views):
+        same = s.view(i).shape == tuple(shape)
+        out[i] = {} if same else {"row": "view_row", "col": "view_col"}
+    return out
+
+
+def _write_view(w, scopes: _Scopes, sample: Path, s, group: str, index: int,
+                rename: dict[str, str]) -> Any:
+    """View ``index`` of ``s`` at ``group``: its camera and truth.json entry as attributes,
+    its own pixel coordinates when its frame size differs from view 0's, its video (returned;
+    None for a modes-only sample)."""
+    v = s.view(index)
+    entry = s.info["views"][index]
+    H, W = v.shape
+    for c, n, desc in (("row", H, "pixel row (0 = centre of the top row)"),
+                       ("col", W, "pixel column")):
+        if c in rename:
+            scopes.sizes.setdefault(group, {})[rename[c]] = n
+            w.coord(group, rename[c], np.arange(n, dtype=np.int64),
+                    {"units": "px", "long_name": f"{desc} of view {index}"})
+    w.attrs(group, {"camera": (sample / entry["camera"]).read_text(),
+                    "view": _json_attr(entry), "index": int(index),
+                    "time_offset_s": float(entry.get("time_offset_s", 0.0))})
+    if not v.has_video:
+        return None
+    return _write_video(w, f"{group}/video", v,
+                        ("time", rename.get("row", "row"), rename.get("col", "col")))
+
+
 def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
                   extracted: list[Path]) -> None:
     import zarr
@@ -520,37 +591,27 @@ def _write_sample(w, scopes: _Scopes, sample: Path, name: str,
         scopes.sizes.setdefault(base, {})[c] = len(values)
         w.coord(base, c, values, attrs)
     # ---- video (modes-only samples have none)
-    if s.has_video:
-        dtype = np.uint16 if s.info["video"]["pixel_format"] == "gray16le" else np.uint8
-        ch = (min(VIDEO_CHUNK, max(T, 1)), H, W)
-        video = w.create(f"{base}/video", (T, H, W), dtype, ("time", "row", "col"), ch,
-                         {"units": "DN", "long_name": "video frames (digital numbers)",
-                          "bit_depth": int(s.bit_depth)})
-        buf: list[np.ndarray] = []
-        start = 0
-        for f in s.frames():
-            buf.append(f.astype(dtype))
-            if len(buf) == ch[0]:
-                video[start:start + len(buf)] = np.stack(buf)
-                start += len(buf)
-                buf = []
-        if buf:
-            video[start:start + len(buf)] = np.stack(buf)
-            start += len(buf)
-        if start != T:
-            raise ExportError(f"{s.video_path}: holds {start} frames, truth.json says {T}; "
-                              "regenerate the sample")
-    # ---- truth arrays (all of them, whatever their name)
+    videos = [_write_video(w, f"{base}/video", s, ("time", "row", "col"))] if s.has_video \
+        else []
+    # ---- truth arrays (all of them, whatever their name); view i's under views/<i>/truth/
+    pixel_dims = _view_pixel_dims(s, (H, W))
     for path, arr in arrays:
         data = arr[...]
-        group, _, leaf = f"{base}/truth/{path}".rpartition("/")
-        dims = scopes.resolve(group, leaf, data.shape, _truth_dims(path, s.scene.geometry.kind))
-        attrs = {}
-        unit = _truth_units(path, drum)
-        if unit:
-            attrs["units"] = unit
+        found = view_truth_path(path)
+        if found is not None and found[0] in pixel_dims:
+            where, rename = f"{base}/views/{found[0]}/truth/{found[1]}", pixel_dims[found[0]]
+            proposal = tuple(rename.get(d, d) for d in _truth_dims(found[1], ""))
+            unit = _truth_units(found[1], drum)
+        else:
+            where, proposal, unit = f"{base}/truth/{path}", _truth_dims(path, ""), \
+                _truth_units(path, drum)
+        group, _, leaf = where.rpartition("/")
+        dims = scopes.resolve(group, leaf, data.shape, proposal)
         chunks = tuple(int(c) for c in arr.chunks) if data.ndim else None
-        w.array(f"{group}/{leaf}", data, dims, chunks, attrs)
+        w.array(f"{group}/{leaf}", data, dims, chunks, {"units": unit} if unit else {})
+    # ---- the other views: camera, view entry, video
+    for i, rename in pixel_dims.items():
+        videos.append(_write_view(w, scopes, sample, s, f"{base}/views/{i}", i, rename))
     # ---- extracted modes
     keys = []
     for i, d in enumerate(extracted):
@@ -687,7 +748,8 @@ def _pack_locked(samples, out, fmt, source, names, card, partial, side, side_tmp
                 _write_sample(w, scopes, sample, name, extracted.get(sample, []))
         finally:
             w.close()
-        meta = croissant(out.stem, out, fmt, partial, names, source or "samples")
+        meta = samples_croissant(out.stem, out, fmt, partial, samples, names,
+                                 source or "samples")
         for key, text in (("readme", card), ("croissant", json.dumps(meta, indent=2) + "\n")):
             p = side_tmp[key]
             with open_new(p) as f:  # exclusive: never through a link
@@ -813,7 +875,13 @@ def scene_parameters(sample: Path) -> dict[str, Any]:
 
 
 class _Plan:
-    """Padded shapes, dtypes and dimension names of one family/split store."""
+    """Padded shapes, dtypes and dimension names of one family/split store.
+
+    When a sample of the split holds several views, the arrays every view has of its own
+    (``observation/*``, ``image/*``, ``crb/*``, ``modes/crb_*``) get a ``view`` dimension after
+    ``sample`` (view 0 the sample's, view i its ``views/<i>/`` arrays); a dimension only such
+    arrays have (``visible_vertex``, ``row``, ...) is padded per view.
+    """
 
     def __init__(self, samples: list[Path]):
         import zarr
@@ -822,10 +890,30 @@ class _Plan:
         self.dtypes: dict[str, np.dtype] = {}
         self.dims: dict[str, tuple[str, ...]] = {}
         self.voxels: list[dict | None] = []
-        for s in samples:
+        self.n_views: list[int] = []
+        self.cameras: list[list[tuple[dict, float]]] = []
+        view_shapes: dict[str, dict[tuple[int, int], tuple[int, ...]]] = {}
+        view_dtypes: dict[str, np.dtype] = {}
+        for k, s in enumerate(samples):
             truth = zarr.open_group(str(s / "truth.zarr"), mode="r")
+            doc = json.loads((s / "truth.json").read_text())
+            entries = doc.get("views") if isinstance(doc.get("views"), list) else None
+            self.n_views.append(len(entries) if entries else 1)
+            self.cameras.append([(json.loads((s / e["camera"]).read_text()),
+                                  float(e.get("time_offset_s", 0.0))) for e in entries]
+                                if entries else
+                                [(json.loads((s / "camera.json").read_text()), 0.0)])
             sizes: dict[str, int] = {}
             for path, arr in _walk_zarr(truth):
+                found = view_truth_path(path)
+                if found is not None:
+                    if found[0] < self.n_views[-1]:
+                        view_shapes.setdefault(found[1], {})[(k, found[0])] = tuple(
+                            int(n) for n in arr.shape)
+                        prev = view_dtypes.get(found[1])
+                        view_dtypes[found[1]] = arr.dtype if prev is None else \
+                            np.result_type(prev, arr.dtype)
+                    continue
                 dims = self.dims.get(path) or _stacked_dims(path, arr.ndim)
                 if len(dims) != arr.ndim:
                     raise ExportError(f"{s / 'truth.zarr' / path}: has {arr.ndim} dimensions, "
@@ -838,13 +926,19 @@ class _Plan:
                 self.shapes.setdefault(path, []).append(tuple(int(n) for n in arr.shape))
                 prev = self.dtypes.get(path)
                 self.dtypes[path] = arr.dtype if prev is None else np.result_type(prev, arr.dtype)
-            info = json.loads((s / "truth.json").read_text()).get("voxels")
+            info = doc.get("voxels")
             self.voxels.append(info if info and len(info.get("shape", [])) ==
                                len(info.get("origin", [])) else None)
         n = len(samples)
         for path, shapes in list(self.shapes.items()):
             if len(shapes) != n:
                 del self.shapes[path], self.dims[path], self.dtypes[path]
+        self.views = max(self.n_views, default=1)
+        self.view_paths: list[str] = []
+        self.view_dims: set[str] = set()
+        self.view_sizes: dict[str, list[list[int]]] = {}
+        if self.views > 1:
+            self._stack_views(samples, view_shapes, view_dtypes)
         self.dim_sizes: dict[str, list[int]] = {}
         for path, shapes in self.shapes.items():
             for i, d in enumerate(self.dims[path]):
@@ -852,7 +946,38 @@ class _Plan:
                 self.dim_sizes[d] = [max(a, b) for a, b in
                                      zip(self.dim_sizes.get(d, sizes_d), sizes_d, strict=True)]
         self.padded = {d: max(v) for d, v in self.dim_sizes.items()}
-        self.varying = sorted(d for d, v in self.dim_sizes.items() if len(set(v)) > 1)
+        self.varying = sorted(d for d, v in self.dim_sizes.items() if len(set(v)) > 1 or (
+            d in self.view_dims and len({n for row in self.view_sizes[d] for n in row}) > 1))
+
+    def _stack_views(self, samples: list[Path], view_shapes: dict, view_dtypes: dict) -> None:
+        """Give the per-view arrays their ``view`` dimension (sizes: the largest view)."""
+        self.view_paths = [p for p in self.shapes if p.startswith(VIEW_GROUPS)]
+        shared = {d for p, dims in self.dims.items() if p not in self.view_paths for d in dims}
+        for p in self.view_paths:
+            stacked = []
+            for k, n_views in enumerate(self.n_views):
+                shapes = [self.shapes[p][k]]
+                for v in range(1, n_views):
+                    shape = view_shapes.get(p, {}).get((k, v))
+                    if shape is None or len(shape) != len(shapes[0]):
+                        where = samples[k] / "truth.zarr" / "views" / str(v) / p
+                        raise ExportError(f"{where}: " + ("missing" if shape is None else
+                                          f"has {len(shape)} dimensions") + f", view 0 of the "
+                                          f"sample has {p} with {len(shapes[0])}; regenerate "
+                                          "the sample")
+                    shapes.append(shape)
+                for i, d in enumerate(self.dims[p]):
+                    if d in shared:
+                        continue
+                    per_view = [sh[i] for sh in shapes] + [0] * (self.views - n_views)
+                    rows = self.view_sizes.setdefault(d, [[0] * self.views for _ in self.n_views])
+                    rows[k] = [max(a, b) for a, b in zip(rows[k], per_view, strict=True)]
+                stacked.append((n_views, *np.max(np.array(shapes), axis=0).tolist()))
+            self.view_dims.update(d for d in self.dims[p] if d not in shared)
+            self.shapes[p] = stacked
+            self.dims[p] = ("view", *self.dims[p])
+            if p in view_dtypes:
+                self.dtypes[p] = np.result_type(self.dtypes[p], view_dtypes[p])
 
     def shape(self, path: str) -> tuple[int, ...]:
         return tuple(self.padded[d] for d in self.dims[path])
@@ -915,11 +1040,22 @@ def _write_store(store: Path, samples: list[Path], rows: list[dict], shard_bytes
                             "sample's size; see <dim>_mask"}
         if unit:
             attrs["units"] = unit
+        if path in plan.view_paths:
+            attrs["truth_path"] = f"{path} (view 0), views/<i>/{path} (view i)"
         arrays[path] = _create_stacked(root, _variable(path), (n, *plan.shape(path)),
                                        plan.dtypes[path], ("sample", *plan.dims[path]),
                                        per_shard, attrs)
     masks = {}
     for d in plan.varying:
+        if d in plan.view_dims:  # sizes that differ from one view to the next
+            masks[d] = _create_stacked(root, f"{d}_mask", (n, plan.views, plan.padded[d]), bool,
+                                       ("sample", "view", d), per_shard,
+                                       {"long_name": f"True where {d} holds data in the view "
+                                                     "(False: padding)"})
+            masks[f"n_{d}"] = _create_stacked(root, f"n_{d}", (n, plan.views), np.int64,
+                                              ("sample", "view"), per_shard,
+                                              {"long_name": f"number of {d} of the view"})
+            continue
         masks[d] = _create_stacked(root, f"{d}_mask", (n, plan.padded[d]), bool, ("sample", d),
                                    per_shard, {"long_name": f"True where {d} holds data "
                                                "(False: padding)"})
@@ -932,6 +1068,7 @@ def _write_store(store: Path, samples: list[Path], rows: list[dict], shard_bytes
             centres[ax] = _create_stacked(root, f"voxel_centre_{ax}", (n, plan.padded[ax]),
                                           np.float64, ("sample", ax), per_shard,
                                           {"units": "m", "long_name": f"voxel centre {ax}"})
+    cameras = _create_cameras(root, plan, per_shard) if plan.views > 1 else {}
     coords = {"sample": (str, "instance id (scene name)"), "family": (str, "scene family"),
               "split": (str, "split (train, val, test; 'all' outside a family)"),
               "index": (np.int64, "instance index within its split"),
@@ -957,15 +1094,26 @@ def _write_store(store: Path, samples: list[Path], rows: list[dict], shard_bytes
         for i in range(start, stop):
             truth = zarr.open_group(str(samples[i] / "truth.zarr"), mode="r")
             for p in plan.shapes:
+                if p in plan.view_paths:
+                    for v in range(plan.n_views[i]):
+                        data = truth[p if v == 0 else f"views/{v}/{p}"][...]
+                        bufs[p][(i - start, v, *(slice(0, k) for k in data.shape))] = data
+                    continue
                 data = truth[p][...]
                 bufs[p][(i - start, *(slice(0, k) for k in data.shape))] = data
         for p, a in arrays.items():
             a[start:stop] = bufs[p]
         del bufs
         for d in plan.varying:
+            if d in plan.view_dims:
+                counts = np.array(plan.view_sizes[d][start:stop], dtype=np.int64)
+                masks[f"n_{d}"][start:stop] = counts
+                masks[d][start:stop] = np.arange(plan.padded[d]) < counts[..., None]
+                continue
             counts = np.array(plan.dim_sizes[d][start:stop], dtype=np.int64)
             masks[f"n_{d}"][start:stop] = counts
             masks[d][start:stop] = np.arange(plan.padded[d])[None, :] < counts[:, None]
+        _write_cameras(cameras, plan, start, stop)
         for ax, a in centres.items():
             k = "xyz".index(ax)
             vals = np.full((stop - start, plan.padded[ax]), np.nan)
@@ -984,8 +1132,58 @@ def _write_store(store: Path, samples: list[Path], rows: list[dict], shard_bytes
                                          "shape": [n, *plan.shape(p)],
                                          "dtype": str(plan.dtypes[p]),
                                          "units": _truth_units(p, drum)}
-                          for p in plan.shapes},
-            "varying": plan.varying}
+                          for p in plan.shapes} | {
+                              name: {"dims": ["sample", *dims], "shape": [n, *shape],
+                                     "dtype": str(np.dtype(dtype)), "units": unit}
+                              for name, (shape, dtype, dims, unit, _) in
+                              _camera_variables(plan).items()},
+            "varying": plan.varying, **({"views": plan.views} if plan.views > 1 else {})}
+
+
+def _camera_variables(plan: _Plan) -> dict[str, tuple]:
+    """The cameras of a store with views: name -> (shape without sample, dtype, dims, units,
+    description)."""
+    if plan.views <= 1:
+        return {}
+    v = plan.views
+    return {
+        "camera_K": ((v, 3, 3), np.float64, ("view", "K_row", "K_col"), "px",
+                     "intrinsic matrix K of the view's camera (P = K[R|t])"),
+        "camera_R": ((v, 3, 3), np.float64, ("view", "R_row", "R_col"), "1",
+                     "rotation R, world to camera"),
+        "camera_t": ((v, 3), np.float64, ("view", "t_component"), "m",
+                     "translation t, world to camera"),
+        "camera_width": ((v,), np.int64, ("view",), "px", "frame width of the view"),
+        "camera_height": ((v,), np.int64, ("view",), "px", "frame height of the view"),
+        "view_time_offset": ((v,), np.float64, ("view",), "s",
+                             "time by which the view films later than view 0"),
+    }
+
+
+def _create_cameras(root, plan: _Plan, per_shard: int) -> dict[str, Any]:
+    n = len(plan.n_views)
+    return {name: _create_stacked(root, name, (n, *shape), dtype, ("sample", *dims), per_shard,
+                                  {"units": unit, "long_name": desc, "padding": "NaN (floats), "
+                                   "-1 (integers) for a view the sample does not have"})
+            for name, (shape, dtype, dims, unit, desc) in _camera_variables(plan).items()}
+
+
+def _write_cameras(arrays: dict[str, Any], plan: _Plan, start: int, stop: int) -> None:
+    if not arrays:
+        return
+    specs = _camera_variables(plan)
+    bufs = {name: np.full((stop - start, *shape), _pad_value(np.dtype(dtype)), dtype=dtype)
+            for name, (shape, dtype, *_) in specs.items()}
+    for i in range(start, stop):
+        for v, (camera, offset) in enumerate(plan.cameras[i]):
+            bufs["camera_K"][i - start, v] = camera["K"]
+            bufs["camera_R"][i - start, v] = camera["R"]
+            bufs["camera_t"][i - start, v] = np.ravel(camera["t"])
+            bufs["camera_width"][i - start, v] = camera["width"]
+            bufs["camera_height"][i - start, v] = camera["height"]
+            bufs["view_time_offset"][i - start, v] = offset
+    for name, a in arrays.items():
+        a[start:stop] = bufs[name]
 
 
 def _index_frame(rows: list[dict]):

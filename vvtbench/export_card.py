@@ -1,6 +1,5 @@
 """The dataset cards (README.md) of :func:`vvtbench.export.pack` and
-:func:`vvtbench.export.pack_stacked`, and the Croissant 1.0 JSON-LD description of the former
-(the stacked layout's Croissant 1.1 file: :mod:`vvtbench.croissant`)."""
+:func:`vvtbench.export.pack_stacked` (their Croissant 1.1 files: :mod:`vvtbench.croissant`)."""
 
 from __future__ import annotations
 
@@ -9,11 +8,9 @@ import json
 from pathlib import Path
 
 from ._version import __version__
-from .dataset import sha256_file
-from .packed import FORMAT, FORMAT_VERSION
+from .packed import FORMAT_VERSION
 
-__all__ = ["LICENCE", "LICENSE_URL", "croissant", "dataset_card", "sample_revision",
-           "stacked_card"]
+__all__ = ["LICENCE", "LICENSE_URL", "dataset_card", "sample_revision", "stacked_card"]
 
 LICENSE_URL = "https://creativecommons.org/licenses/by/4.0/"
 LICENCE = """\
@@ -33,10 +30,13 @@ def sample_revision(sample: Path) -> str:
 
 
 def dataset_card(samples: list[Path], names: list[str], fmt: str, source: str) -> str:
-    rows = []
+    """The README.md of a per-sample export (:func:`vvtbench.export.pack`)."""
+    rows, several = [], []
     for s, n in zip(samples, names, strict=True):
         t = json.loads((s / "truth.json").read_text())
         v = t["video"]
+        if isinstance(t.get("views"), list) and len(t["views"]) > 1:
+            several.append(f"{n} ({len(t['views'])})")
         rows.append(f"| {n} | {t['scene']} | {t['seed']} | {v['frames']} | {v['fps']:g} | "
                     f"{v['height']}x{v['width']} | {v['bit_depth']} | {sample_revision(s)} |")
     table = "\n".join(rows)
@@ -71,7 +71,7 @@ samples/<name>/extracted/<i> extracted modes (if any): shapes (extracted_mode, r
 Every array has named dimensions and a `units` attribute where it has a unit. Units and
 conventions of every truth array: vvtbench docs/dataset.md (SI units, pixels with (0, 0) at
 the centre of the top-left pixel, P = K[R|t]).
-
+{_views_section(several)}
 ## Loading
 
 ```python
@@ -96,88 +96,34 @@ machine (see docs/dataset.md, "Reproducible").
 {LICENCE.format(version=__version__)}"""
 
 
-def croissant(name: str, out: Path, fmt: str, partial: Path, names: list[str],
-              source: str) -> dict:
-    """A Croissant 1.0 JSON-LD description of the dataset written at ``partial`` (to be
-    renamed ``out``)."""
-    ctx = {
-        "@language": "en", "@vocab": "https://schema.org/", "sc": "https://schema.org/",
-        "cr": "http://mlcommons.org/croissant/", "rai": "http://mlcommons.org/croissant/RAI/",
-        "dct": "http://purl.org/dc/terms/", "citeAs": "cr:citeAs", "column": "cr:column",
-        "conformsTo": "dct:conformsTo", "data": {"@id": "cr:data", "@type": "@json"},
-        "dataType": {"@id": "cr:dataType", "@type": "@vocab"}, "examples":
-        {"@id": "cr:examples", "@type": "@json"}, "extract": "cr:extract", "field": "cr:field",
-        "fileProperty": "cr:fileProperty", "fileObject": "cr:fileObject",
-        "fileSet": "cr:fileSet", "format": "cr:format", "includes": "cr:includes",
-        "isLiveDataset": "cr:isLiveDataset", "jsonPath": "cr:jsonPath", "key": "cr:key",
-        "md5": "cr:md5", "parentField": "cr:parentField", "path": "cr:path",
-        "recordSet": "cr:recordSet", "references": "cr:references", "regex": "cr:regex",
-        "repeated": "cr:repeated", "replace": "cr:replace", "samplingRate": "cr:samplingRate",
-        "separator": "cr:separator", "source": "cr:source", "subField": "cr:subField",
-        "transform": "cr:transform",
-    }
-    if fmt == "zarr":
-        meta = partial / "zarr.json"
-        dist: list[dict] = [
-            {"@type": "cr:FileObject", "@id": "zarr-metadata", "name": "zarr-metadata",
-             "description": "root metadata of the Zarr v3 store (consolidated: it lists every "
-                            "array, its dimension names and attributes)",
-             "contentUrl": "zarr.json", "encodingFormat": "application/json",
-             "sha256": sha256_file(meta)},
-            {"@type": "cr:FileSet", "@id": "zarr-store", "name": "zarr-store",
-             "description": "every group, array and chunk of the Zarr v3 store",
-             "encodingFormat": "application/x-zarr", "includes": "samples/**"},
-        ]
-        src = {"fileSet": {"@id": "zarr-store"}}
-    else:
-        dist = [{"@type": "cr:FileObject", "@id": out.name, "name": out.name,
-                 "description": "HDF5 file (netCDF-4 style dimension scales)",
-                 "contentUrl": out.name, "encodingFormat": "application/x-hdf5",
-                 "sha256": sha256_file(partial)}]
-        src = {"fileObject": {"@id": out.name}}
+def _views_section(several: list[str]) -> str:
+    """The card's paragraph on samples filmed by several cameras ("" when none is)."""
+    if not several:
+        return ""
+    return f"""
+## Views
 
-    def field(fid: str, path: str, dtype: str, desc: str) -> dict:
-        return {"@type": "cr:Field", "@id": f"samples/{fid}", "name": fid,
-                "description": desc, "dataType": dtype,
-                "source": {**src, "extract": {"column": path}}}
+Samples filmed by several cameras (views): {", ".join(several)}. View 0 is the sample group
+itself; view i >= 1 is `samples/<name>/views/<i>/`: `video` (time, row, col), attributes
+`camera` (its camera.json) and `view` (its truth.json views entry, with `time_offset_s`), and
+`truth/` with its own observation/, image/, crb/ and modes/crb_* arrays. In Python:
+`s.n_views`, `s.view(i)` (the interface of vvtbench.dataset.Sample.view).
+"""
 
-    fields = [
-        field("name", "samples/<name>", "sc:Text", "sample name (group under samples/)"),
-        field("video", "samples/<name>/video", "sc:Integer",
-              "(time, row, col) uint16 video frames in DN"),
-        field("scene_toml", "samples/<name>@scene_toml", "sc:Text",
-              "the resolved scene (TOML) the sample was generated from"),
-        field("frequencies_hz", "samples/<name>/truth/modes/frequencies_hz", "sc:Float",
-              "natural frequencies (Hz) of the simulated modes"),
-        field("image_modes", "samples/<name>/truth/image/modes", "sc:Float",
-              "(mode, row, col, uv) true image-space modes"),
-        field("stiffness", "samples/<name>/truth/material/stiffness", "sc:Float",
-              "Young's modulus per element (Pa; drums: tension N/m)"),
-        field("density", "samples/<name>/truth/material/density", "sc:Float",
-              "density per element (kg/m3; drums kg/m2)"),
-        field("points", "samples/<name>/truth/mesh/points", "sc:Float",
-              "mesh node coordinates (m)"),
-    ]
-    return {
-        "@context": ctx,
-        "@type": "sc:Dataset",
-        "name": name,
-        "description": (f"vvtbench visual vibration tomography dataset: {len(names)} "
-                        "simulated videos of vibrating objects with their ground truth "
-                        f"(mesh, material, modes, camera), packed from {source}."),
-        "conformsTo": "http://mlcommons.org/croissant/1.0",
-        "license": LICENSE_URL,
-        "url": "https://github.com/vvtbench/vvtbench",
-        "version": f"{FORMAT_VERSION}.0.0",
-        "creator": {"@type": "sc:Organization", "name": "vvtbench"},
-        "keywords": ["visual vibration tomography", "modal analysis", "video"],
-        "vvtbench:format": FORMAT,
-        "vvtbench:samples": names,
-        "distribution": dist,
-        "recordSet": [{"@type": "cr:RecordSet", "@id": "samples", "name": "samples",
-                       "description": "one record per sample (group samples/<name>)",
-                       "field": fields}],
-    }
+
+def _stacked_views(stores: dict[str, dict]) -> str:
+    """The stacked card's paragraph on stores with several views ("" when none has)."""
+    with_views = [f"`{rel}` ({info['views']})" for rel, info in stores.items()
+                  if info.get("views", 1) > 1]
+    if not with_views:
+        return ""
+    return f"""
+Views: in {", ".join(with_views)} (the split's largest number of views), the arrays each
+camera has of its own (observation_*, image_*, crb_*, modes_crb_*) have a `view` dimension
+after `sample` (view 0: the sample's; padded for a sample with fewer views), and
+`camera_K`, `camera_R`, `camera_t`, `camera_width`, `camera_height`, `view_time_offset`
+(sample, view, ...) hold every view's camera (P = K[R|t]).
+"""
 
 
 def _human_bytes(n: float) -> str:
@@ -235,7 +181,7 @@ conventions and units: vvtbench docs/dataset.md. Coordinates on `sample`: the in
 the sample's manifest.json, checked against every file when packing).
 
 Video and extracted modes are not in this layout (`vvtbench export --layout samples` keeps them).
-
+{_stacked_views(stores)}
 ## Index
 
 `index.parquet`: one row per instance with `sample`, `family`, `split`, `index`, `seed`,

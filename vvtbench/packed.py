@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from .dataset import SampleView
+from .dataset import VIEW_GROUPS, SampleView
 
 __all__ = ["ExportError", "FORMAT", "FORMAT_VERSION", "MODESET_ARRAYS", "PackedDataset",
-           "PackedSample", "VIDEO_CHUNK", "open_dataset"]
+           "PackedSample", "VIDEO_CHUNK", "open_dataset", "view_info", "view_truth_path"]
 
 FORMAT = "vvtbench.dataset-pack"
 FORMAT_VERSION = 2
@@ -52,13 +52,38 @@ def _text(v: Any) -> str:
     return v.decode() if isinstance(v, bytes) else str(v)
 
 
+def view_info(info: dict, index: int, entry: dict) -> dict:
+    """``truth.json`` as view ``index`` of a multi-view sample sees it (the rules of
+    :meth:`vvtbench.dataset.Sample.view`): its video file and frame size, visible nodes, peak
+    image motion, Cramér-Rao SNR and a ``view`` entry with its index and time offset."""
+    out = json.loads(json.dumps(info))
+    out["video"].update(file=entry.get("video_file"), height=int(entry["height"]),
+                        width=int(entry["width"]))
+    out["mesh"]["n_visible"] = entry.get("n_visible")
+    out["peak_image_motion_px"] = entry.get("peak_image_motion_px")
+    out["view"] = {"index": int(index), "time_offset_s": entry.get("time_offset_s", 0.0)}
+    if "crb_snr" in entry:
+        out["modes"]["crb_snr"] = entry["crb_snr"]
+    return out
+
+
+def view_truth_path(name: str) -> tuple[int, str] | None:
+    """``(i, rest)`` for the truth.zarr name ``views/<i>/<rest>`` of view ``i`` >= 1."""
+    parts = name.split("/", 2)
+    if len(parts) == 3 and parts[0] == "views" and parts[1].isdigit() and int(parts[1]) >= 1:
+        return int(parts[1]), parts[2]
+    return None
+
+
 class PackedSample(SampleView):
     """One sample of a packed dataset, with the read interface of
     :class:`vvtbench.dataset.Sample`: ``scene`` (Scene), ``camera`` (Camera), ``info``
     (truth.json), ``manifest``, ``s["modes/frequencies_hz"]`` (a truth array by its
-    truth.zarr name), ``frames()`` / ``read_frames()``, ``extracted_modes()``."""
+    truth.zarr name), ``frames()`` / ``read_frames()``, ``extracted_modes()``, and
+    ``n_views`` / ``view(i)`` for a sample filmed by several cameras."""
 
-    def __init__(self, group, name: str, dataset_path: Path | None = None):
+    def __init__(self, group, name: str, dataset_path: Path | None = None, *,
+                 view: int = 0):
         from .render import Camera
         from .scene import parse_scene
 
@@ -74,6 +99,44 @@ class PackedSample(SampleView):
         self.revision = _text(a["sample_revision"])
         self.truth_arrays: list[str] = json.loads(_text(a.get("truth_arrays", "[]")))
         self._extracted: list[str] = json.loads(_text(a.get("extracted", "[]")))
+        self.view_index = int(view)
+        self._view_group = group
+        if view:
+            where = f"{dataset_path or 'dataset'}:samples/{name}/views/{view}"
+            if "views" not in group or str(view) not in group["views"]:
+                raise ExportError(f"{where}: missing; the dataset was exported without the "
+                                  "sample's other views (by an older vvtbench): export it "
+                                  "again")
+            vg = self._view_group = group["views"][str(view)]
+            entry = json.loads(_text(vg.attrs["view"]))
+            self.info = view_info(self.info, view, entry)
+            self.camera = Camera.from_dict(json.loads(_text(vg.attrs["camera"])))
+            prefix = f"views/{view}/"
+            own = {n[len(prefix):] for n in self.truth_arrays if n.startswith(prefix)}
+            self.truth_arrays = [n for n in self.truth_arrays if view_truth_path(n) is None
+                                 and not n.startswith(VIEW_GROUPS)] + sorted(own)
+            self._extracted = []
+
+    # ---- several views
+    @property
+    def n_views(self) -> int:
+        """Number of synchronised views of the simulation the sample holds; 1 for a
+        single-view sample (as :attr:`vvtbench.dataset.Sample.n_views`)."""
+        views = self.info.get("views")
+        return len(views) if isinstance(views, list) and views else 1
+
+    def view(self, index: int) -> PackedSample:
+        """View ``index`` as a sample of its own: its camera, video and view arrays
+        (``observation/*``, ``image/*``, ``crb/*``, ``modes/crb_*``) with the sample's shared
+        arrays, as :meth:`vvtbench.dataset.Sample.view`. ``view(0)`` is the sample."""
+        n = self.n_views
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not (
+                0 <= index < n):
+            raise ExportError(f"{self.dataset_path or 'dataset'}:samples/{self.name}: no view "
+                              f"{index!r}; the sample holds views 0..{n - 1}")
+        if int(index) == self.view_index:
+            return self
+        return PackedSample(self.group, self.name, self.dataset_path, view=int(index))
 
     # ---- the Sample interface
     @property
@@ -83,12 +146,12 @@ class PackedSample(SampleView):
 
     @property
     def has_video(self) -> bool:
-        return "video" in self.group
+        return "video" in self._view_group
 
     @property
     def video(self):
         """The lazy (time, row, col) video array (slice it)."""
-        return self.group["video"]
+        return self._view_group["video"]
 
     @property
     def times(self) -> np.ndarray:
@@ -101,10 +164,17 @@ class PackedSample(SampleView):
         return name in self.truth_arrays
 
     def array(self, name: str):
-        """The lazy array ``name`` of the truth (slice it to read part of it)."""
+        """The lazy array ``name`` of the truth (slice it to read part of it): a name of the
+        sample's truth.zarr (``views/<i>/...`` is view ``i``'s array); in a view, its own
+        arrays and the shared ones."""
         if name not in self.truth_arrays:
             raise KeyError(f"{self.name}: no truth array {name!r}; arrays: "
                            f"{', '.join(self.truth_arrays)}")
+        if self.view_index and name.startswith(VIEW_GROUPS):
+            return self._view_group["truth"][name]
+        found = view_truth_path(name)
+        if found is not None:
+            return self.group["views"][str(found[0])]["truth"][found[1]]
         return self.group["truth"][name]
 
     def frames(self, start: int = 0, stop: int | None = None, *,
