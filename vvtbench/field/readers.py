@@ -452,12 +452,18 @@ def unpack_msb_first(buf: bytes, bits: int, n: int) -> NDArray[np.uint16]:
     n_groups = -(-n // per)
     if raw.size < n_groups * group:
         raw = np.concatenate([raw, np.zeros(n_groups * group - raw.size, np.uint8)])
-    words = np.zeros(n_groups, np.uint64)
-    for b in raw[: n_groups * group].reshape(n_groups, group).T:
-        words = (words << np.uint64(8)) | b.astype(np.uint64)
-    shifts = np.arange(per - 1, -1, -1, dtype=np.uint64) * np.uint64(bits)
-    samples = (words[:, None] >> shifts[None, :]) & np.uint64((1 << bits) - 1)
-    return samples.reshape(-1)[:n].astype(np.uint16)
+    grouped = raw[: n_groups * group].reshape(n_groups, group)
+    byte = [grouped[:, j].astype(np.uint16) for j in range(group)]
+    out = np.empty((n_groups, per), np.uint16)
+    for i in range(per):  # sample i: bits i*bits .. of the group, within two bytes
+        first, offset = divmod(i * bits, 8)
+        pair = byte[first] << np.uint16(8)
+        if first + 1 < group:
+            pair |= byte[first + 1]
+        pair >>= np.uint16(16 - offset - bits)
+        pair &= np.uint16((1 << bits) - 1)
+        out[:, i] = pair
+    return out.reshape(-1)[:n]
 
 
 def _pack_msb_first(values: NDArray, bits: int) -> bytes:
