@@ -144,14 +144,19 @@ def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
     -------
     steps : (n_params, len(smooth) + 2) the smoothed steps, then the eigenvalue-only and the
         shape-only gradients (J^T y of each group, scaled to unit RMS).
-    info : v_hom (homogeneous density) and the number of equations.
+    info : ``v_hom`` (homogeneous density), ``n_eq`` (number of equations), ``y_eig`` (k,)
+        the eigenvalue misfit of each observed mode in the observation's order (0 where a mode
+        is not paired) and ``observability`` (n_params,) the diagonal of J^T J over its mean:
+        how strongly the paired modes see each voxel.
     """
     mu, psi = ritz_modes(problem, basis)
     rows, cols, coef, log_v = pair_observed(problem, mu, psi, n_slots)
     lam = np.asarray(problem.eigenvalues, dtype=float)
     m = problem.n_params
     if len(cols) == 0:
-        return np.zeros((m, len(smooth) + 2)), {"v_hom": float(problem.w_mean), "n_eq": 0}
+        return np.zeros((m, len(smooth) + 2)), {"v_hom": float(problem.w_mean), "n_eq": 0,
+                                                "y_eig": np.zeros(len(lam)),
+                                                "observability": np.zeros(m)}
     G = voxel_couplings(problem, psi, cols)               # (n_pairs, n_basis, m)
     ar = np.arange(len(cols))
     J_eig = G[ar, cols, :] / mu[cols, None]
@@ -183,4 +188,68 @@ def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
         g = Jg.T @ yg
         steps.append(g / (np.sqrt(np.mean(g**2)) or 1.0))
     v_hom = float(problem.w_mean * np.exp(log_v))
-    return np.column_stack(steps), {"v_hom": v_hom, "n_eq": len(y)}
+    misfit = np.zeros(len(lam))
+    misfit[rows] = y_eig - y_eig.mean()
+    return np.column_stack(steps), {"v_hom": v_hom, "n_eq": len(y), "y_eig": misfit,
+                                    "observability": np.diag(JTJ) / (tr or 1.0)}
+
+
+def neighbourhood_means(voxel_map, values: np.ndarray, sizes: tuple[int, ...] = (3, 5)
+                        ) -> np.ndarray:
+    """(n_params, n_maps * len(sizes)) mean of each column of ``values`` (n_params, n_maps)
+    over the active voxels of a cube of ``size`` voxels around each voxel (voids and the
+    outside of the grid left out of the mean)."""
+    from scipy.ndimage import uniform_filter
+
+    shape = tuple(voxel_map.grid.shape)
+    active = np.asarray(voxel_map.active)
+    values = np.asarray(values, dtype=float)
+    n_maps = values.shape[1]
+    grid = np.zeros((int(np.prod(shape)), n_maps))
+    grid[active] = values
+    grid = grid.reshape(*shape, n_maps)
+    mask = np.zeros(int(np.prod(shape)))
+    mask[active] = 1.0
+    mask = mask.reshape(shape)
+    out = []
+    for size in sizes:
+        window = (size,) * len(shape)
+        num = uniform_filter(grid, size=(*window, 1), mode="constant")
+        den = uniform_filter(mask, size=window, mode="constant")[..., None]
+        out.append((num / np.maximum(den, 1e-12)).reshape(-1, n_maps)[active])
+    return np.hstack(out)
+
+
+def within_instance_rank(values: np.ndarray) -> np.ndarray:
+    """Rank of each entry within its column, scaled to [0, 1] (ties in index order)."""
+    values = np.asarray(values, dtype=float)
+    n = len(values)
+    return np.argsort(np.argsort(values, axis=0, kind="stable"), axis=0) / max(n - 1, 1)
+
+
+def step_features(problem: InverseProblem, basis: np.ndarray, n_slots: int,
+                  smooth: tuple[float, ...], n_misfits: int) -> tuple[np.ndarray, float]:
+    """(n_params, n_features) per-voxel inputs of the ``learned`` solver's network, and v_hom.
+
+    Per voxel: the linearized steps (:func:`linear_step`) as solved and scaled to unit RMS
+    over the instance, the means of the unit steps over the 3- and 5-voxel neighbourhood, the
+    rank of each unit step within the instance, the log observability, the eigenvalue misfits
+    of the first ``n_misfits`` observed modes (the same for every voxel of an instance: they
+    tell a soft defect from a stiff one) and the voxel's position and its square (grid units
+    about the centre).
+    """
+    steps, info = linear_step(problem, basis, n_slots, smooth=smooth)
+    unit = steps / (np.sqrt(np.mean(steps**2, axis=0)) + 1e-12)
+    near = neighbourhood_means(problem.voxel_map, unit)
+    rank = within_instance_rank(unit)
+    observability = np.log(info["observability"] + 1e-9)[:, None]
+    misfit = np.zeros(n_misfits)
+    k = min(n_misfits, len(info["y_eig"]))
+    misfit[:k] = info["y_eig"][:k]
+    grid = problem.voxel_map.grid
+    centers = grid.centers()[problem.voxel_map.active]
+    pos = (centers - np.asarray(grid.origin)) / np.asarray(grid.size) - 0.5
+    m = problem.n_params
+    X = np.column_stack([steps, unit, near, rank, observability,
+                         np.broadcast_to(misfit, (m, n_misfits)), pos, pos**2])
+    return X, info["v_hom"]
