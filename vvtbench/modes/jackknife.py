@@ -29,7 +29,8 @@ The damping interval is ``zeta +- t_(G-1) sd`` (Student's ``t`` with ``G - 1`` d
 freedom, the jackknife variance's).  ``frequency_std_hz`` adds in quadrature the bias of the
 parabola of :func:`.peaks.refine_frequency` on the model line with the spectrum's noise floor
 (:func:`refine_bias_bins`, up to a few hundredths of a bin), a root-mean-square error.  A mode
-with another analysed peak within :data:`.uncertainty.CLOSE_BINS` bins, or whose fields at its
+with another analysed peak within twice the bins its damping fit reaches
+(:func:`damping_fit_reach`, at least :data:`.uncertainty.CLOSE_BINS`), or whose fields at its
 three bins are not one line (:func:`blend_misfit` above :data:`.uncertainty.MAX_MISFIT`,
 stored as ``line_misfit``), is flagged ``close_mode_bias``; its damping is then not resolved.
 No random draw is made: groups are assigned deterministically.
@@ -48,8 +49,8 @@ from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks
 from .uncertainty import CLOSE_BINS, MAX_MISFIT, block_clusters
 
-__all__ = ["DEFAULT_GROUPS", "METHOD", "group_labels", "group_spectra", "jackknife_uncertainty",
-           "peak_uncertainty"]
+__all__ = ["DEFAULT_GROUPS", "METHOD", "blend_misfit", "damping_fit_reach", "group_labels",
+           "group_spectra", "jackknife_uncertainty", "peak_uncertainty"]
 
 #: groups of pixel tiles left out one at a time
 DEFAULT_GROUPS = 16
@@ -281,6 +282,22 @@ def refine_bias_bins(power: ArrayLike, bin_: int, nu: float, gamma: float, noise
     return float(bias(nu - bias(nu)))
 
 
+def damping_fit_reach(half_width_bins: ArrayLike, window: Window = "hann") -> NDArray:
+    """Bins on each side of a peak that :func:`.damping.damping_lorentzian` fits (before the
+    neighbouring valleys cut them): ``max(6, ceil(6 h))`` with Hann, ``max(4, ceil(6 h))``
+    without, ``h`` the half width in bins (6 where it is not finite).
+
+    A neighbouring mode closer than twice this has its own line inside the fit's bins; the
+    fit, with one line and a constant floor, then takes the neighbour's flank for its own
+    width.  On noiseless damped lines (zeta 0.02) at the paper cube's frequencies, 3 s at
+    2000 FPS, every mode with a neighbour that close is off by 4-70 % (26 % at 7.8 Hz, whose
+    neighbour is 6.5 bins away), and each alone is within 2 %.
+    """
+    h = np.asarray(half_width_bins, np.float64)
+    base = 6.0 if window == "hann" else 4.0
+    return np.maximum(base, np.ceil(6.0 * np.where(np.isfinite(h), h, 1.0)))
+
+
 def _window_bin_cov(window: Window) -> NDArray[np.float64]:
     """Covariance of white noise's windowed DFT at three consecutive bins (unwindowed
     variance 1)."""
@@ -418,6 +435,7 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     fr = np.asarray(frequency_hz, np.float64) / df
     gap = np.array([np.min(np.abs(np.delete(fr, i) - fr[i])) if M > 1 else np.inf
                     for i in range(M)])
+    reach = 2.0 * damping_fit_reach(np.asarray(damping, np.float64) * fr, window)
 
     def clean(a: NDArray) -> list:
         return [float(x) if np.isfinite(x) else None for x in a]
@@ -427,8 +445,8 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         "damping_lo": clean(ju["damping_lo"]),
         "damping_hi": clean(ju["damping_hi"]),
         "shape_mac_expected": clean(mac),
-        "close_mode_bias": [bool(g < CLOSE_BINS or m > MAX_MISFIT)
-                            for g, m in zip(gap, misfit, strict=True)],
+        "close_mode_bias": [bool(g < max(CLOSE_BINS, r) or m > MAX_MISFIT)
+                            for g, r, m in zip(gap, reach, misfit, strict=True)],
         "line_misfit": clean(misfit),
         "uncertainty_method": METHOD,
         "uncertainty_groups": {"groups": int(G), "block_px": int(block),
