@@ -49,7 +49,10 @@ def _quantile(ms: ModeSet) -> tuple[str, float]:
 
 def sample_coverage(sample: Path, modes: Path, tol: float) -> list[dict]:
     """One row per identified mode: matched truth, intervals, resolved, covered."""
-    truth = json.loads((sample / "truth.json").read_text())["modes"]
+    doc = json.loads((sample / "truth.json").read_text())
+    truth = doc["modes"]
+    scene = doc.get("scene")
+    name = scene.get("name", sample.name) if isinstance(scene, dict) else sample.name
     f0 = np.asarray(truth["frequencies_hz"], np.float64)
     z_true = np.asarray(truth["damping_ratios"], np.float64)
     f_true = f0 * np.sqrt(np.clip(1.0 - z_true**2, 0.0, 1.0))
@@ -63,7 +66,7 @@ def sample_coverage(sample: Path, modes: Path, tol: float) -> list[dict]:
         j = int(np.argmin(np.abs(f_true - f)))
         near = np.abs(f_true - f) <= tol * f_true[j]
         rows.append({
-            "sample": sample.name, "modes": str(modes), "method": method, "index": i,
+            "sample": name, "modes": str(modes), "method": method, "index": i,
             "f_hz": float(f), "f_true_hz": float(f_true[j]), "sf_hz": float(sf[i]),
             "q": q, "matched": bool(near[j]),
             "f_covered": bool(abs(f - f_true[j]) <= q * sf[i]),
@@ -119,14 +122,56 @@ def summarize(rows: list[dict]) -> list[str]:
     return out
 
 
+def time_jackknife(T: int = 6000, side: int = 128, fps: float = 2000.0) -> str:
+    """CPU time of the peak-picked modes' uncertainty (one pass plus 16 leave-one-out fits
+    per peak) beside one spectrum pass, on ``T`` frames of a ``side``-square displacement
+    grid with 8 damped modes in noise (the paper cube's frequencies, seed 0)."""
+    import time
+
+    from vvtbench.modes.damping import damping_lorentzian
+    from vvtbench.modes.jackknife import peak_uncertainty
+    from vvtbench.modes.spectrum import motion_power_spectrum
+
+    rng = np.random.default_rng(0)
+    t = np.arange(T) / fps
+    yy, xx = np.mgrid[0:side, 0:side]
+    disp = np.empty((T, side, side, 2), np.float32)
+    for c in range(0, T, 500):
+        disp[c:c + 500] = 1e-3 * rng.standard_normal(disp[c:c + 500].shape, dtype=np.float32)
+    fs = [5.65, 7.8, 12.2, 14.7, 20.1, 23.3, 25.2, 27.2]
+    for i, f in enumerate(fs):
+        sig = (0.02 * np.exp(-2 * np.pi * f * 0.02 * t) * np.cos(2 * np.pi * f * t))
+        shape = np.stack([np.sin((i + 1) * np.pi * xx / side),
+                          np.cos((i + 1) * np.pi * yy / side)], -1)
+        for c in range(0, T, 500):
+            disp[c:c + 500] += (sig[c:c + 500, None, None, None] * shape[None]).astype(np.float32)
+    c0 = time.process_time()
+    freqs, p = motion_power_spectrum(disp, fps, window="hann")
+    c1 = time.process_time()
+    bins = [int(round(f * T / fps)) for f in fs]
+    z = [damping_lorentzian(freqs, p, k, window="hann", n_frames=T)[0] for k in bins]
+    c2 = time.process_time()
+    peak_uncertainty(disp, freqs, bins, fps, frequency_hz=np.array(bins) * fps / T, damping=z,
+                     band=(0.0, 200.0))
+    c3 = time.process_time()
+    return (f"{T} frames of {side}x{side}x2, 8 peaks: spectrum pass {c1 - c0:.1f} s CPU, "
+            f"peak_uncertainty {c3 - c2:.1f} s CPU")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("pairs", nargs="+", help="SAMPLE_DIR MODES_DIR [SAMPLE_DIR MODES_DIR ...]")
+    ap.add_argument("pairs", nargs="*", help="SAMPLE_DIR MODES_DIR [SAMPLE_DIR MODES_DIR ...]")
+    ap.add_argument("--time", action="store_true",
+                    help="time the peak-picked modes' uncertainty on a synthetic record")
     ap.add_argument("--tol", type=float, default=0.01,
                     help="relative frequency tolerance of a match (default 0.01)")
     ap.add_argument("--rows", action="store_true", help="print every mode")
     args = ap.parse_args(argv)
-    if len(args.pairs) % 2:
+    if args.time:
+        print(time_jackknife())
+        if not args.pairs:
+            return 0
+    if not args.pairs or len(args.pairs) % 2:
         ap.error("give SAMPLE_DIR MODES_DIR pairs")
     rows: list[dict] = []
     for s, m in zip(args.pairs[::2], args.pairs[1::2], strict=True):
