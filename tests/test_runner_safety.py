@@ -396,7 +396,7 @@ def test_check_results_accepts_true_only_and_rejects_tampered(tiny, tmp_path):
         lambda d: d.assign(status="invalid", error="non-finite w", nc_w=np.nan))
 
 
-def _wait_for_plugin(plugin: Path, cls: str, timeout: float = 90.0) -> int:
+def _wait_for_plugin(plugin: Path, cls: str, timeout: float = 240.0) -> int:
     """The host pid of the sealed child solving with the class ``cls`` of the plug-in file
     ``plugin`` (found by its command line and its spec: the plug-in itself can write nowhere
     the test can see; the file's path tells this test's child from a concurrent test's)."""
