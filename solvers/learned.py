@@ -1,30 +1,36 @@
-"""``learned``: a learned correction of one linearized inversion step, per voxel.
+"""``learned``: a learned per-voxel network on one linearized inversion step.
 
 A learned baseline for the dataset generator's families: trained only on a family's train
-split (``vvtbench train learned FAMILY``; the ridge penalty chosen on its val split), scored on
+split (``vvtbench train learned FAMILY``; its architecture chosen on the val split), scored on
 its test split like every solver.
 
-Model ("modal-step-ridge", :mod:`vvtbench.learning.modal_features`). A family's instances
+Model ("modal-step-mlp", :mod:`vvtbench.learning.modal_features`). A family's instances
 share one mesh topology, so the weights carry a modal basis: the lowest homogeneous modes of a
-train instance. For a new instance a Rayleigh-Ritz projection on that basis gives its own
+few train instances. For a new instance a Rayleigh-Ritz projection on that basis gives its own
 homogeneous modes in milliseconds (no eigensolve); the observed modes are paired with them by
 MAC, and one linearized (Born) inversion from the homogeneous model is solved for
 log(w / w_mean) per voxel, from the eigenvalue misfits *and* the mixing of homogeneous modes
-in each observed shape (the part that locates a defect; eigenvalues alone are blind to the
-body's symmetries), at three smoothness weights, beside the eigenvalue-only and shape-only
-gradients. A ridge regression on these per-voxel maps (normalized per instance, with their
-squares and magnitudes) and the voxel's position predicts the truth's log(w / mean w). Why
-this family of models: a global map from an instance's observation to the whole field (ridge
-on 800 modal features) does not generalize from hundreds of instances (val NC w 0.03), while
-the per-voxel map shares one small regression across all voxels and instances (each instance
-gives hundreds of samples) and keeps the physics of the inversion in the features; the
-learned part calibrates a step whose linearization is poor for strong (x0.001-x500) defects.
-Cost per solve: one Ritz projection and one dense solve per smoothness weight (tens of ms).
-v is the homogeneous density fitted to the eigenvalues.
+in each observed shape, at three smoothness weights, beside the eigenvalue-only and
+shape-only gradients. Per voxel, an ensemble of small networks (numpy, two ReLU layers,
+:mod:`vvtbench.learning.mlp`) reads these step maps, their means over the voxel's 3- and
+5-voxel neighbourhood, their ranks within the instance, the voxel's observability and
+position and the instance's eigenvalue misfits, and predicts the truth's w standardized per
+instance (the least-squares surrogate of the NC of w; instances with a uniform truth carry no
+target). w is a positive affine map of that prediction (mean w_mean, the lowest voxel at half
+of it): its NC is the prediction's, its contrast is not learned. v is the homogeneous density
+fitted to the eigenvalues.
 
-Weights of the earlier model ("ridge-sensitivity": ridge regression on first-order
-eigenvalue-sensitivity features of the homogeneous modes, no shape information) are still
-read and solved with that model (:func:`features`).
+Why this family of models: a global map from an instance's observation to the whole field
+(ridge on 800 modal features) does not generalize from hundreds of instances (val NC w 0.03);
+a per-voxel map shares one small model across all voxels and instances (each instance gives
+hundreds of samples) and keeps the physics of the inversion in its inputs. A linear per-voxel
+map (2.0, "modal-step-ridge") is flat from 100 instances on; the network, its neighbourhood
+inputs and the NC-shaped target are what 3.0 adds. Cost per solve: one Ritz projection, one
+dense solve per smoothness weight and three tiny networks (tens of ms on a quiet core).
+
+Weights of the earlier models ("modal-step-ridge", and "ridge-sensitivity": ridge regression
+on first-order eigenvalue-sensitivity features of the homogeneous modes, no shape
+information) are still read and solved with their model.
 """
 
 from __future__ import annotations
@@ -69,9 +75,10 @@ class LearnedConfig:
         "help": "weights file written by `vvtbench train learned FAMILY` (.npz), or the name "
                 "of shipped weights (solvers/weights/NAME.npz: cube_defects, bunny_defects, "
                 "drum_defects)"})
-    ridge: float = field(default=0.0, metadata={
-        "help": "training only: ridge penalty on the standardized features; 0 chooses it on "
-                "the val split (train's own score without one)"})
+    members: int = field(default=3, metadata={
+        "help": "training only: networks in the ensemble (member i seeded with i)"})
+    epochs: int = field(default=15, metadata={
+        "help": "training only: passes of Adam over the train voxels per network"})
 
 
 def features(problem: InverseProblem) -> tuple[np.ndarray, float]:
@@ -116,12 +123,15 @@ def features(problem: InverseProblem) -> tuple[np.ndarray, float]:
     return X, v0
 
 
-MODEL = "modal-step-ridge"
+MODEL = "modal-step-mlp"
+RIDGE_MODEL = "modal-step-ridge"
 LEGACY_MODEL = "ridge-sensitivity"
 N_SLOTS = 20
 N_REFERENCE = 8  # train instances whose homogeneous modes span the basis
-RIDGES = (0.1, 10.0, 1e3, 1e5)
 SMOOTH = (0.3, 1.0, 3.0)  # smoothness weights of the linearized steps (val-chosen range)
+HIDDEN = (64, 32)  # chosen on val: wider (128, 64) and deeper (64, 64, 32) nets overfit
+EPOCHS = 15
+MEMBERS = 3
 
 
 def reference_basis(problems) -> np.ndarray:
@@ -133,12 +143,24 @@ def reference_basis(problems) -> np.ndarray:
 
 
 def voxel_features(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, float]:
-    """(n_params, n_features) per-voxel features of the linearized step, and v_hom."""
+    """(n_params, n_features) per-voxel inputs of the network
+    (:func:`vvtbench.learning.modal_features.step_features`), and v_hom."""
+    from threadpoolctl import threadpool_limits
+
+    from vvtbench.learning.modal_features import step_features
+
+    with threadpool_limits(limits=1, user_api="blas"):  # small dense algebra: threads only wait
+        return step_features(problem, basis, N_SLOTS, SMOOTH, N_MODES)
+
+
+def ridge_voxel_features(problem: InverseProblem, basis: np.ndarray
+                         ) -> tuple[np.ndarray, float]:
+    """Per-voxel features of the 2.0 model ("modal-step-ridge", still read)."""
     from threadpoolctl import threadpool_limits
 
     from vvtbench.learning.modal_features import linear_step
 
-    with threadpool_limits(limits=1, user_api="blas"):  # small dense algebra: threads only wait
+    with threadpool_limits(limits=1, user_api="blas"):
         steps, info = linear_step(problem, basis, N_SLOTS, smooth=SMOOTH)
     unit = steps / (np.sqrt(np.mean(steps**2, axis=0)) + 1e-12)
     grid = problem.voxel_map.grid
@@ -147,65 +169,102 @@ def voxel_features(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarr
     return np.column_stack([steps, unit, pos**2]), info["v_hom"]
 
 
+def standardized(w: np.ndarray) -> np.ndarray | None:
+    """(w - mean) / std of one instance's truth; None for a uniform field (no NC defined)."""
+    w = np.asarray(w, dtype=float)
+    sd = float(w.std())
+    if sd <= 1e-9 * max(float(np.abs(w).mean()), 1e-300):
+        return None
+    return (w - w.mean()) / sd
+
+
 def instance_features(problem: InverseProblem, truth, basis: np.ndarray) -> dict:
-    """Features and target of one train or val instance (``truth``: its Truth)."""
+    """Features and target of one train or val instance (``truth``: its Truth): the target
+    is the instance's standardized w (None for a uniform truth)."""
     X, _ = voxel_features(problem, basis)
     w = np.asarray(truth.w, dtype=float)
-    return {"X": X, "y": np.log(w / w.mean()), "w": w}
+    return {"X": X, "y": standardized(w), "w": w}
 
 
-def fit_features(items: list[dict], basis: np.ndarray, ridge: float = 1.0) -> dict:
-    """Weights of the per-voxel ridge regression from :func:`instance_features` items."""
-    if not items:
-        raise ValueError("no training instances")
-    X = np.vstack([it["X"] for it in items])
-    y = np.concatenate([it["y"] for it in items])
-    mu, sd = X.mean(axis=0), X.std(axis=0)
-    sd[sd == 0] = 1.0
-    Z = (X - mu) / sd
-    coef = np.linalg.solve(Z.T @ Z + ridge * np.eye(Z.shape[1]), Z.T @ (y - y.mean()))
-    return {"model": MODEL, "coef_w": coef, "mean": mu, "std": sd, "basis": basis,
-            "n_instances": len(items), "n_voxels": int(len(X)), "ridge": float(ridge),
-            "n_slots": N_SLOTS}
+def fit_features(items: list[dict], basis: np.ndarray, members: int = MEMBERS,
+                 epochs: int = EPOCHS) -> dict:
+    """Weights of the per-voxel network ensemble from :func:`instance_features` items
+    (member i seeded with i); instances with a uniform truth carry no target and are left
+    out."""
+    from vvtbench.learning.mlp import fit_mlp
+
+    used = [it for it in items if it["y"] is not None]
+    if not used:
+        raise ValueError("learned: no training instance with a non-uniform w (all "
+                         f"{len(items)} are homogeneous)")
+    X = np.vstack([it["X"] for it in used])
+    y = np.concatenate([it["y"] for it in used])
+    weights = {"model": MODEL, "basis": basis, "n_instances": len(items),
+               "n_used": len(used), "n_voxels": int(len(X)), "members": int(members),
+               "hidden": list(HIDDEN), "epochs": int(epochs), "n_slots": N_SLOTS,
+               "target": "standardized w per instance"}
+    for i in range(members):
+        params = fit_mlp(X, y, hidden=HIDDEN, epochs=epochs, seed=i)
+        weights.update({f"m{i}_{k}": np.asarray(v) for k, v in params.items()})
+    return weights
+
+
+def _members(weights: dict) -> list[dict]:
+    n = int(np.asarray(weights["members"]))
+    return [{k.split("_", 1)[1]: v for k, v in weights.items() if k.startswith(f"m{i}_")}
+            for i in range(n)]
+
+
+def predict_field(weights: dict, X: np.ndarray) -> np.ndarray:
+    """The ensemble's mean prediction of the standardized w, per voxel."""
+    from vvtbench.learning.mlp import mlp_predict
+
+    return np.mean([mlp_predict(params, X) for params in _members(weights)], axis=0)
+
+
+def field_to_w(field: np.ndarray, w_mean: float) -> np.ndarray:
+    """Positive w of mean ``w_mean`` from a predicted standardized field: a positive affine
+    map (NC unchanged), the lowest voxel at half the mean."""
+    d = field - field.mean()
+    low = float(-d.min())
+    scale = 0.5 / low if low > 1e-12 else 0.0
+    return w_mean * (1.0 + scale * d)
 
 
 def predict_w(weights: dict, X: np.ndarray, w_mean: float) -> np.ndarray:
     """w of one instance from its per-voxel features (mean w = w_mean)."""
-    f = ((X - weights["mean"]) / weights["std"]) @ weights["coef_w"]
-    w = np.exp(np.clip(f - f.mean(), -30.0, 30.0))
-    return w * (w_mean / w.mean())
+    if str(weights.get("model")) == RIDGE_MODEL:
+        f = ((X - weights["mean"]) / weights["std"]) @ weights["coef_w"]
+        w = np.exp(np.clip(f - f.mean(), -30.0, 30.0))
+        return w * (w_mean / w.mean())
+    return field_to_w(predict_field(weights, X), w_mean)
 
 
-def select_ridge(train: list[dict], val: list[dict], ridges=RIDGES) -> tuple[float, float]:
-    """The ridge penalty of best mean NC w on ``val`` (train's own if val is empty), and
-    that score."""
+def mean_nc(weights: dict, items: list[dict]) -> float:
+    """Mean NC w of the weights on feature items (their ``X`` and truth ``w``)."""
     from vvtbench.metrics import normalized_correlation
 
-    judge = val or train
-    best = (-np.inf, ridges[0])
-    for ridge in ridges:
-        weights = fit_features(train, np.zeros((0, 0)), ridge)
-        score = float(np.mean([normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"])
-                               for it in judge]))
-        best = max(best, (score, ridge))
-    return best[1], best[0]
+    return float(np.mean([normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"])
+                          for it in items]))
 
 
-def fit(pairs: Iterable, ridge: float = 0.0, val: Iterable = ()) -> dict:
-    """Weights from ``(problem, truth)`` pairs of a family's train split; ``ridge`` 0: chosen
-    from :data:`RIDGES` by mean NC w on the ``val`` pairs (on train itself without val)."""
+def fit(pairs: Iterable, members: int = MEMBERS, epochs: int = EPOCHS,
+        val: Iterable = ()) -> dict:
+    """Weights from ``(problem, truth)`` pairs of a family's train split; the mean NC w on
+    the ``val`` pairs is recorded (the architecture was chosen on the val split)."""
     pairs = iter(pairs)
     first = list(itertools.islice(pairs, N_REFERENCE))
     if not first:
         raise ValueError("no training instances")
+    if members < 1 or epochs < 1:
+        raise ValueError(f"learned: members and epochs must be >= 1, got {members}, {epochs}")
     basis = reference_basis([problem for problem, _ in first])
     train = [instance_features(problem, truth, basis)
              for problem, truth in itertools.chain(first, pairs)]
     held = [instance_features(p, t, basis) for p, t in val]
-    chosen, score = select_ridge(train, held, RIDGES if ridge <= 0 else (ridge,))
-    weights = fit_features(train, basis, chosen)
+    weights = fit_features(train, basis, members, epochs)
     weights["n_val"] = len(held)
-    weights["val_nc_w"] = score if held else None
+    weights["val_nc_w"] = mean_nc(weights, held) if held else None
     return weights
 
 
@@ -239,14 +298,14 @@ def load_weights(path: str | Path) -> tuple[dict, dict]:
 
 
 class LearnedSolver:
-    """A learned per-voxel correction of one linearized inversion step."""
+    """A learned per-voxel network on one linearized inversion step."""
 
     name = "learned"
-    version = "2.0.0"
+    version = "3.0.0"
     trainable = True  # module-level fit() and save_weights(): `vvtbench train learned FAMILY`
-    description = ("Learned baseline: a per-voxel ridge correction of one linearized inversion "
-                   "step (eigenvalue misfits and mode mixing on a Ritz basis), trained on a "
-                   "family's train split")
+    description = ("Learned baseline: a per-voxel network on one linearized inversion step "
+                   "(eigenvalue misfits and mode mixing on a Ritz basis) and its "
+                   "neighbourhood, trained on a family's train split")
     Config = LearnedConfig
 
     def __init__(self, config: LearnedConfig | None = None) -> None:
@@ -279,8 +338,11 @@ class LearnedSolver:
                              "`vvtbench train learned FAMILY`")
         path = weights_path(self.config.weights)
         wts, meta = load_weights(path)
-        if meta.get("model", LEGACY_MODEL) == MODEL:
-            X, v_hom = voxel_features(problem, wts["basis"])
+        model = meta.get("model", LEGACY_MODEL)
+        if model in (MODEL, RIDGE_MODEL):
+            wts = {**wts, "model": model, "members": meta.get("members", 0)}
+            featurize = voxel_features if model == MODEL else ridge_voxel_features
+            X, v_hom = featurize(problem, wts["basis"])
             w = predict_w(wts, X, problem.w_mean)
             v = np.full(problem.n_params, v_hom)
         else:

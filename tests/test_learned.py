@@ -59,7 +59,7 @@ def test_learned_trained_on_train_beats_the_floor_on_held_out_instances(data, tm
 
     opts = dict(n_modes=8, inference_shape=(4, 4, 4))
     weights = fit(iter_instances(data, "train", **opts))
-    assert weights["n_instances"] == 6 and weights["ridge"] > 0
+    assert weights["n_instances"] == weights["n_used"] == 6 and weights["members"] == 3
     path = save_weights(tmp_path / "w.npz", weights, {"family": "tinyfam", "split": "train",
                                                      "indices": [0, 5]})
     solver = LearnedSolver(LearnedConfig(weights=str(path)))
@@ -106,7 +106,7 @@ def test_weights_of_another_mesh_are_refused_in_one_error(data, tmp_path):
     from solvers.learned import LearnedConfig, LearnedSolver, fit, save_weights
 
     opts = dict(n_modes=8, inference_shape=(4, 4, 4))
-    weights = fit(iter_instances(data, "train", **opts), ridge=1.0)
+    weights = fit(iter_instances(data, "train", **opts), members=1, epochs=1)
     weights["basis"] = weights["basis"][:-3]
     path = save_weights(tmp_path / "w.npz", weights, {"family": "tinyfam", "split": "train"})
     problem, _ = next(iter_instances(data, "test", **opts))
@@ -119,13 +119,18 @@ def test_shipped_cube_weights_carry_a_complete_training_record():
 
     arrays, meta = load_weights(weights_path("cube_defects"))
     assert meta["model"] == MODEL
-    assert meta["n_instances"] == len(meta["instances"]) >= 400
+    assert meta["n_instances"] == len(meta["instances"]) >= 200
     for key in ("train_sha256", "val_sha256"):
         assert len(meta[key]) == 64
     assert meta["val_instances"] and all(n.startswith("cube_defects-val-")
                                          for n in meta["val_instances"])
-    assert meta["val_nc_w"] > 0.05 and meta["fit_seconds"] > 0 and meta["ridge"] > 0
-    assert arrays["basis"].shape[0] == 1944 and arrays["coef_w"].shape == arrays["mean"].shape
+    # above the linear model's 0.157 on the same val instances (benchmarks/RESULTS.md)
+    assert meta["val_nc_w"] > 0.18 and meta["fit_seconds"] > 0 and meta["members"] >= 1
+    assert meta["observe"]["n_modes"] == 10  # the release's observation, which test scores
+    assert arrays["basis"].shape[0] == 1944
+    for i in range(meta["members"]):
+        assert arrays[f"m{i}_W0"].shape[0] == arrays[f"m{i}_x_mean"].shape[0]
+        assert all(a.dtype != object for a in arrays.values())
 
 
 @pytest.mark.parametrize("family", ["cube_defects", "bunny_defects", "drum_defects"])
@@ -178,3 +183,63 @@ def test_replaced_weights_are_solved_again_not_served_from_the_cache(tmp_path):
     shutil.copy(weights_path("drum_defects"), path)  # same name, other content
     second = solve_keys()
     assert len(second) == 1 and second != first
+
+
+def test_network_fits_a_nonlinear_function_a_linear_map_cannot():
+    """y = |x0| + x1^2 - x0 x2 (analytic) from samples: R^2 of the network on held-out points
+    against least squares on the same inputs."""
+    from vvtbench.learning.mlp import fit_mlp, mlp_predict
+
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-1, 1, (6000, 3))
+    y = np.abs(X[:, 0]) + X[:, 1] ** 2 - X[:, 0] * X[:, 2]
+    Xt = rng.uniform(-1, 1, (2000, 3))
+    yt = np.abs(Xt[:, 0]) + Xt[:, 1] ** 2 - Xt[:, 0] * Xt[:, 2]
+    params = fit_mlp(X, y, hidden=(32, 16), epochs=60, batch=256, lr=3e-3, seed=0)
+
+    def r2(pred):
+        return 1 - np.mean((pred - yt) ** 2) / np.var(yt)
+
+    A = np.column_stack([X, np.ones(len(X))])
+    linear = np.column_stack([Xt, np.ones(len(Xt))]) @ np.linalg.lstsq(A, y, rcond=None)[0]
+    assert r2(linear) < 0.1
+    assert r2(mlp_predict(params, Xt)) > 0.95
+    again = fit_mlp(X, y, hidden=(32, 16), epochs=60, batch=256, lr=3e-3, seed=0)
+    assert all(np.array_equal(params[k], again[k]) for k in params)  # seeded
+
+
+def test_neighbourhood_means_match_scipys_nan_mean_filter():
+    """Means over the active voxels of each cube, against scipy's generic_filter of nanmean
+    with voids and the outside as NaN."""
+    from scipy.ndimage import generic_filter
+
+    from vvtbench.fem.voxels import VoxelGrid, VoxelMap
+    from vvtbench.learning.modal_features import neighbourhood_means
+
+    rng = np.random.default_rng(2)
+    shape = (5, 4, 6)
+    active = np.flatnonzero(rng.uniform(size=int(np.prod(shape))) > 0.3)
+    grid = VoxelGrid(shape=shape, origin=(0.0, 0.0, 0.0), size=(1.0, 1.0, 1.0))
+    vmap = VoxelMap(grid, active, active, np.arange(len(active)))
+    values = rng.standard_normal((len(active), 2))
+    got = neighbourhood_means(vmap, values, sizes=(3, 5))
+    for j in range(2):
+        full = np.full(int(np.prod(shape)), np.nan)
+        full[active] = values[:, j]
+        for k, size in enumerate((3, 5)):
+            ref = generic_filter(full.reshape(shape), np.nanmean, size=size, mode="constant",
+                                 cval=np.nan).ravel()[active]
+            assert got[:, k * 2 + j] == pytest.approx(ref, rel=1e-10, abs=1e-12)
+
+
+def test_estimate_keeps_the_predicted_fields_nc_and_is_positive():
+    from solvers.learned import field_to_w
+
+    rng = np.random.default_rng(3)
+    field = rng.standard_normal(512) ** 3
+    truth = np.exp(rng.standard_normal(512))
+    w = field_to_w(field, 9000.0)
+    assert np.all(w > 0) and w.mean() == pytest.approx(9000.0)
+    assert normalized_correlation(w, truth) == pytest.approx(
+        normalized_correlation(field, truth), abs=1e-12)
+    assert np.all(field_to_w(np.zeros(512), 9000.0) == 9000.0)
