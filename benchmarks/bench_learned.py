@@ -232,6 +232,7 @@ def report(rows: list[dict], ref: dict, curve: Path) -> None:
 def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
     """NC w on the test split against the number of train instances."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -249,6 +250,8 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
         ax.axhline(mean, color=c, lw=1.2, label=f"{name} (test)")
         ax.axhspan(lo, hi, color=c, alpha=0.12)
     ax.set_xscale("log")
+    ax.set_xticks(n, [str(k) for k in n])
+    ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xlabel("train instances")
     ax.set_ylabel("mean NC of w (test split, true modes)")
     ax.set_title("learned solver: cube_defects learning curve")
