@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", type=bounded(int, ge=1, le=256), nargs="+", default=None,
                    help="inference voxel grid (default 8 8 8; drums 20 20)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="training option of the solver (e.g. ridge=1.0)")
+                   help="training option of the solver (e.g. members=3)")
     p.add_argument("--workers", type=positive_int, default=1, help="generation workers (1)")
     return p
 
