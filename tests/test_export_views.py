@@ -85,6 +85,7 @@ def test_packed_views_read_like_the_folder_views(packed, samples):
                     np.testing.assert_array_equal(a, b, err_msg=f"{name} view {i}: {array}")
                 assert "observation/jacobian" in pv.truth_arrays
             assert not np.array_equal(p.view(1)["observation/rest_uv"], p["observation/rest_uv"])
+            assert f"{name!r} view 1:" in repr(p.view(1)) and "view" not in repr(p)
             with pytest.raises(ExportError, match="no view 2; the sample holds views 0..1"):
                 p.view(2)
         # every truth.zarr array of the folder under its own name, views/<i>/... included

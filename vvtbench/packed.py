@@ -217,7 +217,8 @@ class PackedSample(SampleView):
 
     def __repr__(self) -> str:
         H, W = self.shape
-        return (f"PackedSample({self.name!r}: {self.n_frames} frames at {self.fps:g} FPS, "
+        which = f" view {self.view_index}" if self.view_index else ""
+        return (f"PackedSample({self.name!r}{which}: {self.n_frames} frames at {self.fps:g} FPS, "
                 f"{H}x{W}, {len(self.truth_arrays)} truth arrays, "
                 f"{len(self._extracted)} extracted mode sets)")
 
