@@ -248,3 +248,30 @@ def test_stacked_croissant_names_the_view_dimension(stacked, caplog):
         dataset = mlc.Dataset(jsonld=str(stacked / "croissant.json"))
     assert not [r for r in caplog.records if "@context" in r.getMessage()]
     assert len(list(dataset.records(record_set="instances"))) == 2
+
+
+def test_verify_reads_the_video_of_every_view(packed, monkeypatch):
+    from vvtbench.cli import verify
+
+    seen = []
+    real = verify._video_problems
+
+    def spy(s, where):
+        seen.append(where.rsplit("samples/", 1)[-1])
+        yield from real(s, where)
+
+    monkeypatch.setattr(verify, "_video_problems", spy)
+    assert cli_main(["verify", str(packed[1])]) == 0
+    assert {"rig", "rig/views/1", "listed", "listed/views/1"} <= set(seen)
+
+
+def test_observe_a_packed_sample_with_its_views_as_the_folder(packed, samples):
+    from vvtbench.observe import observe
+
+    fmt, out = packed
+    folder, _ = observe(samples / "rig", n_modes=3, views=2, inference_shape=[2, 2, 2])
+    entry = open_dataset(out)["rig"]
+    got, _ = observe(entry, n_modes=3, views=2, inference_shape=[2, 2, 2])
+    assert got.P.shape == folder.P.shape and got.P.shape[0] > 0
+    np.testing.assert_allclose(got.P.toarray(), folder.P.toarray())
+    np.testing.assert_allclose(got.gamma, folder.gamma)

@@ -336,8 +336,9 @@ def _view_record(rec: _Record, view: Any) -> _Record:
     """View ``view`` (a :meth:`~vvtbench.dataset.Sample.view`) of the sample of ``rec``."""
     video = None
     if view.has_video:
-        path = view.video_path
-        video = lambda: (path, view.fps)  # noqa: E731
+        path = getattr(view, "video_path", None)
+        video = ((lambda: (path, view.fps)) if path is not None  # noqa: E731
+                 else (lambda: (view.read_frames(), view.fps)))
     return replace(rec, camera=view.camera, depth=_read(view, "image/depth"), video=video,
                    packed_modes=None, views=None,
                    time_offset_s=float(view.info.get("view", {}).get("time_offset_s", 0.0)))

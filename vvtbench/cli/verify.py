@@ -206,18 +206,30 @@ def verify_dataset(path: Path) -> Iterator[str]:
                     s.array(array)[...]
                 except Exception as error:  # noqa: BLE001
                     yield f"{where}/truth/{array}: unreadable ({type(error).__name__}: {error})"
-            if s.has_video:
-                want = (s.n_frames, *s.shape)
-                if tuple(s.video.shape) != want:
-                    yield (f"{where}/video: shape {tuple(s.video.shape)}, truth says "
-                           f"{want} (frames, height, width)")
+            yield from _video_problems(s, where)
+            for i in range(1, int(getattr(s, "n_views", 1))):
                 try:
-                    for _ in s.frames():
-                        pass
+                    view = s.view(i)
                 except Exception as error:  # noqa: BLE001
-                    yield f"{where}/video: unreadable ({type(error).__name__}: {error})"
-            elif s.info.get("video", {}).get("file"):
-                yield f"{where}: the sample was filmed but the dataset holds no video"
+                    yield f"{where}/views/{i}: unreadable ({type(error).__name__}: {error})"
+                    continue
+                yield from _video_problems(view, f"{where}/views/{i}")
+
+
+def _video_problems(s, where: str) -> Iterator[str]:
+    """Problems of one packed view's video: its shape against its truth, every frame read."""
+    if s.has_video:
+        want = (s.n_frames, *s.shape)
+        if tuple(s.video.shape) != want:
+            yield (f"{where}/video: shape {tuple(s.video.shape)}, truth says "
+                   f"{want} (frames, height, width)")
+        try:
+            for _ in s.frames():
+                pass
+        except Exception as error:  # noqa: BLE001
+            yield f"{where}/video: unreadable ({type(error).__name__}: {error})"
+    elif s.info.get("video", {}).get("file"):
+        yield f"{where}: the sample was filmed but the dataset holds no video"
 
 
 def verify_stacked(path: Path) -> Iterator[str]:
