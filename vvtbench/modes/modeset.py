@@ -203,11 +203,13 @@ class ModeSet:
         return out
 
     def frequency_std_hz(self) -> NDArray[np.float64]:
-        """``(k,)`` standard error of each frequency (Hz) from the line fit, else ``nan``."""
+        """``(k,)`` standard error of each frequency (Hz), ``nan`` where not computed (the method:
+        ``metadata["uncertainty_method"]``)."""
         return self.mode_list("frequency_std_hz")
 
     def damping_interval(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """``(lo, hi)`` 95 % interval of each damping ratio from the line fit, else ``nan``."""
+        """``(lo, hi)`` 95 % interval of each damping ratio, ``nan`` where not computed (the
+        method: ``metadata["uncertainty_method"]``)."""
         return self.mode_list("damping_lo"), self.mode_list("damping_hi")
 
     def close_mode_bias(self) -> NDArray[np.bool_]:
@@ -299,7 +301,8 @@ class ModeSet:
     def save(self, directory: str | Path) -> Path:
         """Write ``modes.npz`` and ``modes.json`` into ``directory`` (created if needed).
 
-        With the line fit, every entry of ``modes.json``'s ``modes`` also carries (and
+        Every entry of ``modes.json``'s ``modes`` also carries (from the line fit's covariance
+        or the peak picker's jackknife, named by ``metadata["uncertainty_method"]``; and
         ``metadata`` holds the same as per-candidate lists, one entry per analysed peak, mapped
         by ``analysed_index``), each a scalar per mode, ``null`` where not computed:
 
