@@ -31,6 +31,7 @@ __all__ = [
     "check_sample",
     "open_sample",
     "sha256_file",
+    "view_info",
 ]
 
 #: Version of the sample folder format. 2: ``mesh/fixed_nodes``, ``mesh/node_sets/*``, the
@@ -149,14 +150,7 @@ class Sample(SampleView):
             raise DatasetError(f"{self.path / problems[0]}")
         entry = entries[int(index) - 1]
         camera = _read_camera(self.path / entry["camera"])
-        info = json.loads(json.dumps(self.info))
-        info["video"].update(file=entry.get("video_file"), height=int(entry["height"]),
-                             width=int(entry["width"]))
-        info["mesh"]["n_visible"] = entry.get("n_visible")
-        info["peak_image_motion_px"] = entry.get("peak_image_motion_px")
-        info["view"] = {"index": int(index), "time_offset_s": entry.get("time_offset_s", 0.0)}
-        if "crb_snr" in entry:
-            info["modes"]["crb_snr"] = entry["crb_snr"]
+        info = view_info(self.info, index, entry)
         return Sample(self.path, self.scene, camera, info, self.manifest,
                       _ViewTruth(self.truth, f"views/{int(index)}/"))
 
@@ -512,3 +506,18 @@ def open_sample(path: str | Path, *, verify: bool = True) -> Sample:
         raise DatasetError(f"{path / 'truth.zarr'}: cannot be opened as a zarr group "
                            f"({error})") from None
     return Sample(path, scene, camera, info, manifest, truth)
+
+
+def view_info(info: dict, index: int, entry: dict) -> dict:
+    """``truth.json`` as view ``index`` of a multi-view sample sees it (``entry``: its item of
+    ``truth.json``'s ``views`` list): its video file and frame size, visible nodes, peak image
+    motion, Cramér-Rao SNR and a ``view`` entry with its index and time offset."""
+    out = json.loads(json.dumps(info))
+    out["video"].update(file=entry.get("video_file"), height=int(entry["height"]),
+                        width=int(entry["width"]))
+    out["mesh"]["n_visible"] = entry.get("n_visible")
+    out["peak_image_motion_px"] = entry.get("peak_image_motion_px")
+    out["view"] = {"index": int(index), "time_offset_s": entry.get("time_offset_s", 0.0)}
+    if "crb_snr" in entry:
+        out["modes"]["crb_snr"] = entry["crb_snr"]
+    return out

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .dataset import VIEW_GROUPS, SampleView
+from .dataset import VIEW_GROUPS, SampleView, view_info
 
 __all__ = ["ExportError", "FORMAT", "FORMAT_VERSION", "MODESET_ARRAYS", "PackedDataset",
            "PackedSample", "VIDEO_CHUNK", "open_dataset", "view_info", "view_truth_path"]
@@ -50,21 +50,6 @@ class ExportError(ValueError):
 
 def _text(v: Any) -> str:
     return v.decode() if isinstance(v, bytes) else str(v)
-
-
-def view_info(info: dict, index: int, entry: dict) -> dict:
-    """``truth.json`` as view ``index`` of a multi-view sample sees it (the rules of
-    :meth:`vvtbench.dataset.Sample.view`): its video file and frame size, visible nodes, peak
-    image motion, Cramér-Rao SNR and a ``view`` entry with its index and time offset."""
-    out = json.loads(json.dumps(info))
-    out["video"].update(file=entry.get("video_file"), height=int(entry["height"]),
-                        width=int(entry["width"]))
-    out["mesh"]["n_visible"] = entry.get("n_visible")
-    out["peak_image_motion_px"] = entry.get("peak_image_motion_px")
-    out["view"] = {"index": int(index), "time_offset_s": entry.get("time_offset_s", 0.0)}
-    if "crb_snr" in entry:
-        out["modes"]["crb_snr"] = entry["crb_snr"]
-    return out
 
 
 def view_truth_path(name: str) -> tuple[int, str] | None:
