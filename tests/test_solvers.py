@@ -298,6 +298,34 @@ def test_mode_match_of_the_truth(problem6, truth6):
     assert mm2["freq_rel_error_scaled"] < 1e-6 and mm2["material_scale"] == pytest.approx(0.25)
 
 
+def test_mode_match_does_not_depend_on_the_basis_of_a_repeated_mode(problem6):
+    from dataclasses import replace
+
+    from vvtbench.fem.modal import Modes, cluster_frequencies, eigenmodes
+    from vvtbench.metrics import REPEATED_RTOL
+
+    w, v = np.ones(problem6.n_params), np.ones(problem6.n_params)  # a cube: repeated pairs
+    model = problem6.model
+    modes = eigenmodes(model.K(w), model.M(v), problem6.n_modes + 10)
+    clusters = [c for c in cluster_frequencies(modes.frequencies_hz, REPEATED_RTOL) if c.size > 1]
+    assert clusters, "a homogeneous cube has repeated eigenvalues"
+    rng = np.random.default_rng(3)
+    rotated = modes.vectors.copy()
+    for c in clusters:  # any orthogonal change of basis inside each repeated mode
+        q, _ = np.linalg.qr(rng.normal(size=(c.size, c.size)))
+        rotated[:, c] = modes.vectors[:, c] @ q
+    a = mode_match(problem6, w, v, modes=modes)
+    b = mode_match(problem6, w, v, modes=replace(modes, vectors=rotated))
+    assert a["mean_mac"] == pytest.approx(b["mean_mac"], abs=1e-9)
+    assert a["freq_rel_error"] == pytest.approx(b["freq_rel_error"], abs=1e-9)
+    inside = (problem6.P @ rotated[:, clusters[0]]).T  # observations inside one span
+    one_vector = mode_match(replace(problem6, gamma=inside,
+                                    eigenvalues=modes.eigenvalues[clusters[0]], mode_snr=None),
+                            w, v, modes=modes)
+    assert one_vector["mean_mac"] == pytest.approx(1.0, abs=1e-9)
+    assert isinstance(modes, Modes)
+
+
 # ----------------------------------------------------------------------------- plug-ins
 
 PLUGIN = textwrap.dedent('''

@@ -24,6 +24,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
 
+from .mac import subspace_mac
+
 __all__ = [
     "DEFAULT_FLOOR_PX",
     "clusters_by_resolution",
@@ -54,25 +56,6 @@ def clusters_by_resolution(frequencies: ArrayLike, resolution_hz: float) -> list
         else:
             out.append([int(i)])
     return out
-
-
-def subspace_mac(a: ArrayLike, basis: ArrayLike) -> float:
-    """Fraction of the energy of vector ``a`` in the span of the rows of ``basis``.
-
-    For one basis vector ``b`` it is the MAC ``(a . b)**2 / (|a|**2 |b|**2)``.
-    """
-    x = np.asarray(a, dtype=np.float64).ravel()
-    B = np.atleast_2d(np.asarray(basis, dtype=np.float64)).reshape(-1, x.size)
-    na = float(x @ x)
-    if na <= 0:
-        return 0.0
-    q, r = np.linalg.qr(B.T)
-    keep = np.abs(np.diag(r)) > 1e-12 * max(float(np.abs(r).max(initial=0.0)), 1e-300)
-    q = q[:, keep]
-    if q.shape[1] == 0:
-        return 0.0
-    p = q.T @ x
-    return float(min(1.0, (p @ p) / na))
 
 
 def _true_vectors(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["mac", "mac_matrix"]
+__all__ = ["mac", "mac_matrix", "subspace_mac"]
 
 
 def mac_matrix(a: ArrayLike, b: ArrayLike) -> np.ndarray:
@@ -33,3 +33,25 @@ def mac(a: ArrayLike, b: ArrayLike, weights: ArrayLike | None = None) -> float:
         s = np.sqrt(np.asarray(weights, dtype=np.float64))[..., None]
         x, y = x * s, y * s
     return float(mac_matrix(x.ravel(), y.ravel())[0, 0])
+
+
+def subspace_mac(a: ArrayLike, basis: ArrayLike) -> np.ndarray | float:
+    """MAC of ``a`` with the span of the rows of ``basis`` (m, d): the fraction of
+    ``|a|^2`` in that span, which no change of basis inside it alters. ``a`` is one vector
+    (d,), giving a float, or rows (p, d), giving one value per row. With one basis row it is
+    :func:`mac_matrix`; 0 for a zero vector or an empty span.
+
+    >>> subspace_mac([[1.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    array([1., 0.])
+    >>> round(subspace_mac([1.0, 1.0], [[1.0, 0.0]]), 3)
+    0.5
+    """
+    x = np.asarray(a, dtype=np.float64)
+    rows = np.atleast_2d(x)
+    b = np.atleast_2d(np.asarray(basis, dtype=np.float64)).reshape(-1, rows.shape[1])
+    q, r = np.linalg.qr(b.T)
+    keep = np.abs(np.diag(r)) > 1e-12 * max(float(np.abs(r).max(initial=0.0)), 1e-300)
+    num = np.sum((q[:, keep].T @ rows.T) ** 2, axis=0)
+    den = np.einsum("ij,ij->i", rows, rows)
+    out = np.minimum(np.divide(num, den, out=np.zeros(num.shape), where=den > 0), 1.0)
+    return float(out[0]) if x.ndim == 1 else out

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mac import mac_matrix
+from .mac import mac_matrix, subspace_mac
 
 __all__ = [
     "normalized_correlation",
@@ -88,16 +88,23 @@ def intrinsic_resolution(
             "sigmas": sigmas.tolist(), "nc": ncs.tolist()}
 
 
+#: model modes whose frequencies agree to this are one repeated mode in the mode match
+REPEATED_RTOL = 1e-5
+
+
 def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10, modes=None) -> dict:
     """Forward-solve K(w) phi = lam M(v) phi on the inference model (k + n_extra lowest modes),
     project with P and match to the observed gamma by MAC (Hungarian assignment, maximizing
     the total MAC); ``modes``, the forward model's modes if already computed (at least
-    k + n_extra of them), are reused. Frequencies f = sqrt(lam)/2pi; the scale c = sqrt(s)
+    k + n_extra of them), are reused. Model modes whose frequencies agree to
+    ``REPEATED_RTOL`` are one repeated mode whose basis the eigensolver's rounding picks: an
+    observed mode is matched to its span (:func:`vvtbench.mac.subspace_mac`), so the score
+    does not depend on that basis. Frequencies f = sqrt(lam)/2pi; the scale c = sqrt(s)
     minimizing sum_i (c f_pred_i / f_obs_i - 1)^2 is c = sum r_i / sum r_i^2 with
     r_i = f_pred_i / f_obs_i."""
     from scipy.optimize import linear_sum_assignment
 
-    from .fem.modal import eigenmodes
+    from .fem.modal import cluster_frequencies, eigenmodes
 
     model = problem.model
     k = problem.n_modes
@@ -107,6 +114,9 @@ def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10, modes=N
     vectors, f_model = modes.vectors[:, :n_pred], modes.frequencies_hz[:n_pred]
     pred = (problem.P @ vectors).T  # (n_pred, 2 nv)
     mac = mac_matrix(problem.gamma, pred)  # (k, n_pred)
+    for cluster in cluster_frequencies(f_model, REPEATED_RTOL):
+        if cluster.size > 1:
+            mac[:, cluster] = subspace_mac(problem.gamma, pred[cluster])[:, None]
     rows, cols = linear_sum_assignment(-mac)
     order = np.argsort(rows)
     rows, cols = rows[order], cols[order]

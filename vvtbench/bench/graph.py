@@ -41,6 +41,9 @@ OBSERVE_REVISION = 3
 #: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
 #: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)
 LINE_FIT_REVISION = 3
+#: revision of the scoring of an estimate (evaluate keys only; solves are reused).
+#: 2: an observed mode is matched to the span of a repeated model mode, not to one basis vector
+EVALUATE_REVISION = 2
 #: revision of the field path (``[tracks.field]``: its extract and observe keys only)
 FIELD_REVISION = 1
 #: inference options the field path cannot honour (a real video has one camera, its object's
@@ -335,7 +338,8 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                         sk = add("solve", [name, version, cfg, *([inputs] if inputs else [])],
                                  [obs_key],
                                  {"solver": spec, "config": cfg}, f"{name}:{scene_label}")
-                        ek = add("evaluate", [], [sk, obs_key], {}, f"{name}:{scene_label}")
+                        ek = add("evaluate", [EVALUATE_REVISION], [sk, obs_key], {},
+                                 f"{name}:{scene_label}")
                         run.solve_key, run.evaluate_key = sk, ek
                     runs.append(run)
     return tasks, runs
