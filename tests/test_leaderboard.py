@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -626,3 +627,52 @@ def test_keep_figures_keeps_what_a_table_without_its_cache_cannot_redraw(tmp_pat
     assert all((out / rel).is_file() for rel in slices) and KEPT in (out / "README.md").read_text()
     build(bare / "results.csv", out)  # not kept: an earlier build's own files are removed
     assert not any((out / rel).exists() for rel in slices)
+
+
+def test_a_views_sweep_is_drawn_pooled_over_instances_and_against_dofs(tmp_path, monkeypatch):
+    rng = np.random.default_rng(5)
+
+    def edit(rows):
+        rows.clear()
+        for i in range(6):
+            for n in (1, 2, 3):
+                for solver, gain in (("a", 0.1), ("b", 0.0)):
+                    nc = 0.3 + gain * n + 0.05 * rng.standard_normal()
+                    r = _row("views_track", f"fam-test-{i:05d}", f"views={n}", {"views": n},
+                             solver, "extracted", nc)
+                    r.update(observed_dof_fraction=0.2 * n, false_contrast_w=np.nan,
+                             false_contrast_v=np.nan)
+                    if (i, n, solver) == (0, 3, "a"):  # not valid: left out of a's paired mean
+                        r.update({c: np.nan for c in METRIC_COLUMNS}, status="invalid",
+                                 error="non-finite w")
+                    rows.append(r)
+
+    path = _instances_table(tmp_path, edit)
+    seen = []
+    import vvtbench.plots as plots
+
+    save = plots.save_figure
+
+    def spy(fig, p, dpi=100):
+        if Path(p).name.endswith("nc_vs_views.png"):
+            seen.append([(line.get_label(), line.get_xydata().copy())
+                         for ax in fig.axes for line in ax.get_lines()])
+        return save(fig, p, dpi=dpi)
+
+    monkeypatch.setattr(plots, "save_figure", spy)
+    md, _, doc = _board(path, tmp_path / "lb")
+    assert (tmp_path / "lb/figures/views_track_nc_vs_views.png").is_file()
+    assert "NC against the number of views and the DOFs observed" in md
+    curves = {label: xy for label, xy in seen[0] if label.startswith(("a,", "b,"))}
+    table = pd.read_csv(path)
+    ok = table[table.status == "ok"]
+    for solver, n in (("a", 5), ("b", 6)):
+        xy = curves[f"{solver}, extracted modes (n={n})"]
+        paired = ok[ok.solver == solver].pivot_table(index="scene", columns="variation",
+                                                     values="nc_w").dropna()
+        assert len(paired) == n
+        np.testing.assert_allclose(xy[:, 1], paired.mean().to_numpy())
+    dof_lines = [xy for label, xy in seen[0] if label.startswith("_") and len(xy) > 1]
+    assert sum(len(xy) == 3 and np.allclose(xy[:, 0], [0.2, 0.4, 0.6]) for xy in dof_lines) == 11
+    assert sum(len(xy) == 2 and np.allclose(xy[:, 0], [0.2, 0.4])  # the invalid row's instance
+               for xy in dof_lines) == 1

@@ -326,6 +326,16 @@ def test_mode_match_does_not_depend_on_the_basis_of_a_repeated_mode(problem6):
     assert isinstance(modes, Modes)
 
 
+def test_every_scored_row_states_the_dofs_its_observation_sees(problem6, truth6):
+    from vvtbench.metrics import evaluate
+    from vvtbench.observe import observed_dof_fraction
+
+    dof = evaluate(problem6, truth6, truth6.w, truth6.v, modes=False)["metrics"][
+        "observed_dof_fraction"]
+    assert dof == pytest.approx(observed_dof_fraction(problem6.P, problem6.model))
+    assert 0.05 < dof < 2 / 3  # one camera sees some surface vertices, two directions each
+
+
 # ----------------------------------------------------------------------------- plug-ins
 
 PLUGIN = textwrap.dedent('''

@@ -439,11 +439,18 @@ def field_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles
 def curve_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles) -> list:
     """NC against every swept value of the track and the intrinsic-resolution curves."""
     from .metrics import intrinsic_resolution
-    from .plots import plot_intrinsic_resolution, plot_sweep, sweep_keys
+    from .plots import plot_intrinsic_resolution, plot_sweep, plot_views, sweep_keys
 
     d = df[df.track == track]
     out = []
     for key in sweep_keys(d):
+        if key == "views":  # cameras: pooled over the instances, and against DOFs observed
+            rel = f"{rel_dir}/{_slug(track)}_nc_vs_views.png"
+            if plot_views(folder / Path(rel).name, d, styles,
+                          title=f"{track}: NC of w against the number of camera views and "
+                                "the DOFs they observe"):
+                out.append(("NC against the number of views and the DOFs observed", rel))
+            continue
         name = "nc_vs_modes" if key == "n_modes" else f"nc_vs_{_slug(key)}"
         rel = f"{rel_dir}/{_slug(track)}_{name}.png"
         if plot_sweep(folder / Path(rel).name, d, key, styles,

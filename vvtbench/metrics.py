@@ -183,7 +183,9 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
     curves), optionally the mode match against the observed modes (``mode_mac``,
     ``freq_err_raw``, ``freq_err_scaled``; None with a note when the forward solve fails), and
     for stated per-parameter standard deviations the 95 % interval coverage
-    (``interval_coverage_w``, ``interval_coverage_v``; None when not stated).
+    (``interval_coverage_w``, ``interval_coverage_v``; None when not stated), and the fraction
+    of the inference model's DOFs the observation sees (``observed_dof_fraction``, from the
+    problem's ``meta``; None when it does not say).
 
     Returns ``{"metrics": {...}, "curves": {"w": {...}, "v": {...}}, "notes": [...]}``.
     """
@@ -238,6 +240,9 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
                                        mm["freq_rel_error_scaled"]), strict=True):
                 if key:
                     metrics[key] = val
+    dof = (getattr(problem, "meta", None) or {}).get("observed_dof_fraction")
+    metrics["observed_dof_fraction"] = (float(dof) if isinstance(dof, (int, float))
+                                        and np.isfinite(dof) else None)
     for key, val in (truth.meta.get("extraction") or {}).items():
         if key in ("precision", "recall", "recall_all", "mean_rel_freq_error", "mean_mac"):
             metrics[f"extraction_{key}"] = val

@@ -32,8 +32,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Styles", "bootstrap_band", "field_units", "grid_kind", "plot_field_grids",
-           "plot_fields", "plot_intrinsic_resolution", "plot_sweep", "save_figure",
-           "sweep_keys"]
+           "plot_fields", "plot_intrinsic_resolution", "plot_sweep", "plot_views",
+           "save_figure", "sweep_keys"]
 
 #: Colours of the known solvers (the others get the next free colour of tab10, in sorted order).
 _KNOWN_COLOURS = {"vvt": "#1f77b4", "sensitivity": "#ff7f0e", "homogeneous": "#7f7f7f",
@@ -592,6 +592,72 @@ def plot_sweep(path: str | Path, df, key: str, styles: Styles, title: str = "",
     how = (f"mean of up to {n} instances, band: 95 % bootstrap interval" if n > 1
            else "one instance per point, no band")
     fig.suptitle(f"{title or 'NC against ' + _key_label(key)} ({how})", fontsize=9)
+    return bool(save_figure(fig, path, dpi=dpi))
+
+
+def plot_views(path: str | Path, df, styles: Styles, title: str = "", dpi: int = 100) -> bool:
+    """What more cameras buy, pooled over the instances of a track that sweeps ``views``.
+
+    Left: NC w against the number of views, per solver and observation source, the mean over
+    the instances with a valid row at every number of views (paired, so the curve's steps
+    are within-instance gains) and its 95 % bootstrap band. Right: NC w against the fraction of
+    the DOFs observed (column ``observed_dof_fraction``), one thin line per instance and solver
+    joining its numbers of views. Instances without a defect have no NC and are left out.
+    Returns False when there is nothing to draw."""
+    _, plt = _mpl()
+    from matplotlib.ticker import MaxNLocator
+
+    d = df.copy()
+    d["_x"] = [_option(t, "views") for t in d["variation_options"]]
+    d = d[np.isfinite(d["_x"]) & (d.status == "ok")]
+    d = d[np.isfinite(d["nc_w"].to_numpy(float))]
+    if d.empty or d["_x"].nunique() < 2:
+        return False
+    has_dof = "observed_dof_fraction" in d and np.isfinite(
+        d["observed_dof_fraction"].to_numpy(float)).any()
+    fig, axes = plt.subplots(1, 2 if has_dof else 1, figsize=(11.5 if has_dof else 6.5, 3.8),
+                             squeeze=False, sharey=True)
+    left = axes[0, 0]
+    x = np.sort(d["_x"].unique())
+    n_paired = []
+    for (solver, obs), g in d.groupby(["solver", "observation"], sort=True):
+        table = g.pivot_table(index=["scene", "seed"], columns="_x", values="nc_w",
+                              aggfunc="first").reindex(columns=x).dropna()
+        if table.empty:
+            continue
+        n_paired.append(len(table))
+        ls, marker = styles.line(obs)
+        ref = " (reference)" if "reference" in g and g["reference"].astype(bool).any() else ""
+        label = f"{solver}{ref}, {obs} modes"
+        _draw_curve(left, x, [table[v].to_numpy(float) for v in x], styles.colour(solver), ls,
+                    marker, f"{label} (n={len(table)})")
+        if has_dof:
+            right = axes[0, 1]
+            for _, inst in g.sort_values("_x").groupby(["scene", "seed"], sort=False):
+                dof = inst["observed_dof_fraction"].to_numpy(float)
+                right.plot(dof, inst["nc_w"].to_numpy(float), linestyle=ls, marker=marker,
+                           ms=3, lw=0.8, alpha=0.55, color=styles.colour(solver))
+    if not n_paired:
+        plt.close(fig)
+        return False
+    left.xaxis.set_major_locator(MaxNLocator(integer=True))
+    left.set_xlabel("number of camera views", fontsize=8)
+    left.set_ylabel("NC of w (Pearson)", fontsize=8)
+    left.set_title("mean over the instances valid at every number of views\n"
+                   "(band: 95 % bootstrap interval)", fontsize=8)
+    panels = [left]
+    if has_dof:
+        right = axes[0, 1]
+        right.set_xlabel("fraction of the model's DOFs observed", fontsize=8)
+        right.set_title("one line per instance and solver,\nfrom 1 view (left end) to the "
+                        "most", fontsize=8)
+        panels.append(right)
+    for ax in panels:
+        ax.axhline(0, color="k", lw=0.5, alpha=0.4)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    _legend_outside(fig, axes)
+    fig.suptitle(title or "NC of w against the number of views", fontsize=9)
     return bool(save_figure(fig, path, dpi=dpi))
 
 

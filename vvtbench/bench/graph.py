@@ -42,8 +42,9 @@ OBSERVE_REVISION = 3
 #: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)
 LINE_FIT_REVISION = 3
 #: revision of the scoring of an estimate (evaluate keys only; solves are reused).
-#: 2: an observed mode is matched to the span of a repeated model mode, not to one basis vector
-EVALUATE_REVISION = 2
+#: 2: an observed mode is matched to the span of a repeated model mode, not to one basis vector;
+#: 3: every scored row states the fraction of DOFs its observation sees
+EVALUATE_REVISION = 3
 #: revision of the field path (``[tracks.field]``: its extract and observe keys only)
 FIELD_REVISION = 1
 #: inference options the field path cannot honour (a real video has one camera, its object's

@@ -19,7 +19,7 @@ METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_s
                   "extraction_precision", "extraction_recall", "extraction_recall_all",
                   "extraction_mean_rel_freq_error", "extraction_mean_mac",
                   "false_contrast_w", "false_contrast_v",
-                  "interval_coverage_w", "interval_coverage_v")
+                  "interval_coverage_w", "interval_coverage_v", "observed_dof_fraction")
 
 COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "config", "scene",
            "variation",
@@ -129,7 +129,8 @@ _OPTIONAL_STR = ("estimate_path", "traceback_path", "estimate_sha256", "observat
                  "sandbox")
 # Columns a table may lack (tables written before they existed); every other column is
 # required.
-OPTIONAL = ("reference", "estimate_sha256", "observation_sha256", "sandbox")
+OPTIONAL = ("reference", "estimate_sha256", "observation_sha256", "sandbox",
+            "observed_dof_fraction")
 
 
 def _parse_csv(raw) -> tuple[object, list[str]]:
@@ -211,6 +212,7 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
            "extraction_mean_rel_freq_error": (0.0, None), "extraction_mean_mac": (0.0, 1.0),
            "false_contrast_w": (0.0, None), "false_contrast_v": (0.0, None),
            "interval_coverage_w": (0.0, 1.0), "interval_coverage_v": (0.0, 1.0),
+           "observed_dof_fraction": (0.0, 1.0),
            "runtime_s": (0.0, None)}
 REQUIRED = tuple(c for c in COLUMNS if c not in OPTIONAL)
 # finite on every row with status ok
