@@ -186,8 +186,11 @@ def _views(d, run_dir: Path) -> None:
     view on the same instances, with the cost per instance."""
     d = d.assign(views=_views_of(d))
     cached = [_observed(run_dir, p) for p in d.estimate_path]
-    d = d.assign(dof=[c[0] for c in cached], prep_s=[c[1] for c in cached],
-                 generate_s=[c[2] for c in cached])
+    dof = [c[0] for c in cached]
+    if "observed_dof_fraction" in d:  # the results column, where the table has it
+        stated = d.observed_dof_fraction.to_numpy(float)
+        dof = np.where(np.isfinite(stated), stated, dof)
+    d = d.assign(dof=dof, prep_s=[c[1] for c in cached], generate_s=[c[2] for c in cached])
     track = d.track.iloc[0]
     for obs in dict.fromkeys(d.observation):
         dt = d[d.observation == obs]
