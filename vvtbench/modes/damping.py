@@ -27,7 +27,7 @@ __all__ = [
 # a neighbouring peak rises above the valley by more than this factor (~0.5 decade, the
 # default prominence); smaller ripples of a noisy periodogram are no valley
 VALLEY_RISE = 3.0
-REACH_FACTOR = 20
+REACH_FACTOR = 2
 
 
 def _valley(p: NDArray[np.float64], k: int, step: int, rise: float = VALLEY_RISE) -> int:
@@ -320,15 +320,15 @@ def _fit_lines(p: NDArray[np.float64], lines: list[int], lo: int, hi: int, T: in
     lb_, ps = bins[ok].astype(np.float64), ps[ok]
     wt = 1.0 / ps
     image = ok.sum() >= 8
-    nb = 4 if image else 2
+    per = 4 if image else 2
     m = len(lines)
 
     def powers(y: NDArray[np.float64]) -> list[NDArray[np.float64]]:
-        b = complex(y[2], y[3]) if image else 0j
-        out = [_decay_power(y[0], math.exp(y[1]), lb_, T, window, b)]
-        for j in range(1, m):
-            i = nb + 2 * (j - 1)
-            out.append(_decay_power(y[i], math.exp(y[i + 1]), lb_, T, window))
+        out = []
+        for j in range(m):
+            i = per * j
+            b = complex(y[i + 2], y[i + 3]) if image else 0j
+            out.append(_decay_power(y[i], math.exp(y[i + 1]), lb_, T, window, b))
         return out
 
     def design(y: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -346,7 +346,7 @@ def _fit_lines(p: NDArray[np.float64], lines: list[int], lo: int, hi: int, T: in
         lb += [n - 2.0, math.log(1e-3)]
         ub += [n + 2.0, math.log(max(n + 2.0, 2.0))]
         y0 += [float(n), math.log(0.5)]
-        if j == 0 and image:
+        if image:
             lb += [-1.0, -1.0]
             ub += [1.0, 1.0]
             y0 += [0.0, 0.0]

@@ -208,7 +208,9 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
     k = np.atleast_1d(np.asarray(bins, np.int64))
     total = Pg.sum(axis=0)
     T = n_frames
-    z0 = (np.array([damping_lorentzian(f, total, int(b), window=window, n_frames=T)[0]
+    others = [int(b) for b in k]
+    z0 = (np.array([damping_lorentzian(f, total, int(b), window=window, n_frames=T,
+                                       neighbours=others)[0]
                     for b in k]) if damping is None else np.asarray(damping, np.float64))
     fj = np.empty((G, k.size))
     zj = np.empty((G, k.size))
@@ -216,7 +218,8 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         loo = total - Pg[g]
         for i, b in enumerate(k):
             fj[g, i] = refine_frequency(f, loo, int(b))
-            zj[g, i] = damping_lorentzian(f, loo, int(b), window=window, n_frames=T)[0]
+            zj[g, i] = damping_lorentzian(f, loo, int(b), window=window, n_frames=T,
+                                          neighbours=others)[0]
     t95 = _t95(G - 1)
     sf = np.sqrt((G - 1) / G * np.sum((fj - fj.mean(axis=0)) ** 2, axis=0))
     from scipy.stats import chi2
