@@ -660,11 +660,16 @@ def test_a_views_sweep_is_drawn_pooled_over_instances_and_against_dofs(tmp_path,
         return save(fig, p, dpi=dpi)
 
     monkeypatch.setattr(plots, "save_figure", spy)
-    md, _, doc = _board(path, tmp_path / "lb")
-    assert (tmp_path / "lb/figures/views_track_nc_vs_views.png").is_file()
-    assert "NC against the number of views and the DOFs observed" in md
+    from vvtbench.bench.results import read_results
+    from vvtbench.leaderboard import curve_figures
+
+    table = read_results(path)
+    figs = curve_figures(table, "views_track", tmp_path, tmp_path, "figures",
+                         Styles(["a", "b"], ["extracted"]))
+    assert figs == [("NC against the number of views and the DOFs observed",
+                     "figures/views_track_nc_vs_views.png")]
+    assert (tmp_path / "views_track_nc_vs_views.png").is_file()
     curves = {label: xy for label, xy in seen[0] if label.startswith(("a,", "b,"))}
-    table = pd.read_csv(path)
     ok = table[table.status == "ok"]
     for solver, n in (("a", 5), ("b", 6)):
         xy = curves[f"{solver}, extracted modes (n={n})"]
