@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from .graph import STAGES, Task
+from .prune import VideoPlan
 from .stages import execute_task
 
 #: Seconds a Dask scheduler has to answer a connection (an address that accepts and never
@@ -339,12 +340,19 @@ class Progress:
 # --------------------------------------------------------------------------- the graph
 
 def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool | Progress,
-                  threads: int | None, limits: dict | None = None) -> dict[str, dict]:
+                  threads: int | None, limits: dict | None = None,
+                  videos: VideoPlan | None = None) -> dict[str, dict]:
     """Run every task as soon as its dependencies are done; a status dict per task key.
     Ctrl-C terminates what runs (no half-written output stays) and raises
-    :class:`Interrupted`."""
+    :class:`Interrupted`.
+
+    ``videos`` (default: built from the cache, pruning off): what to do about pruned videos
+    (:class:`~vvtbench.bench.prune.VideoPlan`): samples whose pruned video a task needs are
+    rendered again and checked, and with pruning on a sample's videos are deleted here, in
+    the scheduling process, once every task reading them is done."""
     from concurrent.futures.process import BrokenProcessPool
 
+    videos = videos if videos is not None else VideoPlan.build(tasks, Path(cache))
     remaining = dict(tasks)
     done: dict[str, dict] = {}
     counts = {s: sum(t.stage == s for t in tasks.values()) for s in STAGES}
@@ -357,9 +365,16 @@ def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool 
             for k in ready:
                 task = remaining.pop(k)
                 bar.start(task.stage)
+                blocked = videos.blocked(k, done)
+                if blocked is not None:
+                    done[k] = {"key": k, "status": "skipped", "computed": False,
+                               "seconds": 0.0, "error": blocked[1], "upstream": blocked[0]}
+                    bar.advance(task.stage, task.label, False)
+                    videos.finished(k, done)
+                    continue
                 try:
                     running[executor.submit(execute_task, str(cache), task, threads,
-                                            limits)] = k
+                                            limits, videos.force_of(k))] = k
                 except KeyboardInterrupt:
                     raise
                 except Exception as error:  # e.g. a broken process pool
@@ -367,6 +382,7 @@ def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool 
                                "error": f"{task.stage}: cannot submit: "
                                         f"{type(error).__name__}: {error}"}
                     bar.advance(task.stage, task.label, False)
+                    videos.finished(k, done)
             if not running:
                 break
             broken = False
@@ -389,6 +405,7 @@ def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool 
                                     f"{type(error).__name__}: {error}"}
                 done[k] = res
                 bar.advance(tasks[k].stage, tasks[k].label, res.get("status") != "error")
+                videos.finished(k, done)
             if broken:
                 for fut, k in list(running.items()):  # every one of them failed with the pool
                     running.pop(fut)

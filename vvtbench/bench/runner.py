@@ -14,8 +14,9 @@ from .child import DEFAULT_TIMEOUT, default_memory_bytes
 from .executors import execute_graph, make_executor
 from .graph import STAGES, build_graph
 from .lock import RunLock
+from .prune import VideoPlan
 from .results import results_table, write_results
-from .suite import Suite, load_suite
+from .suite import Suite, SuiteError, load_suite
 
 
 def _remove_stale_temporaries(cache: Path) -> int:
@@ -50,7 +51,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
               solver_config: dict | None = None, progress: bool = True,
               until: str = "evaluate", threads: int | None = None,
               timeout: float | None = None, memory_gb: float | None = None,
-              wait: bool = False):
+              wait: bool = False, prune_videos: bool = False):
     """Run a suite; return the results table (a pandas DataFrame).
 
     ``solvers``: names or ``path/file.py:Class`` (default: the suite's ``solvers``);
@@ -69,7 +70,17 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
     failed and skipped; ``df.attrs["recomputed"]`` the cached outputs found damaged and
     recomputed (``[(task key, label, reason)]``). Writes ``OUT/results.parquet``,
     ``OUT/results.csv`` and ``OUT/run.json``.
+
+    ``prune_videos``: delete each sample's video files from the cache as soon as every task
+    reading them is done (:mod:`.prune`); ``df.attrs["pruned"]`` says how many samples,
+    files and bytes. With or without it, a sample whose pruned video a task needs again is
+    rendered again and its videos checked against the recorded sha256
+    (``df.attrs["rerendered"]``).
     """
+    if prune_videos and until not in ("observe", "evaluate"):
+        raise SuiteError(f"prune_videos with until={until!r} is not allowed (allowed: until "
+                         "'observe' or 'evaluate'): the observe tasks read the videos too, so "
+                         "pruning before them renders every sample again later")
     if not isinstance(suite, Suite):
         suite = load_suite(suite)
     solvers = list(suite.solvers if solvers is None else solvers)
@@ -91,10 +102,12 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         _remove_stale_temporaries(cache)
         if threads is None and workers > 1 and scheduler is None:
             threads = max(1, (os.cpu_count() or 1) // workers)
+        videos = VideoPlan.build(tasks, cache, prune=prune_videos)
         executor = make_executor(workers, scheduler)
         t0 = time.perf_counter()
         try:
-            results = execute_graph(tasks, cache, executor, progress, threads, limits)
+            results = execute_graph(tasks, cache, executor, progress, threads, limits,
+                                    videos=videos)
         finally:
             executor.close()
         wall = time.perf_counter() - t0
@@ -121,6 +134,9 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
             df.attrs["stats"] = stats
             df.attrs["wall_s"] = wall
             df.attrs["recomputed"] = recomputed
+            df.attrs["pruned"] = dict(videos.freed) if prune_videos else None
+            df.attrs["rerendered"] = list(videos.rerendered)
+            df.attrs["prune_errors"] = list(videos.errors)
             if len(df) == 0:
                 df.attrs["no_rows"] = no_rows_reason(suite, solvers)
         write_json(out_dir / "run.json", {
@@ -135,8 +151,11 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
                            for k, lab, why in recomputed],
             "generated_samples": sorted(k for k in tasks if k.startswith("generate/")
                                         and results.get(k, {}).get("status") == "ok"),
+            "prune_videos": prune_videos,
+            "pruned": dict(videos.freed) if prune_videos else None,
+            "rerendered": videos.rerendered, "prune_errors": videos.errors,
         })
     if df is None:
         return {"stats": stats, "wall_s": wall, "results": results, "tasks": tasks,
-                "recomputed": recomputed}
+                "recomputed": recomputed, "rerendered": videos.rerendered}
     return df

@@ -314,13 +314,20 @@ def file_hashes(folder: Path) -> dict[str, str]:
 
 def verify_cached(folder: Path, info: dict) -> str | None:
     """Why a cached task output cannot be reused (a file edited, truncated or deleted since its
-    ``task.json`` recorded its sha256; no hashes recorded), or None when it is intact."""
+    ``task.json`` recorded its sha256; no hashes recorded), or None when it is intact. A file
+    the ``task.json`` records as pruned with the same sha256 (a video deleted by
+    ``--prune-videos``, :mod:`.prune`) may be absent; present, it must still match."""
+    from .prune import pruned_files
+
     files = info.get("files")
     if not isinstance(files, dict) or not files:
         return "no recorded sha256 (written by an older vvtbench)"
+    pruned = pruned_files(info)
     for rel, digest in files.items():
         f = folder / rel
         if not f.is_file():
+            if rel in pruned and pruned[rel]["sha256"] == digest:
+                continue
             return f"{rel}: deleted"
         if sha256_file(f) != digest:
             return f"{rel}: sha256 mismatch (edited or truncated)"
@@ -347,31 +354,41 @@ def _tmp_name(key: str) -> str:
 CURRENT: dict[str, Path | None] = {"tmp": None}
 
 
+def cached_state(cache: Path, task: Task) -> tuple[dict | None, str | None]:
+    """(the ``task.json`` of a task's cached output, why it cannot be reused): ``(info,
+    None)`` when it is intact, ``(None, None)`` when there is none."""
+    done = Path(cache) / task.key / "task.json"
+    if not done.is_file():
+        return None, None
+    try:
+        info = json.loads(done.read_text())
+        why = verify_cached(done.parent, info)
+    except (OSError, ValueError, AttributeError, TypeError):
+        return None, "task.json unreadable"
+    if why is None and task.stage == "evaluate":
+        why = _scored_inputs_changed(Path(cache), task, info.get("result") or {})
+    return info, why
+
+
 def execute_task(cache: str, task: Task, threads: int | None = None,
-                 limits: dict | None = None) -> dict:
+                 limits: dict | None = None, force: str | None = None) -> dict:
     """Run one task unless its output exists and is intact; never raises (but for Ctrl-C).
     Returns a status dict: ``{"key", "status": ok|error|skipped, "computed": bool,
     "seconds", "result"|"error"}``; ``"recomputed"``: why a cached output was not reused.
 
     ``limits``: ``{"timeout": s, "memory_bytes": n}`` for the extract and solve tasks, which
-    run their plug-ins in a sealed child (:mod:`vvtbench.sealed`)."""
+    run their plug-ins in a sealed child (:mod:`vvtbench.sealed`). ``force``: why an intact
+    cached output is computed again anyway (a pruned video needed again, an input that
+    changed; :mod:`.prune`); it is replaced only once the new one is complete, and the status
+    dict says ``"forced"``."""
     cache = Path(cache)
     limits = limits or {}
     final = cache / task.key
-    done = final / "task.json"
-    recomputed = None
-    if done.is_file():
-        try:
-            info = json.loads(done.read_text())
-            recomputed = verify_cached(final, info)
-        except (OSError, ValueError):
-            recomputed = "task.json unreadable"
-        if recomputed is None and task.stage == "evaluate":
-            recomputed = _scored_inputs_changed(cache, task, info.get("result") or {})
-        if recomputed is None:
-            return {"key": task.key, "status": "ok", "computed": False, "seconds": 0.0,
-                    "result": info.get("result", {})}
-        # never reuse it: move it aside atomically, then delete
+    info, recomputed = cached_state(cache, task)
+    if info is not None and recomputed is None and not force:
+        return {"key": task.key, "status": "ok", "computed": False, "seconds": 0.0,
+                "result": info.get("result", {})}
+    if recomputed is not None:  # never reuse it: move it aside atomically, then delete
         trash = cache / f"{_tmp_name(task.key)}.stale"
         try:
             os.replace(final, trash)
@@ -413,7 +430,12 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
                                         "deps": task.deps, "payload": task.payload,
                                         "result": result, "seconds": seconds,
                                         "vvtbench": __version__, "files": file_hashes(tmp)})
-        if final.exists():  # a concurrent duplicate finished first
+        if final.exists() and force:  # the intact output it replaces goes only now
+            trash = cache / f"{_tmp_name(task.key)}.stale"
+            os.replace(final, trash)
+            os.replace(tmp, final)
+            shutil.rmtree(trash, ignore_errors=True)
+        elif final.exists():  # a concurrent duplicate finished first
             shutil.rmtree(tmp, ignore_errors=True)
         else:
             os.replace(tmp, final)
@@ -422,6 +444,8 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
                "result": jsonable(result)}
         if recomputed:
             out["recomputed"] = recomputed
+        elif force:
+            out["forced"] = force
         return out
     except BaseException as error:  # noqa: BLE001 -- a task must never stop the suite
         shutil.rmtree(tmp, ignore_errors=True)

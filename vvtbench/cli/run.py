@@ -92,6 +92,22 @@ def next_steps(out: Path, suite: str) -> str:
             f"(`vvtbench run {suite} --solvers NAME,...`)")
 
 
+def rerendered_lines(entries: list[dict]) -> list[str]:
+    """One line per sample rendered again over its pruned videos: needed by what, and
+    whether the new videos are the recorded ones."""
+    out = []
+    for e in entries:
+        head = (f"re-rendered {e['task']} ({e['label']}): its pruned video was needed again "
+                f"by {e['needed_by']} task(s)")
+        if e["same"]:
+            out.append(f"{head}; the new video's sha256 is the recorded one")
+        else:
+            out.append(f"{head}; {e['file']} differs from the pruned one (sha256 "
+                       f"{str(e['sha256_now'])[:12]}... against {e['sha256_recorded'][:12]}...): "
+                       f"its {e['recomputed']} dependent cached task(s) are recomputed")
+    return out
+
+
 def _positive(what: str):
     def parse(text: str) -> float:
         try:
@@ -147,6 +163,10 @@ def main_run(argv: list[str] | None = None) -> int:
                         "75%% of the machine's memory / workers)")
     p.add_argument("--wait", action="store_true",
                    help="if another run uses the folder, wait for it (default: refuse)")
+    p.add_argument("--prune-videos", action="store_true",
+                   help="delete each sample's video files from the run's cache as soon as every "
+                        "task reading them is done (truth, previews and results are kept; a "
+                        "rerun that needs a video again renders it again)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     try:
@@ -162,7 +182,8 @@ def main_run(argv: list[str] | None = None) -> int:
     try:
         df = run_suite(suite, solvers, out, workers=args.workers, scheduler=args.scheduler,
                        solver_config=overrides, progress=not args.no_progress,
-                       timeout=args.timeout, memory_gb=args.memory_gb, wait=args.wait)
+                       timeout=args.timeout, memory_gb=args.memory_gb, wait=args.wait,
+                       prune_videos=args.prune_videos)
     except Interrupted as stop:
         resume = f"vvtbench run {args.suite} -o {shlex.quote(str(out))}"
         print(f"\ninterrupted: {stop.finished} of {stop.total} tasks finished (kept in "
@@ -178,6 +199,10 @@ def main_run(argv: list[str] | None = None) -> int:
     for key, label, why in df.attrs.get("recomputed", []):
         print(f"recomputed {key} ({label}): the cached output was damaged: {why}",
               file=sys.stderr)
+    for line in rerendered_lines(df.attrs.get("rerendered", [])):
+        print(line, file=sys.stderr)
+    for line in df.attrs.get("prune_errors", []):
+        print(f"warning: {line}", file=sys.stderr)
     if len(df) == 0:
         print(f"error: no rows: {df.attrs.get('no_rows', 'the suite expands to no run')}",
               file=sys.stderr)
@@ -188,8 +213,11 @@ def main_run(argv: list[str] | None = None) -> int:
                         + (f"/{v['failed']} failed" if v["failed"] else "")
                         + (f"/{v['recomputed']} recomputed" if v.get("recomputed") else "")
                         for s, v in st.items() if v["tasks"])
+    pruned = df.attrs.get("pruned")
+    freed = "" if pruned is None else (
+        f"; videos of {pruned['samples']} sample(s) pruned, {pruned['bytes'] / 1e9:.2f} GB freed")
     print(f"\n{len(df)} rows in {df.attrs.get('wall_s', 0):.1f} s ({summary}) -> "
-          f"{out / 'results.parquet'}, {out / 'results.csv'}")
+          f"{out / 'results.parquet'}, {out / 'results.csv'}{freed}")
     print(textwrap.fill(LEGEND, 100))
     print(next_steps(out, args.suite))
     bad = df[df["status"] != "ok"]
