@@ -215,7 +215,7 @@ def main_run(argv: list[str] | None = None) -> int:
                         for s, v in st.items() if v["tasks"])
     pruned = df.attrs.get("pruned")
     freed = "" if pruned is None else (
-        f"; videos of {pruned['samples']} sample(s) pruned, {pruned['bytes'] / 1e9:.2f} GB freed")
+        f"; videos of {pruned['samples']} sample(s) pruned, {pruned['bytes'] / 1e9:.3g} GB freed")
     print(f"\n{len(df)} rows in {df.attrs.get('wall_s', 0):.1f} s ({summary}) -> "
           f"{out / 'results.parquet'}, {out / 'results.csv'}{freed}")
     print(textwrap.fill(LEGEND, 100))
