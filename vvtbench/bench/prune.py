@@ -29,8 +29,8 @@ from pathlib import Path
 from ..io import write_json
 from .graph import Task
 
-__all__ = ["PRUNED", "VideoPlan", "dependants", "prune_sample", "pruned_files",
-           "sample_videos", "video_readers"]
+__all__ = ["PRUNED", "VideoPlan", "dependants", "prune_sample", "pruned_absent",
+           "pruned_files", "sample_videos", "video_readers"]
 
 #: the ``task.json`` key of a generate task whose videos were pruned
 PRUNED = "pruned"
@@ -47,6 +47,20 @@ def pruned_files(info: dict) -> dict[str, dict]:
                 e.get("sha256"), str):
             out[e["name"]] = {"bytes": e.get("bytes"), "sha256": e["sha256"]}
     return out
+
+
+def pruned_absent(task_dir: Path) -> set[str]:
+    """Names (relative to the task folder) of the files a cached task's ``task.json`` records
+    as pruned, with the sha256 its ``files`` table lists, that are absent: what a check of the
+    folder does not count as missing."""
+    try:
+        info = json.loads((Path(task_dir) / "task.json").read_text())
+    except (OSError, ValueError):
+        return set()
+    files = info.get("files") if isinstance(info, dict) else None
+    files = files if isinstance(files, dict) else {}
+    return {n for n, e in pruned_files(info).items()
+            if files.get(n) == e["sha256"] and not (Path(task_dir) / n).is_file()}
 
 
 def sample_videos(task_dir: Path) -> list[str]:
@@ -116,7 +130,7 @@ def prune_sample(cache: Path, gen_key: str) -> dict:
     present = [rel for rel in sample_videos(folder) if (folder / rel).is_file()]
     if not present:
         return {"files": 0, "bytes": 0}
-    entries = {**{name: {"name": name, **e} for name, e in pruned_files(info).items()}}
+    entries = {name: {"name": name, **e} for name, e in pruned_files(info).items()}
     for rel in present:
         digest = hashes.get(rel) or sha256_file(folder / rel)
         entries[rel] = {"name": rel, "bytes": (folder / rel).stat().st_size, "sha256": digest}
@@ -217,8 +231,10 @@ class VideoPlan:
             now = {}
         differ = [(n, e["sha256"], now.get(n)) for n, e in record.items()
                   if now.get(n) != e["sha256"]]
-        entry = {"task": g, "label": self.tasks[g].label, "needed_by": len(
-            self.needed.get(g, [])), "same": not differ, "recomputed": 0}
+        entry = {"task": g, "label": self.tasks[g].label,
+                 "why": self.forced.get(g, "its cached output was damaged"),
+                 "needed_by": len(self.needed.get(g, [])), "same": not differ,
+                 "recomputed": 0}
         if differ:
             name, old, new = differ[0]
             why = (f"the video {name} rendered again differs from the pruned one (sha256 "

@@ -97,8 +97,7 @@ def rerendered_lines(entries: list[dict]) -> list[str]:
     whether the new videos are the recorded ones."""
     out = []
     for e in entries:
-        head = (f"re-rendered {e['task']} ({e['label']}): its pruned video was needed again "
-                f"by {e['needed_by']} task(s)")
+        head = f"re-rendered {e['task']} ({e['label']}): {e['why']}"
         if e["same"]:
             out.append(f"{head}; the new video's sha256 is the recorded one")
         else:

@@ -309,9 +309,9 @@ def damping_lorentzian(
 
 def _fit_lines(p: NDArray[np.float64], lines: list[int], lo: int, hi: int, T: int,
                window: Window) -> NDArray[np.float64] | None:
-    """Fit decaying lines at ``lines`` (the first the one asked for, with its image coupling)
-    and a floor to ``p[lo:hi + 1]``; the fitted parameters (``nu``, ``log gamma`` of the
-    first line first) or ``None``."""
+    """Fit decaying lines near bins ``lines`` (each with its negative-frequency coupling when
+    8 or more bins are usable) and a shared floor to ``p[lo:hi + 1]``; the fitted parameters
+    (``nu``, ``log gamma`` of ``lines[0]`` first) or ``None``."""
     bins = np.arange(lo, hi + 1)
     ps = p[lo : hi + 1]
     ok = ps > 0
@@ -342,7 +342,7 @@ def _fit_lines(p: NDArray[np.float64], lines: list[int], lo: int, hi: int, T: in
     lb: list[float] = []
     ub: list[float] = []
     y0: list[float] = []
-    for j, n in enumerate(lines):
+    for n in lines:
         lb += [n - 2.0, math.log(1e-3)]
         ub += [n + 2.0, math.log(max(n + 2.0, 2.0))]
         y0 += [float(n), math.log(0.5)]

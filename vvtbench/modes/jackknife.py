@@ -29,10 +29,13 @@ The damping interval is ``zeta +- t_(G-1) sd`` (Student's ``t`` with ``G - 1`` d
 freedom, the jackknife variance's).  ``frequency_std_hz`` adds in quadrature the bias of the
 parabola of :func:`.peaks.refine_frequency` on the model line with the spectrum's noise floor
 (:func:`refine_bias_bins`, up to a few hundredths of a bin), a root-mean-square error.  A mode
-with another analysed peak within twice the bins its damping fit reaches
-(:func:`damping_fit_reach`, at least :data:`.uncertainty.CLOSE_BINS`), or whose fields at its
-three bins are not one line (:func:`blend_misfit` above :data:`.uncertainty.MAX_MISFIT`,
-stored as ``line_misfit``), is flagged ``close_mode_bias``; its damping is then not resolved.
+whose fields at its three bins are not one line (:func:`blend_misfit` above
+:data:`.uncertainty.MAX_MISFIT`, stored as ``line_misfit``: two modes under one peak) or
+with another analysed peak closer than :data:`SHARED_PEAK_BINS` (two lines in one main lobe,
+which the damping fit cannot tell apart) is flagged ``close_mode_bias``; its damping is then
+not resolved.  Neighbouring peaks farther away do not flag a mode: the damping fit models
+them (:func:`.damping.damping_lorentzian` with ``neighbours``), the same in every
+leave-one-out fit.
 No random draw is made: groups are assigned deterministically.
 """
 
@@ -47,10 +50,10 @@ from .damping import damping_lorentzian
 from .peaks import refine_frequency
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks
-from .uncertainty import CLOSE_BINS, MAX_MISFIT, block_clusters
+from .uncertainty import MAX_MISFIT, block_clusters
 
-__all__ = ["DEFAULT_GROUPS", "METHOD", "blend_misfit", "damping_fit_reach", "group_labels",
-           "group_spectra", "jackknife_uncertainty", "peak_uncertainty"]
+__all__ = ["DEFAULT_GROUPS", "METHOD", "SHARED_PEAK_BINS", "blend_misfit", "damping_fit_reach",
+           "group_labels", "group_spectra", "jackknife_uncertainty", "peak_uncertainty"]
 
 #: groups of pixel tiles left out one at a time
 DEFAULT_GROUPS = 16
@@ -58,6 +61,9 @@ DEFAULT_GROUPS = 16
 METHOD = "pixel_block_jackknife"
 #: fewest groups a jackknife is computed with
 MIN_GROUPS = 5
+#: analysed peaks closer than this (bins) share one main lobe of the Hann window (+-2 bins):
+#: their lines are not told apart by the damping fit
+SHARED_PEAK_BINS = 2.0
 
 
 def group_labels(frame_shape: tuple[int, ...], n_groups: int = DEFAULT_GROUPS,
@@ -290,11 +296,11 @@ def damping_fit_reach(half_width_bins: ArrayLike, window: Window = "hann") -> ND
     neighbouring valleys cut them): ``max(6, ceil(6 h))`` with Hann, ``max(4, ceil(6 h))``
     without, ``h`` the half width in bins (6 where it is not finite).
 
-    A neighbouring mode closer than twice this has its own line inside the fit's bins; the
-    fit, with one line and a constant floor, then takes the neighbour's flank for its own
-    width.  On noiseless damped lines (zeta 0.02) at the paper cube's frequencies, 3 s at
-    2000 FPS, every mode with a neighbour that close is off by 4-70 % (26 % at 7.8 Hz, whose
-    neighbour is 6.5 bins away), and each alone is within 2 %.
+    A neighbouring line closer than twice this lies inside the fit's bins; a fit of one line
+    and a constant floor takes the neighbour's flank for its own width (on noiseless damped
+    lines, zeta 0.02, at the paper cube's frequencies, 3 s at 2000 FPS: off by 4-70 %, each
+    alone within 2 %), which is why :func:`.damping.damping_lorentzian` models the analysed
+    peaks within about twice this reach (:func:`.damping.modelled_neighbours`).
     """
     h = np.asarray(half_width_bins, np.float64)
     base = 6.0 if window == "hann" else 4.0
@@ -438,7 +444,6 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     fr = np.asarray(frequency_hz, np.float64) / df
     gap = np.array([np.min(np.abs(np.delete(fr, i) - fr[i])) if M > 1 else np.inf
                     for i in range(M)])
-    reach = 2.0 * damping_fit_reach(np.asarray(damping, np.float64) * fr, window)
 
     def clean(a: NDArray) -> list:
         return [float(x) if np.isfinite(x) else None for x in a]
@@ -448,8 +453,8 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         "damping_lo": clean(ju["damping_lo"]),
         "damping_hi": clean(ju["damping_hi"]),
         "shape_mac_expected": clean(mac),
-        "close_mode_bias": [bool(g < max(CLOSE_BINS, r) or m > MAX_MISFIT)
-                            for g, r, m in zip(gap, reach, misfit, strict=True)],
+        "close_mode_bias": [bool(g < SHARED_PEAK_BINS or m > MAX_MISFIT)
+                            for g, m in zip(gap, misfit, strict=True)],
         "line_misfit": clean(misfit),
         "uncertainty_method": METHOD,
         "uncertainty_groups": {"groups": int(G), "block_px": int(block),
