@@ -2,7 +2,8 @@
 
 * :func:`damping_lorentzian` and :func:`damping_half_power`: damping ratio of a peak
   (Davis et al. 2015) from a fit of, or the half-power bandwidth mapped through, the exact
-  windowed finite-record spectrum of a decaying sinusoid (:func:`decay_spectrum`).
+  windowed finite-record spectrum of a decaying sinusoid (:func:`decay_spectrum`); the
+  Lorentzian fit models the neighbouring peaks it is given (:func:`modelled_neighbours`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ __all__ = [
 # a neighbouring peak rises above the valley by more than this factor (~0.5 decade, the
 # default prominence); smaller ripples of a noisy periodogram are no valley
 VALLEY_RISE = 3.0
+# neighbouring peaks within this many fit half windows (+ 2 bins) are fitted with a peak
 REACH_FACTOR = 2
 
 
@@ -207,9 +209,9 @@ def modelled_neighbours(
     power: ArrayLike, k: int, neighbours: Sequence[int], half_width_bins: int
 ) -> list[int]:
     """Neighbouring peaks :func:`damping_lorentzian` models beside peak ``k``: those within
-    ``half_width_bins + 2`` bins of it (their line lies inside the fit's bins, or its flank
-    and peak at their edge), nearest first.  ``power`` is unused beyond its length (the
-    bins must lie on the spectrum)."""
+    ``2 half_width_bins + 2`` bins of it (a line that far still puts its flank into the
+    fit's bins), nearest first; ``k`` itself and bins off the spectrum (``power``'s
+    length) are left out."""
     size = np.asarray(power).shape[-1]
     reach = REACH_FACTOR * half_width_bins + 2
     near = sorted({int(n) for n in neighbours if n != k and 0 < n < size - 1
@@ -251,11 +253,11 @@ def damping_lorentzian(
     most ``half_width_bins`` on each side (bins 0 and, with Hann, 1 excluded: mean removal
     changes them).  Exact for one decaying mode with any decay time and record length.
 
-    Neighbouring peaks (``neighbours``) within ``half_width_bins + 2`` bins
+    Neighbouring peaks (``neighbours``) within ``2 half_width_bins + 2`` bins
     (:func:`modelled_neighbours`) are fitted jointly: one such line per neighbour, each with
-    its own ``f_d``, ``g`` and ``alpha``, beside the peak's own and a shared floor, over
-    ``half_width_bins`` on each side extended to 2 bins beyond the outermost modelled line,
-    cut at the valley beyond it.  Their powers add: the model holds when the modes' fields
+    its own ``f_d``, ``g``, ``b`` and ``alpha``, beside the peak's own and a shared floor,
+    over ``half_width_bins`` on each side extended to 2 bins beyond the outermost modelled
+    line, cut at the valley beyond it.  Their powers add: the model holds when the modes' fields
     at these bins do not interfere (modes of different shapes summed over many pixels).
     Without a modelled neighbour the fit is the single line's.
 

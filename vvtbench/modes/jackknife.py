@@ -29,8 +29,9 @@ The damping interval is ``zeta +- t_(G-1) sd`` (Student's ``t`` with ``G - 1`` d
 freedom, the jackknife variance's).  ``frequency_std_hz`` adds in quadrature the bias of the
 parabola of :func:`.peaks.refine_frequency` on the model line with the spectrum's noise floor
 (:func:`refine_bias_bins`, up to a few hundredths of a bin), a root-mean-square error.  A mode
-whose fields at its three bins are not one line (:func:`blend_misfit` above
-:data:`.uncertainty.MAX_MISFIT`, stored as ``line_misfit``: two modes under one peak) or
+whose fields at its three bins, once the fields of the neighbouring peaks its damping fit
+models are regressed out (:func:`without_neighbours`), are not one line (:func:`blend_misfit`
+above :data:`.uncertainty.MAX_MISFIT`, stored as ``line_misfit``: two modes under one peak) or
 with another analysed peak closer than :data:`SHARED_PEAK_BINS` (two lines in one main lobe,
 which the damping fit cannot tell apart) is flagged ``close_mode_bias``; its damping is then
 not resolved.  Neighbouring peaks farther away do not flag a mode: the damping fit models
@@ -46,14 +47,15 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .damping import damping_lorentzian
+from .damping import _fit_half_width, damping_lorentzian, modelled_neighbours
 from .peaks import refine_frequency
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks
 from .uncertainty import MAX_MISFIT, block_clusters
 
 __all__ = ["DEFAULT_GROUPS", "METHOD", "SHARED_PEAK_BINS", "blend_misfit", "damping_fit_reach",
-           "group_labels", "group_spectra", "jackknife_uncertainty", "peak_uncertainty"]
+           "group_labels", "group_spectra", "jackknife_uncertainty", "peak_uncertainty",
+           "without_neighbours"]
 
 #: groups of pixel tiles left out one at a time
 DEFAULT_GROUPS = 16
@@ -98,7 +100,7 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
                   weights: ArrayLike | None = None, shape_weights: ArrayLike | None = None,
                   detrend: str = "mean", window: Window = "hann",
                   block_bytes: int = 64 << 20, cross_bins: ArrayLike | None = None,
-                  ) -> tuple[NDArray[np.float64], ...]:
+                  full_cross: bool = False) -> tuple[NDArray[np.float64], ...]:
     """Weighted motion power spectra of pixel groups, in one pass over the displacements.
 
     Parameters
@@ -118,6 +120,10 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         ``(M,)`` peak bins: also return, for each, the ``(3, 3)`` cross-spectral matrix
         ``C_ab = sum_p w_p X_p(k + a) conj(X_p(k + b))``, ``a, b`` in ``-1, 0, 1``, with
         ``weights`` (:func:`blend_misfit`).
+    full_cross : bool, default False
+        With ``cross_bins``: return instead the ``(3 M, 3 M)`` matrix between all the peaks'
+        bins (rows ``3 m + 1 + a`` for peak ``m``, ``a`` in ``-1, 0, 1``), whose ``(3, 3)``
+        diagonal blocks are the per-peak matrices.
 
     Returns
     -------
@@ -127,7 +133,7 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
     shape_power : ndarray
         ``(T // 2 + 1,)`` the spectrum with ``shape_weights``.
     cross : ndarray
-        ``(M, 3, 3)`` complex, with ``cross_bins`` only.
+        ``(M, 3, 3)`` (or ``(3 M, 3 M)``) complex, with ``cross_bins`` only.
     """
     store = _as_store(disp)
     H, W = store.frame_shape[:2]
@@ -149,7 +155,7 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
     kb = None if cross_bins is None else np.atleast_1d(np.asarray(cross_bins, np.int64))
     if kb is not None and kb.size and (kb.min() < 1 or kb.max() > F - 2):
         raise ValueError(f"cross_bins must lie in [1, {F - 2}]")
-    cross = None if kb is None else np.zeros((kb.size, 3, 3), np.complex128)
+    cross = None if kb is None else np.zeros((3 * kb.size, 3 * kb.size), np.complex128)
     rows = None if kb is None else (kb[:, None] + np.arange(-1, 2)[None, :]).reshape(-1)
     for sl, x in _iter_blocks(store, block_bytes, detrend, window):
         X = np.fft.rfft(x, axis=0)
@@ -159,10 +165,15 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         M[:, n_groups] = ws[sl]
         out += p @ M
         if cross is not None:
-            Xs = X[rows].reshape(kb.size, 3, -1)
-            cross += np.einsum("map,mbp->mab", Xs * wg[sl], Xs.conj())
+            Xs = X[rows]
+            cross += (Xs * wg[sl]) @ Xs.conj().T
     spectra = (np.ascontiguousarray(out[:, :n_groups].T), out[:, n_groups])
-    return spectra if cross is None else (*spectra, cross)
+    if cross is None:
+        return spectra
+    if full_cross:
+        return (*spectra, cross)
+    blocks = np.stack([cross[3 * m:3 * m + 3, 3 * m:3 * m + 3] for m in range(kb.size)])
+    return (*spectra, blocks.reshape(kb.size, 3, 3))
 
 
 def _t95(dof: int) -> float:
@@ -352,6 +363,36 @@ def blend_misfit(cross: ArrayLike, noise: ArrayLike, window: Window = "hann") ->
     return out
 
 
+def without_neighbours(full_cross: ArrayLike, peak: int,
+                       neighbours: list[int]) -> NDArray[np.complex128]:
+    """The ``(3, 3)`` cross-spectral matrix of peak ``peak``'s three bins with the fields
+    of its neighbouring peaks regressed out.
+
+    A neighbouring mode puts, at this peak's bins, its own field (its shape times its line's
+    response there), which is a second direction beside this peak's line, however well the
+    damping fit models its power.  Its field at its own peak bin spans that direction: the
+    Schur complement ``C_kk - C_kn C_nn^+ C_nk`` over the neighbours' centre bins ``n`` is
+    what of the peak's fields the neighbours do not explain.
+
+    Parameters
+    ----------
+    full_cross : array_like
+        ``(3 M, 3 M)`` matrix of :func:`group_spectra` with ``full_cross``.
+    peak : int
+        Index of the peak (``0 .. M - 1``).
+    neighbours : list of int
+        Indices of the neighbouring peaks to regress out.
+    """
+    C = np.asarray(full_cross, np.complex128)
+    kk = np.arange(3 * peak, 3 * peak + 3)
+    if not neighbours:
+        return C[np.ix_(kk, kk)]
+    nn = np.array([3 * j + 1 for j in neighbours])
+    Ckn = C[np.ix_(kk, nn)]
+    return C[np.ix_(kk, kk)] - Ckn @ np.linalg.pinv(C[np.ix_(nn, nn)], hermitian=True) \
+        @ Ckn.conj().T
+
+
 def _expected_shape_mac(shape_power: NDArray[np.float64], bins: NDArray[np.int64],
                         band: slice, half_width_bins: int) -> NDArray[np.float64]:
     """``1 - noise / power`` at each peak bin of the spectrum the shapes are weighted with:
@@ -428,9 +469,10 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                 "line_misfit": none, "uncertainty_groups": None}
     F = f.size
     inner = (k >= 1) & (k <= F - 2)
-    Pg, Ps, cross = group_spectra(store, labels, G, weights=spectrum_weights,
-                                  shape_weights=shape_weights, detrend=detrend, window=window,
-                                  block_bytes=block_bytes, cross_bins=np.clip(k, 1, F - 2))
+    Pg, Ps, full = group_spectra(store, labels, G, weights=spectrum_weights,
+                                 shape_weights=shape_weights, detrend=detrend, window=window,
+                                 block_bytes=block_bytes, cross_bins=np.clip(k, 1, F - 2),
+                                 full_cross=True)
     df = f[1] - f[0]
     lo_bin = 1 if band is None else max(1, int(math.ceil(band[0] / df - 1e-9)))
     hi_bin = f.size - 1 if band is None else min(f.size - 1, int(math.floor(band[1] / df + 1e-9)))
@@ -439,6 +481,12 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                                damping=damping, band=in_band,
                                floor_half_width_bins=floor_half_width_bins)
     mac = _expected_shape_mac(Ps, k, in_band, floor_half_width_bins)
+    total = Pg.sum(axis=0)
+    index = {int(b): i for i, b in enumerate(k)}
+    cross = np.stack([without_neighbours(full, i, [
+        index[n] for n in modelled_neighbours(total, int(b), list(index),
+                                              _fit_half_width(f, total, int(b), window))
+        if abs(n - int(b)) > 2]) for i, b in enumerate(k)])
     misfit = np.where(inner, blend_misfit(cross, ju["noise"][np.clip(k, 0, F - 1)], window),
                       np.nan)
     fr = np.asarray(frequency_hz, np.float64) / df
