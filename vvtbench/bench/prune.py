@@ -76,9 +76,9 @@ def sample_videos(task_dir: Path) -> list[str]:
     names += [v.get("video_file") for v in (views if isinstance(views, list) else [])
               if isinstance(v, dict)]
     out = []
-    for name in names:
+    for name in names:  # a rig's views list may name view 0's video again
         if isinstance(name, str) and name and ".." not in Path(name).parts \
-                and not Path(name).is_absolute():
+                and not Path(name).is_absolute() and f"sample/{name}" not in out:
             out.append(f"sample/{name}")
     return out
 
