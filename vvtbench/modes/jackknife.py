@@ -33,10 +33,12 @@ whose fields at its three bins, once the fields of the neighbouring peaks its da
 models are regressed out (:func:`without_neighbours`), are not one line (:func:`blend_misfit`
 above :data:`.uncertainty.MAX_MISFIT`, stored as ``line_misfit``: two modes under one peak) or
 with another analysed peak closer than :data:`SHARED_PEAK_BINS` (two lines in one main lobe,
-which the damping fit cannot tell apart) is flagged ``close_mode_bias``; its damping is then
-not resolved.  Neighbouring peaks farther away do not flag a mode: the damping fit models
-them (:func:`.damping.damping_lorentzian` with ``neighbours``), the same in every
-leave-one-out fit.
+which the damping fit cannot tell apart) or whose field overlaps a modelled neighbour's
+(:func:`neighbour_overlap` above :data:`MAX_NEIGHBOUR_OVERLAP`: the powers do not add) is
+flagged ``close_mode_bias``; its damping is then not resolved.  Neighbouring peaks
+farther away whose fields do not overlap do not flag a mode: the damping fit models them
+(:func:`.damping.damping_lorentzian` with ``neighbours``), the same in every leave-one-out
+fit.
 No random draw is made: groups are assigned deterministically.
 """
 
@@ -54,8 +56,8 @@ from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks
 from .uncertainty import MAX_MISFIT, block_clusters
 
 __all__ = ["DEFAULT_GROUPS", "METHOD", "SHARED_PEAK_BINS", "blend_misfit", "damping_fit_reach",
-           "group_labels", "group_spectra", "jackknife_uncertainty", "peak_uncertainty",
-           "without_neighbours"]
+           "group_labels", "group_spectra", "jackknife_uncertainty", "neighbour_overlap",
+           "peak_uncertainty", "without_neighbours"]
 
 #: groups of pixel tiles left out one at a time
 DEFAULT_GROUPS = 16
@@ -66,6 +68,9 @@ MIN_GROUPS = 5
 #: analysed peaks closer than this (bins) share one main lobe of the Hann window (+-2 bins):
 #: their lines are not told apart by the damping fit
 SHARED_PEAK_BINS = 2.0
+#: a modelled neighbour whose field is more coherent than this with the peak's
+#: (:func:`neighbour_overlap`) interferes with it: the fit's sum of powers does not hold
+MAX_NEIGHBOUR_OVERLAP = 0.01
 
 
 def group_labels(frame_shape: tuple[int, ...], n_groups: int = DEFAULT_GROUPS,
@@ -393,6 +398,26 @@ def without_neighbours(full_cross: ArrayLike, peak: int,
         @ Ckn.conj().T
 
 
+def neighbour_overlap(full_cross: ArrayLike, peak: int, neighbours: list[int]) -> float:
+    """Largest coherence ``|C_kn|**2 / (C_kk C_nn)`` between the field at peak ``peak``'s
+    bin and the field at a neighbouring peak's bin (0 without neighbours).
+
+    The damping fit adds the lines' powers; where two modes' fields overlap (their shapes
+    are not orthogonal over the weighted pixels) the spectrum between them holds a cross
+    term the fit has not, which biases both widths.  Orthogonal shapes leave only the lines'
+    flanks in this coherence (their square).
+    """
+    C = np.asarray(full_cross, np.complex128)
+    c = 3 * peak + 1
+    out = 0.0
+    for j in neighbours:
+        n = 3 * j + 1
+        den = float(C[c, c].real * C[n, n].real)
+        if den > 0:
+            out = max(out, float(abs(C[c, n]) ** 2) / den)
+    return out
+
+
 def _expected_shape_mac(shape_power: NDArray[np.float64], bins: NDArray[np.int64],
                         band: slice, half_width_bins: int) -> NDArray[np.float64]:
     """``1 - noise / power`` at each peak bin of the spectrum the shapes are weighted with:
@@ -483,10 +508,11 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     mac = _expected_shape_mac(Ps, k, in_band, floor_half_width_bins)
     total = Pg.sum(axis=0)
     index = {int(b): i for i, b in enumerate(k)}
-    cross = np.stack([without_neighbours(full, i, [
-        index[n] for n in modelled_neighbours(total, int(b), list(index),
-                                              _fit_half_width(f, total, int(b), window))
-        if abs(n - int(b)) > 2]) for i, b in enumerate(k)])
+    modelled = [[index[n] for n in modelled_neighbours(
+        total, int(b), list(index), _fit_half_width(f, total, int(b), window))
+        if abs(n - int(b)) > 2] for b in k]
+    cross = np.stack([without_neighbours(full, i, nb) for i, nb in enumerate(modelled)])
+    overlap = np.array([neighbour_overlap(full, i, nb) for i, nb in enumerate(modelled)])
     misfit = np.where(inner, blend_misfit(cross, ju["noise"][np.clip(k, 0, F - 1)], window),
                       np.nan)
     fr = np.asarray(frequency_hz, np.float64) / df
@@ -501,8 +527,9 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         "damping_lo": clean(ju["damping_lo"]),
         "damping_hi": clean(ju["damping_hi"]),
         "shape_mac_expected": clean(mac),
-        "close_mode_bias": [bool(g < SHARED_PEAK_BINS or m > MAX_MISFIT)
-                            for g, m in zip(gap, misfit, strict=True)],
+        "close_mode_bias": [bool(g < SHARED_PEAK_BINS or m > MAX_MISFIT
+                                 or o > MAX_NEIGHBOUR_OVERLAP)
+                            for g, m, o in zip(gap, misfit, overlap, strict=True)],
         "line_misfit": clean(misfit),
         "uncertainty_method": METHOD,
         "uncertainty_groups": {"groups": int(G), "block_px": int(block),
