@@ -175,6 +175,17 @@ def test_leaderboard_reads_a_pruned_run(runs, tmp_path):
     assert "views" in (board / "README.md").read_text()
 
 
+def test_verify_counts_a_pruned_video_as_absent_on_purpose_and_nothing_else(runs, tmp_path):
+    from vvtbench.cli.verify import verify_run
+
+    run = tmp_path / "run"
+    shutil.copytree(runs["pruned"], run)
+    assert list(verify_run(run, full=False)) == []
+    (_gen(run) / "sample" / "preview.mp4").unlink()
+    problems = list(verify_run(run, full=False))
+    assert problems and all("preview.mp4" in p for p in problems), problems
+
+
 def test_rerun_renders_nothing(runs):
     pruned = runs["pruned"]
     before = _table(pruned)

@@ -29,7 +29,8 @@ on a file system the workers share).
 
 Modules: :mod:`.suite` (the suite file and its model), :mod:`.graph` (tasks, runs, keys),
 :mod:`.stages` (the stage bodies, :func:`execute_task`), :mod:`.executors` (in process, pool,
-Dask), :mod:`.results` (the results table and its check), :mod:`.runner` (:func:`run_suite`).
+Dask), :mod:`.prune` (videos deleted once read, ``run --prune-videos``), :mod:`.results` (the
+results table and its check), :mod:`.runner` (:func:`run_suite`).
 """
 
 from ..io import jsonable, write_json

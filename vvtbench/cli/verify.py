@@ -103,12 +103,14 @@ def _task_hashes(doc: dict) -> dict[str, str] | None:
 
 def verify_run(path: Path, *, full: bool = True) -> Iterator[str]:
     """Problems of a run folder: its generated samples and its cached tasks' outputs."""
+    from ..bench.prune import pruned_absent
     from ..dataset import sha256_file
 
     cache = path / "cache"
     samples = sorted(p for p in cache.glob("generate/*/sample") if p.is_dir())
-    for sample in samples:
-        yield from verify_sample(sample, full=full)
+    for sample in samples:  # a video pruned by `run --prune-videos` is absent on purpose
+        gone = tuple(f"{sample.parent / n}: " for n in pruned_absent(sample.parent))
+        yield from (p for p in verify_sample(sample, full=full) if not p.startswith(gone))
     for task_json in sorted(cache.glob("*/*/task.json")):
         task = task_json.parent
         try:
@@ -121,10 +123,13 @@ def verify_run(path: Path, *, full: bool = True) -> Iterator[str]:
         hashes = _task_hashes(doc)
         if not hashes:
             continue
+        pruned = pruned_absent(task)
         for rel, digest in sorted(hashes.items()):
             p = task / rel
             if ".." in Path(rel).parts or Path(rel).is_absolute():
                 yield f"{task_json}: output {rel!r} is not a path inside the task folder"
+            elif rel in pruned:
+                continue
             elif not p.is_file():
                 yield f"{p}: missing (recorded in {task_json.name})"
             elif sha256_file(p) != digest:
