@@ -124,9 +124,8 @@ def summarize(rows: list[dict]) -> list[str]:
 
 def time_jackknife(T: int = 6000, side: int = 128, fps: float = 2000.0) -> str:
     """CPU time of the peak-picked modes' uncertainty (one pass plus 16 leave-one-out fits
-    per peak, each with its neighbouring peaks modelled) beside one spectrum pass, on ``T``
-    frames of a ``side``-square displacement grid with 8 damped modes in noise (the paper
-    cube's frequencies, seed 0)."""
+    per peak) beside one spectrum pass, on ``T`` frames of a ``side``-square displacement
+    grid with 8 damped modes in noise (the paper cube's frequencies, seed 0)."""
     import time
 
     from vvtbench.modes.damping import damping_lorentzian
@@ -150,8 +149,7 @@ def time_jackknife(T: int = 6000, side: int = 128, fps: float = 2000.0) -> str:
     freqs, p = motion_power_spectrum(disp, fps, window="hann")
     c1 = time.process_time()
     bins = [int(round(f * T / fps)) for f in fs]
-    z = [damping_lorentzian(freqs, p, k, window="hann", n_frames=T, neighbours=bins)[0]
-         for k in bins]
+    z = [damping_lorentzian(freqs, p, k, window="hann", n_frames=T)[0] for k in bins]
     c2 = time.process_time()
     peak_uncertainty(disp, freqs, bins, fps, frequency_hz=np.array(bins) * fps / T, damping=z,
                      band=(0.0, 200.0))

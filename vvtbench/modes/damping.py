@@ -2,14 +2,12 @@
 
 * :func:`damping_lorentzian` and :func:`damping_half_power`: damping ratio of a peak
   (Davis et al. 2015) from a fit of, or the half-power bandwidth mapped through, the exact
-  windowed finite-record spectrum of a decaying sinusoid (:func:`decay_spectrum`); the
-  Lorentzian fit models the neighbouring peaks it is given (:func:`modelled_neighbours`).
+  windowed finite-record spectrum of a decaying sinusoid (:func:`decay_spectrum`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -22,14 +20,11 @@ __all__ = [
     "damping_half_power",
     "damping_lorentzian",
     "decay_spectrum",
-    "modelled_neighbours",
 ]
 
 # a neighbouring peak rises above the valley by more than this factor (~0.5 decade, the
 # default prominence); smaller ripples of a noisy periodogram are no valley
 VALLEY_RISE = 3.0
-# neighbouring peaks within this many fit half windows (+ 2 bins) are fitted with a peak
-REACH_FACTOR = 2
 
 
 def _valley(p: NDArray[np.float64], k: int, step: int, rise: float = VALLEY_RISE) -> int:
@@ -205,31 +200,6 @@ def damping_half_power(
     return gamma / math.hypot(nu, gamma)
 
 
-def modelled_neighbours(
-    power: ArrayLike, k: int, neighbours: Sequence[int], half_width_bins: int
-) -> list[int]:
-    """Neighbouring peaks :func:`damping_lorentzian` models beside peak ``k``: those within
-    ``2 half_width_bins + 2`` bins of it (a line that far still puts its flank into the
-    fit's bins), nearest first; ``k`` itself and bins off the spectrum (``power``'s
-    length) are left out."""
-    size = np.asarray(power).shape[-1]
-    reach = REACH_FACTOR * half_width_bins + 2
-    near = sorted({int(n) for n in neighbours if n != k and 0 < n < size - 1
-                   and abs(int(n) - k) <= reach}, key=lambda n: (abs(n - k), n))
-    return near
-
-
-def _fit_half_width(f: NDArray[np.float64], p: NDArray[np.float64], k: int,
-                    window: Window) -> int:
-    """Default half window of the fit around peak ``k``: ``max(4, 6 h)`` bins (at least 6
-    with Hann), ``h`` the larger half-power half width."""
-    df = f[1] - f[0]
-    lo_e, hi_e = _half_power_edges(f, p, k)
-    sides = [abs(e - f[k]) / df for e in (lo_e, hi_e) if e is not None]
-    hw = max(sides) if sides else 1.0
-    return int(max(6 if window == "hann" else 4, math.ceil(6 * hw)))
-
-
 def damping_lorentzian(
     freqs: ArrayLike,
     power: ArrayLike,
@@ -238,7 +208,6 @@ def damping_lorentzian(
     *,
     window: Window = "none",
     n_frames: int | None = None,
-    neighbours: Sequence[int] = (),
 ) -> tuple[float, float, float]:
     """Damping ratio from a fit of the exact spectrum of a decaying sinusoid around peak ``k``.
 
@@ -253,14 +222,6 @@ def damping_lorentzian(
     most ``half_width_bins`` on each side (bins 0 and, with Hann, 1 excluded: mean removal
     changes them).  Exact for one decaying mode with any decay time and record length.
 
-    Neighbouring peaks (``neighbours``) within ``2 half_width_bins + 2`` bins
-    (:func:`modelled_neighbours`) are fitted jointly: one such line per neighbour, each with
-    its own ``f_d``, ``g``, ``b`` and ``alpha``, beside the peak's own and a shared floor,
-    over ``half_width_bins`` on each side extended to 2 bins beyond the outermost modelled
-    line, cut at the valley beyond it.  Their powers add: the model holds when the modes' fields
-    at these bins do not interfere (modes of different shapes summed over many pixels).
-    Without a modelled neighbour the fit is the single line's.
-
     Parameters
     ----------
     freqs, power : array_like
@@ -274,8 +235,6 @@ def damping_lorentzian(
         Window of the spectrum (:func:`.spectrum.motion_power_spectrum`).
     n_frames : int, optional
         Record length ``T``; default ``2 (F - 1)``.
-    neighbours : sequence of int, optional
-        Bins of the other analysed peaks (``k`` itself is ignored).
 
     Returns
     -------
@@ -294,86 +253,59 @@ def damping_lorentzian(
         raise ValueError(f"window must be 'hann' or 'none', got {window!r}")
     df = f[1] - f[0]
     if half_width_bins is None:
-        half_width_bins = _fit_half_width(f, p, k, window)
+        lo_e, hi_e = _half_power_edges(f, p, k)
+        sides = [abs(e - f[k]) / df for e in (lo_e, hi_e) if e is not None]
+        hw = max(sides) if sides else 1.0
+        half_width_bins = int(max(6 if window == "hann" else 4, math.ceil(6 * hw)))
     first = 2 if window == "hann" else 1
-    others = modelled_neighbours(p, k, neighbours, half_width_bins)
-    left, right = min([k, *others]), max([k, *others])
-    lo = max(_valley(p, left, -1), min(k - half_width_bins, left - 2), first)
-    hi = min(_valley(p, right, 1), max(k + half_width_bins, right + 2), f.size - 1)
-    nan3 = float("nan"), float(f[k]), float("nan")
-    x = _fit_lines(p, [k, *others], lo, hi, T, window)
-    if x is None:
-        return nan3
-    fd, g = float(x[0] * df), float(math.exp(x[1]) * df)
-    f0 = math.hypot(fd, g)
-    return (g / f0 if f0 > 0 else float("nan")), fd, g
-
-
-def _fit_lines(p: NDArray[np.float64], lines: list[int], lo: int, hi: int, T: int,
-               window: Window) -> NDArray[np.float64] | None:
-    """Fit decaying lines near bins ``lines`` (each with its negative-frequency coupling when
-    8 or more bins are usable) and a shared floor to ``p[lo:hi + 1]``; the fitted parameters
-    (``nu``, ``log gamma`` of ``lines[0]`` first) or ``None``."""
+    lo = max(_valley(p, k, -1), k - half_width_bins, first)
+    hi = min(_valley(p, k, 1), k + half_width_bins, f.size - 1)
     bins = np.arange(lo, hi + 1)
     ps = p[lo : hi + 1]
     ok = ps > 0
+    nan3 = float("nan"), float(f[k]), float("nan")
     if ok.sum() < 5:
-        return None
+        return nan3
     lb_, ps = bins[ok].astype(np.float64), ps[ok]
     wt = 1.0 / ps
     image = ok.sum() >= 8
-    per = 4 if image else 2
-    m = len(lines)
-
-    def powers(y: NDArray[np.float64]) -> list[NDArray[np.float64]]:
-        out = []
-        for j in range(m):
-            i = per * j
-            b = complex(y[i + 2], y[i + 3]) if image else 0j
-            out.append(_decay_power(y[i], math.exp(y[i + 1]), lb_, T, window, b))
-        return out
 
     def design(y: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.stack([*(q * wt for q in powers(y)), wt], axis=1)
+        b = complex(y[2], y[3]) if image else 0j
+        main = _decay_power(y[0], math.exp(y[1]), lb_, T, window, b)
+        return np.stack([main * wt, wt], axis=1)
 
     def resid(y: NDArray[np.float64]) -> NDArray[np.float64]:
         A = design(y)
         coef, *_ = np.linalg.lstsq(A, np.ones_like(ps), rcond=None)
         return A @ coef - 1.0
 
-    lb: list[float] = []
-    ub: list[float] = []
-    y0: list[float] = []
-    for n in lines:
-        lb += [n - 2.0, math.log(1e-3)]
-        ub += [n + 2.0, math.log(max(n + 2.0, 2.0))]
-        y0 += [float(n), math.log(0.5)]
-        if image:
-            lb += [-1.0, -1.0]
-            ub += [1.0, 1.0]
-            y0 += [0.0, 0.0]
-    y0_ = np.clip(y0, lb, ub)
+    lb = [k - 2.0, math.log(1e-3)] + ([-1.0, -1.0] if image else [])
+    ub = [k + 2.0, math.log(max(k + 2.0, 2.0))] + ([1.0, 1.0] if image else [])
+    y0 = np.clip([float(k), math.log(0.5)] + [0.0] * (len(lb) - 2), lb, ub)
     lp = np.log(ps)
     n = len(lb)
     c_lo, c_hi = math.log(ps.max() * 1e-20), math.log(ps.max())
 
     def log_resid(z: NDArray[np.float64]) -> NDArray[np.float64]:
-        model = sum(math.exp(z[n + j]) * q for j, q in enumerate(powers(z)))
-        return np.log(np.maximum(model + math.exp(z[n + m]), 1e-300)) - lp
+        b = complex(z[2], z[3]) if image else 0j
+        m = math.exp(z[n]) * _decay_power(z[0], math.exp(z[1]), lb_, T, window, b)
+        return np.log(np.maximum(m + math.exp(z[n + 1]), 1e-300)) - lp
 
     try:
-        res = least_squares(resid, y0_, bounds=(lb, ub), max_nfev=400 * m)
+        res = least_squares(resid, y0, bounds=(lb, ub), max_nfev=400)
         coef, *_ = np.linalg.lstsq(design(res.x), np.ones_like(ps), rcond=None)
         if not (np.all(np.isfinite(res.x)) and coef[0] > 0):
-            return None
+            return nan3
         # polish in log power: unbiased under the multiplicative noise of a periodogram
         a0 = math.log(coef[0])
-        amps = [a0] + [math.log(max(c, coef[0] * 1e-12)) for c in coef[1:m]]
-        z0 = np.r_[res.x, amps, np.clip(math.log(max(coef[m], 1e-30)), c_lo, c_hi)]
-        bounds = (lb + [a - 30.0 for a in amps] + [c_lo], ub + [a + 30.0 for a in amps] + [c_hi])
-        res = least_squares(log_resid, np.clip(z0, *bounds), bounds=bounds, max_nfev=400 * m)
+        z0 = np.r_[res.x, a0, np.clip(math.log(max(coef[1], 1e-30)), c_lo, c_hi)]
+        bounds = (lb + [a0 - 30.0, c_lo], ub + [a0 + 30.0, c_hi])
+        res = least_squares(log_resid, np.clip(z0, *bounds), bounds=bounds, max_nfev=400)
     except (ValueError, FloatingPointError, OverflowError, np.linalg.LinAlgError):
-        return None
+        return nan3
     if not np.all(np.isfinite(res.x)):
-        return None
-    return res.x
+        return nan3
+    fd, g = float(res.x[0] * df), float(math.exp(res.x[1]) * df)
+    f0 = math.hypot(fd, g)
+    return (g / f0 if f0 > 0 else float("nan")), fd, g

@@ -440,8 +440,7 @@ def modes_from_displacements(
             zeta = float(lines.half_width[i] / lines.kappa[i])
             amp = 2.0 * norm * float(peak_gain(lines.half_width[i], T, window)[0]) / gain
         else:
-            zeta, _, _ = damping_lorentzian(freqs, power, int(k), window=window, n_frames=T,
-                                            neighbours=pk.bins)
+            zeta, _, _ = damping_lorentzian(freqs, power, int(k), window=window, n_frames=T)
             f_ref = refine_frequency(freqs, power, int(k))
             delta = (f_ref - freqs[int(k)]) / (float(fps) / T) if T > 1 else 0.0
             amp = 2.0 * norm / gain / scalloping(delta, window)

@@ -29,16 +29,10 @@ The damping interval is ``zeta +- t_(G-1) sd`` (Student's ``t`` with ``G - 1`` d
 freedom, the jackknife variance's).  ``frequency_std_hz`` adds in quadrature the bias of the
 parabola of :func:`.peaks.refine_frequency` on the model line with the spectrum's noise floor
 (:func:`refine_bias_bins`, up to a few hundredths of a bin), a root-mean-square error.  A mode
-whose fields at its three bins, once the fields of the neighbouring peaks its damping fit
-models are regressed out (:func:`without_neighbours`), are not one line (:func:`blend_misfit`
-above :data:`.uncertainty.MAX_MISFIT`, stored as ``line_misfit``: two modes under one peak) or
-with another analysed peak closer than :data:`SHARED_PEAK_BINS` (two lines in one main lobe,
-which the damping fit cannot tell apart) or whose field overlaps a modelled neighbour's
-(:func:`neighbour_overlap` above :data:`MAX_NEIGHBOUR_OVERLAP`: the powers do not add) is
-flagged ``close_mode_bias``; its damping is then not resolved.  Neighbouring peaks
-farther away whose fields do not overlap do not flag a mode: the damping fit models them
-(:func:`.damping.damping_lorentzian` with ``neighbours``), the same in every leave-one-out
-fit.
+with another analysed peak within twice the bins its damping fit reaches
+(:func:`damping_fit_reach`, at least :data:`.uncertainty.CLOSE_BINS`), or whose fields at its
+three bins are not one line (:func:`blend_misfit` above :data:`.uncertainty.MAX_MISFIT`,
+stored as ``line_misfit``), is flagged ``close_mode_bias``; its damping is then not resolved.
 No random draw is made: groups are assigned deterministically.
 """
 
@@ -49,15 +43,14 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .damping import _fit_half_width, damping_lorentzian, modelled_neighbours
+from .damping import damping_lorentzian
 from .peaks import refine_frequency
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks
-from .uncertainty import MAX_MISFIT, block_clusters
+from .uncertainty import CLOSE_BINS, MAX_MISFIT, block_clusters
 
-__all__ = ["DEFAULT_GROUPS", "METHOD", "SHARED_PEAK_BINS", "blend_misfit", "damping_fit_reach",
-           "group_labels", "group_spectra", "jackknife_uncertainty", "neighbour_overlap",
-           "peak_uncertainty", "without_neighbours"]
+__all__ = ["DEFAULT_GROUPS", "METHOD", "blend_misfit", "damping_fit_reach", "group_labels",
+           "group_spectra", "jackknife_uncertainty", "peak_uncertainty"]
 
 #: groups of pixel tiles left out one at a time
 DEFAULT_GROUPS = 16
@@ -65,12 +58,6 @@ DEFAULT_GROUPS = 16
 METHOD = "pixel_block_jackknife"
 #: fewest groups a jackknife is computed with
 MIN_GROUPS = 5
-#: analysed peaks closer than this (bins) share one main lobe of the Hann window (+-2 bins):
-#: their lines are not told apart by the damping fit
-SHARED_PEAK_BINS = 2.0
-#: a modelled neighbour whose field is more coherent than this with the peak's
-#: (:func:`neighbour_overlap`) interferes with it: the fit's sum of powers does not hold
-MAX_NEIGHBOUR_OVERLAP = 0.01
 
 
 def group_labels(frame_shape: tuple[int, ...], n_groups: int = DEFAULT_GROUPS,
@@ -105,7 +92,7 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
                   weights: ArrayLike | None = None, shape_weights: ArrayLike | None = None,
                   detrend: str = "mean", window: Window = "hann",
                   block_bytes: int = 64 << 20, cross_bins: ArrayLike | None = None,
-                  full_cross: bool = False) -> tuple[NDArray[np.float64], ...]:
+                  ) -> tuple[NDArray[np.float64], ...]:
     """Weighted motion power spectra of pixel groups, in one pass over the displacements.
 
     Parameters
@@ -125,10 +112,6 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         ``(M,)`` peak bins: also return, for each, the ``(3, 3)`` cross-spectral matrix
         ``C_ab = sum_p w_p X_p(k + a) conj(X_p(k + b))``, ``a, b`` in ``-1, 0, 1``, with
         ``weights`` (:func:`blend_misfit`).
-    full_cross : bool, default False
-        With ``cross_bins``: return instead the ``(3 M, 3 M)`` matrix between all the peaks'
-        bins (rows ``3 m + 1 + a`` for peak ``m``, ``a`` in ``-1, 0, 1``), whose ``(3, 3)``
-        diagonal blocks are the per-peak matrices.
 
     Returns
     -------
@@ -138,7 +121,7 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
     shape_power : ndarray
         ``(T // 2 + 1,)`` the spectrum with ``shape_weights``.
     cross : ndarray
-        ``(M, 3, 3)`` (or ``(3 M, 3 M)``) complex, with ``cross_bins`` only.
+        ``(M, 3, 3)`` complex, with ``cross_bins`` only.
     """
     store = _as_store(disp)
     H, W = store.frame_shape[:2]
@@ -160,7 +143,7 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
     kb = None if cross_bins is None else np.atleast_1d(np.asarray(cross_bins, np.int64))
     if kb is not None and kb.size and (kb.min() < 1 or kb.max() > F - 2):
         raise ValueError(f"cross_bins must lie in [1, {F - 2}]")
-    cross = None if kb is None else np.zeros((3 * kb.size, 3 * kb.size), np.complex128)
+    cross = None if kb is None else np.zeros((kb.size, 3, 3), np.complex128)
     rows = None if kb is None else (kb[:, None] + np.arange(-1, 2)[None, :]).reshape(-1)
     for sl, x in _iter_blocks(store, block_bytes, detrend, window):
         X = np.fft.rfft(x, axis=0)
@@ -170,15 +153,10 @@ def group_spectra(disp: DisplacementStore | ArrayLike, labels: ArrayLike, n_grou
         M[:, n_groups] = ws[sl]
         out += p @ M
         if cross is not None:
-            Xs = X[rows]
-            cross += (Xs * wg[sl]) @ Xs.conj().T
+            Xs = X[rows].reshape(kb.size, 3, -1)
+            cross += np.einsum("map,mbp->mab", Xs * wg[sl], Xs.conj())
     spectra = (np.ascontiguousarray(out[:, :n_groups].T), out[:, n_groups])
-    if cross is None:
-        return spectra
-    if full_cross:
-        return (*spectra, cross)
-    blocks = np.stack([cross[3 * m:3 * m + 3, 3 * m:3 * m + 3] for m in range(kb.size)])
-    return (*spectra, blocks.reshape(kb.size, 3, 3))
+    return spectra if cross is None else (*spectra, cross)
 
 
 def _t95(dof: int) -> float:
@@ -230,9 +208,7 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
     k = np.atleast_1d(np.asarray(bins, np.int64))
     total = Pg.sum(axis=0)
     T = n_frames
-    others = [int(b) for b in k]
-    z0 = (np.array([damping_lorentzian(f, total, int(b), window=window, n_frames=T,
-                                       neighbours=others)[0]
+    z0 = (np.array([damping_lorentzian(f, total, int(b), window=window, n_frames=T)[0]
                     for b in k]) if damping is None else np.asarray(damping, np.float64))
     fj = np.empty((G, k.size))
     zj = np.empty((G, k.size))
@@ -240,8 +216,7 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         loo = total - Pg[g]
         for i, b in enumerate(k):
             fj[g, i] = refine_frequency(f, loo, int(b))
-            zj[g, i] = damping_lorentzian(f, loo, int(b), window=window, n_frames=T,
-                                          neighbours=others)[0]
+            zj[g, i] = damping_lorentzian(f, loo, int(b), window=window, n_frames=T)[0]
     t95 = _t95(G - 1)
     sf = np.sqrt((G - 1) / G * np.sum((fj - fj.mean(axis=0)) ** 2, axis=0))
     from scipy.stats import chi2
@@ -312,11 +287,11 @@ def damping_fit_reach(half_width_bins: ArrayLike, window: Window = "hann") -> ND
     neighbouring valleys cut them): ``max(6, ceil(6 h))`` with Hann, ``max(4, ceil(6 h))``
     without, ``h`` the half width in bins (6 where it is not finite).
 
-    A neighbouring line closer than twice this lies inside the fit's bins; a fit of one line
-    and a constant floor takes the neighbour's flank for its own width (on noiseless damped
-    lines, zeta 0.02, at the paper cube's frequencies, 3 s at 2000 FPS: off by 4-70 %, each
-    alone within 2 %), which is why :func:`.damping.damping_lorentzian` models the analysed
-    peaks within about twice this reach (:func:`.damping.modelled_neighbours`).
+    A neighbouring mode closer than twice this has its own line inside the fit's bins; the
+    fit, with one line and a constant floor, then takes the neighbour's flank for its own
+    width.  On noiseless damped lines (zeta 0.02) at the paper cube's frequencies, 3 s at
+    2000 FPS, every mode with a neighbour that close is off by 4-70 % (26 % at 7.8 Hz, whose
+    neighbour is 6.5 bins away), and each alone is within 2 %.
     """
     h = np.asarray(half_width_bins, np.float64)
     base = 6.0 if window == "hann" else 4.0
@@ -365,56 +340,6 @@ def blend_misfit(cross: ArrayLike, noise: ArrayLike, window: Window = "hann") ->
             continue
         lam = eigh(0.5 * (C[m] + C[m].conj().T), Sb.astype(np.complex128), eigvals_only=True)
         out[m] = float(lam[-2]) * Sb[1, 1] / n[m]
-    return out
-
-
-def without_neighbours(full_cross: ArrayLike, peak: int,
-                       neighbours: list[int]) -> NDArray[np.complex128]:
-    """The ``(3, 3)`` cross-spectral matrix of peak ``peak``'s three bins with the fields
-    of its neighbouring peaks regressed out.
-
-    A neighbouring mode puts, at this peak's bins, its own field (its shape times its line's
-    response there), which is a second direction beside this peak's line, however well the
-    damping fit models its power.  Its field at its own peak bin spans that direction: the
-    Schur complement ``C_kk - C_kn C_nn^+ C_nk`` over the neighbours' centre bins ``n`` is
-    what of the peak's fields the neighbours do not explain.
-
-    Parameters
-    ----------
-    full_cross : array_like
-        ``(3 M, 3 M)`` matrix of :func:`group_spectra` with ``full_cross``.
-    peak : int
-        Index of the peak (``0 .. M - 1``).
-    neighbours : list of int
-        Indices of the neighbouring peaks to regress out.
-    """
-    C = np.asarray(full_cross, np.complex128)
-    kk = np.arange(3 * peak, 3 * peak + 3)
-    if not neighbours:
-        return C[np.ix_(kk, kk)]
-    nn = np.array([3 * j + 1 for j in neighbours])
-    Ckn = C[np.ix_(kk, nn)]
-    return C[np.ix_(kk, kk)] - Ckn @ np.linalg.pinv(C[np.ix_(nn, nn)], hermitian=True) \
-        @ Ckn.conj().T
-
-
-def neighbour_overlap(full_cross: ArrayLike, peak: int, neighbours: list[int]) -> float:
-    """Largest coherence ``|C_kn|**2 / (C_kk C_nn)`` between the field at peak ``peak``'s
-    bin and the field at a neighbouring peak's bin (0 without neighbours).
-
-    The damping fit adds the lines' powers; where two modes' fields overlap (their shapes
-    are not orthogonal over the weighted pixels) the spectrum between them holds a cross
-    term the fit has not, which biases both widths.  Orthogonal shapes leave only the lines'
-    flanks in this coherence (their square).
-    """
-    C = np.asarray(full_cross, np.complex128)
-    c = 3 * peak + 1
-    out = 0.0
-    for j in neighbours:
-        n = 3 * j + 1
-        den = float(C[c, c].real * C[n, n].real)
-        if den > 0:
-            out = max(out, float(abs(C[c, n]) ** 2) / den)
     return out
 
 
@@ -494,10 +419,9 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                 "line_misfit": none, "uncertainty_groups": None}
     F = f.size
     inner = (k >= 1) & (k <= F - 2)
-    Pg, Ps, full = group_spectra(store, labels, G, weights=spectrum_weights,
-                                 shape_weights=shape_weights, detrend=detrend, window=window,
-                                 block_bytes=block_bytes, cross_bins=np.clip(k, 1, F - 2),
-                                 full_cross=True)
+    Pg, Ps, cross = group_spectra(store, labels, G, weights=spectrum_weights,
+                                  shape_weights=shape_weights, detrend=detrend, window=window,
+                                  block_bytes=block_bytes, cross_bins=np.clip(k, 1, F - 2))
     df = f[1] - f[0]
     lo_bin = 1 if band is None else max(1, int(math.ceil(band[0] / df - 1e-9)))
     hi_bin = f.size - 1 if band is None else min(f.size - 1, int(math.floor(band[1] / df + 1e-9)))
@@ -506,18 +430,12 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                                damping=damping, band=in_band,
                                floor_half_width_bins=floor_half_width_bins)
     mac = _expected_shape_mac(Ps, k, in_band, floor_half_width_bins)
-    total = Pg.sum(axis=0)
-    index = {int(b): i for i, b in enumerate(k)}
-    modelled = [[index[n] for n in modelled_neighbours(
-        total, int(b), list(index), _fit_half_width(f, total, int(b), window))
-        if abs(n - int(b)) > 2] for b in k]
-    cross = np.stack([without_neighbours(full, i, nb) for i, nb in enumerate(modelled)])
-    overlap = np.array([neighbour_overlap(full, i, nb) for i, nb in enumerate(modelled)])
     misfit = np.where(inner, blend_misfit(cross, ju["noise"][np.clip(k, 0, F - 1)], window),
                       np.nan)
     fr = np.asarray(frequency_hz, np.float64) / df
     gap = np.array([np.min(np.abs(np.delete(fr, i) - fr[i])) if M > 1 else np.inf
                     for i in range(M)])
+    reach = 2.0 * damping_fit_reach(np.asarray(damping, np.float64) * fr, window)
 
     def clean(a: NDArray) -> list:
         return [float(x) if np.isfinite(x) else None for x in a]
@@ -527,9 +445,8 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         "damping_lo": clean(ju["damping_lo"]),
         "damping_hi": clean(ju["damping_hi"]),
         "shape_mac_expected": clean(mac),
-        "close_mode_bias": [bool(g < SHARED_PEAK_BINS or m > MAX_MISFIT
-                                 or o > MAX_NEIGHBOUR_OVERLAP)
-                            for g, m, o in zip(gap, misfit, overlap, strict=True)],
+        "close_mode_bias": [bool(g < max(CLOSE_BINS, r) or m > MAX_MISFIT)
+                            for g, r, m in zip(gap, reach, misfit, strict=True)],
         "line_misfit": clean(misfit),
         "uncertainty_method": METHOD,
         "uncertainty_groups": {"groups": int(G), "block_px": int(block),
