@@ -29,7 +29,7 @@ from pathlib import Path
 from ..io import write_json
 from .graph import Task
 
-__all__ = ["PRUNED", "VideoPlan", "dependants", "prune_sample", "pruned_absent",
+__all__ = ["PRUNED", "VideoPlan", "dependants", "excused", "prune_sample", "pruned_absent",
            "pruned_files", "sample_videos", "video_readers"]
 
 #: the ``task.json`` key of a generate task whose videos were pruned
@@ -49,18 +49,22 @@ def pruned_files(info: dict) -> dict[str, dict]:
     return out
 
 
+def excused(info: dict) -> set[str]:
+    """Names of the files a task's ``task.json`` records as pruned with the very sha256 its
+    ``files`` table lists: the files a check of its folder may find absent."""
+    files = info.get("files") if isinstance(info, dict) else None
+    files = files if isinstance(files, dict) else {}
+    return {n for n, e in pruned_files(info).items() if files.get(n) == e["sha256"]}
+
+
 def pruned_absent(task_dir: Path) -> set[str]:
-    """Names (relative to the task folder) of the files a cached task's ``task.json`` records
-    as pruned, with the sha256 its ``files`` table lists, that are absent: what a check of the
+    """The :func:`excused` files of a cached task folder that are absent: what a check of the
     folder does not count as missing."""
     try:
         info = json.loads((Path(task_dir) / "task.json").read_text())
     except (OSError, ValueError):
         return set()
-    files = info.get("files") if isinstance(info, dict) else None
-    files = files if isinstance(files, dict) else {}
-    return {n for n, e in pruned_files(info).items()
-            if files.get(n) == e["sha256"] and not (Path(task_dir) / n).is_file()}
+    return {n for n in excused(info) if not (Path(task_dir) / n).is_file()}
 
 
 def sample_videos(task_dir: Path) -> list[str]:

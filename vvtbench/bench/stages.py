@@ -317,16 +317,16 @@ def verify_cached(folder: Path, info: dict) -> str | None:
     ``task.json`` recorded its sha256; no hashes recorded), or None when it is intact. A file
     the ``task.json`` records as pruned with the same sha256 (a video deleted by
     ``--prune-videos``, :mod:`.prune`) may be absent; present, it must still match."""
-    from .prune import pruned_files
+    from .prune import excused
 
     files = info.get("files")
     if not isinstance(files, dict) or not files:
         return "no recorded sha256 (written by an older vvtbench)"
-    pruned = pruned_files(info)
+    pruned = excused(info)
     for rel, digest in files.items():
         f = folder / rel
         if not f.is_file():
-            if rel in pruned and pruned[rel]["sha256"] == digest:
+            if rel in pruned:
                 continue
             return f"{rel}: deleted"
         if sha256_file(f) != digest:
