@@ -299,3 +299,45 @@ def test_pruning_before_the_observations_is_refused(runs):
     with pytest.raises(SuiteError, match="prune_videos with until='generate' is not allowed"):
         run_suite(str(runs["suite"]), None, runs["pruned"], until="generate",
                   prune_videos=True, progress=False)
+
+
+class _Recorder:
+    """An executor that runs nothing: it records what it is handed, in order."""
+
+    slots = 1
+
+    def __init__(self):
+        self.order: list[str] = []
+
+    def submit(self, fn, cache, task, *args):
+        self.order.append(task.key)
+        outcome = {"key": task.key, "status": "ok", "computed": True, "seconds": 0.0}
+        return type("Done", (), {"result": lambda self: outcome})()
+
+    def wait_any(self, futures):
+        return set(futures)
+
+
+def _chain_graph(n: int) -> dict:
+    from vvtbench.bench.graph import Task
+
+    tasks = {}
+    for i in range(n):
+        tasks[f"g{i}"] = Task("generate", f"g{i}", [], {}, f"sample {i}")
+        tasks[f"e{i}"] = Task("extract", f"e{i}", [f"g{i}"], {}, f"extract {i}")
+    return tasks
+
+
+@pytest.mark.parametrize("prune", [False, True])
+def test_pruning_reads_each_sample_before_rendering_the_next(prune, tmp_path):
+    from vvtbench.bench.executors import execute_graph
+
+    tasks = _chain_graph(4)
+    plan = VideoPlan(tasks, tmp_path, prune, {f"g{i}": [f"e{i}"] for i in range(4)})
+    recorder = _Recorder()
+    done = execute_graph(tasks, tmp_path, recorder, False, None, videos=plan)
+    assert set(done) == set(tasks)
+    if prune:  # one slot: a sample's reader runs before the next sample is rendered
+        assert recorder.order == ["g0", "e0", "g1", "e1", "g2", "e2", "g3", "e3"]
+    else:  # everything ready is handed out at once
+        assert recorder.order == ["g0", "g1", "g2", "g3", "e0", "e1", "e2", "e3"]

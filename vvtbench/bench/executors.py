@@ -82,6 +82,8 @@ class Interrupted(KeyboardInterrupt):
 
 
 class _Inline:
+    slots = 1
+
     class _Done:
         def __init__(self, value):
             self._v = value
@@ -163,6 +165,10 @@ class _Pool:
         self.workers = workers
         self._start()
 
+    @property
+    def slots(self) -> int:
+        return self.workers
+
     def _start(self):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -214,6 +220,14 @@ class _Dask:
             self.client = scheduler if hasattr(scheduler, "submit") else Client(scheduler)
             self.own = not hasattr(scheduler, "submit")
         self.futures: list = []
+
+    @property
+    def slots(self) -> int | None:
+        try:
+            workers = self.client.scheduler_info()["workers"].values()
+            return max(1, sum(int(w.get("nthreads", 1)) for w in workers))
+        except Exception:  # noqa: BLE001 -- unknown: no window
+            return None
 
     def submit(self, fn, *args):
         fut = self.client.submit(fn, *args, pure=False)
@@ -349,7 +363,10 @@ def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool 
     ``videos`` (default: built from the cache, pruning off): what to do about pruned videos
     (:class:`~vvtbench.bench.prune.VideoPlan`): samples whose pruned video a task needs are
     rendered again and checked, and with pruning on a sample's videos are deleted here, in
-    the scheduling process, once every task reading them is done."""
+    the scheduling process, once every task reading them is done. While pruning, no more
+    tasks are handed out than the executor has slots, the furthest stage first, so a sample's
+    videos are read and deleted before the next samples are rendered: the disk holds the
+    videos of about as many samples as there are workers, not of the whole suite."""
     from concurrent.futures.process import BrokenProcessPool
 
     videos = videos if videos is not None else VideoPlan.build(tasks, Path(cache))
@@ -359,9 +376,14 @@ def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool 
     bar = progress if isinstance(progress, Progress) else Progress(counts, bool(progress))
     running: dict[Any, str] = {}
     retried: set[str] = set()
+    window = getattr(executor, "slots", None) if videos.prune else None
+    depth = {s: i for i, s in enumerate(STAGES)}
     try:
         while remaining or running:
             ready = [k for k, t in remaining.items() if all(d in done for d in t.deps)]
+            if window is not None:
+                ready.sort(key=lambda k: -depth[tasks[k].stage])  # stable: suite order
+                ready = ready[:max(0, window - len(running))]
             for k in ready:
                 task = remaining.pop(k)
                 bar.start(task.stage)
@@ -384,6 +406,8 @@ def execute_graph(tasks: dict[str, Task], cache: Path, executor, progress: bool 
                     bar.advance(task.stage, task.label, False)
                     videos.finished(k, done)
             if not running:
+                if ready:  # all of them settled without running: look again
+                    continue
                 break
             broken = False
             for fut in executor.wait_any(list(running)):
