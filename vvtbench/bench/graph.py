@@ -23,6 +23,9 @@ from .suite import (
 )
 
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
+#: seconds the sealed import describing a solver plug-in has at least, whatever the time limit:
+#: starting a child and importing numpy takes seconds on a loaded machine
+DESCRIBE_FLOOR = 30.0
 # Bump when a stage's output format or meaning changes (part of every task key).
 CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the contract, no pickle
 #: revision of the mode extraction and of its scoring (part of the extract and observe keys
@@ -239,8 +242,7 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
     forget_descriptions()
     # a plug-in whose import hangs becomes an error row within the suite's time limit
     limit = timeout if timeout is not None else suite.timeout
-    # at least 30 s: starting a child and importing numpy takes seconds on a loaded machine
-    describe_timeout = min(max(float(limit), 30.0), 600.0) if limit else 600.0
+    describe_timeout = min(max(float(limit), DESCRIBE_FLOOR), 600.0) if limit else 600.0
 
     def info(spec: str, extra: dict | None = None):
         ck = (spec, json.dumps(_canon(extra or {}), sort_keys=True))
