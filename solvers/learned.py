@@ -79,6 +79,9 @@ class LearnedConfig:
         "help": "training only: networks in the ensemble (member i seeded with i)"})
     epochs: int = field(default=15, metadata={
         "help": "training only: passes of Adam over the train voxels per network"})
+    max_steps: int = field(default=20000, metadata={
+        "help": "training only: Adam steps per network at most (fewer epochs on a train set "
+                "larger than this many minibatches of 2048 voxels: bounds the fit time)"})
 
 
 def features(problem: InverseProblem) -> tuple[np.ndarray, float]:
@@ -132,6 +135,9 @@ SMOOTH = (0.3, 1.0, 3.0)  # smoothness weights of the linearized steps (val-chos
 HIDDEN = (64, 32)  # chosen on val: wider (128, 64) and deeper (64, 64, 32) nets overfit
 EPOCHS = 15
 MEMBERS = 3
+BATCH = 2048  # voxels per Adam step
+MAX_STEPS = 20000  # Adam steps per network at most: about 4 epochs of 20 000 cube instances
+STORED_FEATURES = ("X", "w")  # what a feature store keeps of an instance_features item
 
 
 def reference_basis(problems) -> np.ndarray:
@@ -178,34 +184,94 @@ def standardized(w: np.ndarray) -> np.ndarray | None:
     return (w - w.mean()) / sd
 
 
-def instance_features(problem: InverseProblem, truth, basis: np.ndarray) -> dict:
-    """Features and target of one train or val instance (``truth``: its Truth): the target
-    is the instance's standardized w (None for a uniform truth)."""
-    X, _ = voxel_features(problem, basis)
-    w = np.asarray(truth.w, dtype=float)
+def feature_item(X: np.ndarray, w: np.ndarray) -> dict:
+    """A train or val item from an instance's per-voxel features ``X`` and its truth's
+    ``w``: the target ``y`` is the standardized w (None for a uniform truth)."""
+    w = np.asarray(w, dtype=float)
     return {"X": X, "y": standardized(w), "w": w}
 
 
-def fit_features(items: list[dict], basis: np.ndarray, members: int = MEMBERS,
-                 epochs: int = EPOCHS) -> dict:
-    """Weights of the per-voxel network ensemble from :func:`instance_features` items
-    (member i seeded with i); instances with a uniform truth carry no target and are left
-    out."""
+def instance_features(problem: InverseProblem, truth, basis: np.ndarray) -> dict:
+    """Features and target of one train or val instance (``truth``: its Truth): the target
+    is the instance's standardized w (None for a uniform truth). A feature store keeps its
+    ``STORED_FEATURES`` (:mod:`vvtbench.learning.feature_store`)."""
+    return feature_item(voxel_features(problem, basis)[0], truth.w)
+
+
+def bounded_epochs(n_voxels: int, epochs: int = EPOCHS, max_steps: int = MAX_STEPS) -> int:
+    """Epochs a network is trained for on ``n_voxels`` samples: ``epochs``, fewer when they
+    would take more than ``max_steps`` minibatches (at least one epoch)."""
+    per_epoch = max(1, -(-int(n_voxels) // BATCH))
+    return max(1, min(int(epochs), int(max_steps) // per_epoch))
+
+
+def fit_arrays(X: np.ndarray, y: np.ndarray, basis: np.ndarray, n_instances: int,
+               n_used: int, members: int = MEMBERS, epochs: int = EPOCHS,
+               max_steps: int = MAX_STEPS) -> dict:
+    """Weights of the per-voxel network ensemble from stacked per-voxel features ``X`` and
+    targets ``y`` of ``n_used`` instances (of ``n_instances``; member i seeded with i),
+    trained for :func:`bounded_epochs` epochs."""
     from vvtbench.learning.mlp import fit_mlp
 
+    if members < 1 or epochs < 1 or max_steps < 1:
+        raise ValueError("learned: members, epochs and max_steps must be >= 1, got "
+                         f"{members}, {epochs}, {max_steps}")
+    run = bounded_epochs(len(X), epochs, max_steps)
+    weights = {"model": MODEL, "basis": basis, "n_instances": int(n_instances),
+               "n_used": int(n_used), "n_voxels": int(len(X)), "members": int(members),
+               "hidden": list(HIDDEN), "epochs": run, "epochs_asked": int(epochs),
+               "max_steps": int(max_steps), "n_slots": N_SLOTS,
+               "target": "standardized w per instance"}
+    for i in range(members):
+        params = fit_mlp(X, y, hidden=HIDDEN, epochs=run, batch=BATCH, seed=i)
+        weights.update({f"m{i}_{k}": np.asarray(v) for k, v in params.items()})
+    return weights
+
+
+def fit_features(items: list[dict], basis: np.ndarray, members: int = MEMBERS,
+                 epochs: int = EPOCHS, max_steps: int = MAX_STEPS) -> dict:
+    """Weights of the per-voxel network ensemble from :func:`instance_features` items
+    (:func:`fit_arrays`); instances with a uniform truth carry no target and are left out."""
     used = [it for it in items if it["y"] is not None]
     if not used:
         raise ValueError("learned: no training instance with a non-uniform w (all "
                          f"{len(items)} are homogeneous)")
     X = np.vstack([it["X"] for it in used])
     y = np.concatenate([it["y"] for it in used])
-    weights = {"model": MODEL, "basis": basis, "n_instances": len(items),
-               "n_used": len(used), "n_voxels": int(len(X)), "members": int(members),
-               "hidden": list(HIDDEN), "epochs": int(epochs), "n_slots": N_SLOTS,
-               "target": "standardized w per instance"}
-    for i in range(members):
-        params = fit_mlp(X, y, hidden=HIDDEN, epochs=epochs, seed=i)
-        weights.update({f"m{i}_{k}": np.asarray(v) for k, v in params.items()})
+    return fit_arrays(X, y, basis, len(items), len(used), members, epochs, max_steps)
+
+
+def fit_store(store, train: list, val: list = (), members: int = MEMBERS,
+              epochs: int = EPOCHS, max_steps: int = MAX_STEPS) -> dict:
+    """Weights from the features of a feature store
+    (:class:`vvtbench.learning.feature_store.FeatureStore`): its ``train`` entries, in
+    index order, stacked into one array (memory: the features, never the instances), and the
+    mean NC w on its ``val`` entries recorded. The same instances give the weights
+    :func:`fit` gives from the instances themselves."""
+    if not train:
+        raise ValueError(f"{store.root}: no train instances in the feature store")
+    targets = []
+    for _, arrays in store.iter_arrays(train, ("w",)):
+        targets.append(standardized(arrays["w"]))
+    rows = sum(len(t) for t in targets if t is not None)
+    if not rows:
+        raise ValueError("learned: no training instance with a non-uniform w (all "
+                         f"{len(train)} are homogeneous)")
+    X, y, at = None, np.empty(rows), 0
+    for (_, arrays), target in zip(store.iter_arrays(train, ("X",)), targets, strict=True):
+        if target is None:
+            continue
+        if X is None:
+            X = np.empty((rows, arrays["X"].shape[1]))
+        X[at:at + len(target)] = arrays["X"]
+        y[at:at + len(target)] = target
+        at += len(target)
+    n_used = sum(t is not None for t in targets)
+    weights = fit_arrays(X, y, store.basis, len(train), n_used, members, epochs, max_steps)
+    del X, y
+    held = [feature_item(a["X"], a["w"]) for _, a in store.iter_arrays(list(val), ("X", "w"))]
+    weights["n_val"] = len(held)
+    weights["val_nc_w"] = mean_nc(weights, held) if held else None
     return weights
 
 
@@ -249,20 +315,21 @@ def mean_nc(weights: dict, items: list[dict]) -> float:
 
 
 def fit(pairs: Iterable, members: int = MEMBERS, epochs: int = EPOCHS,
-        val: Iterable = ()) -> dict:
+        val: Iterable = (), max_steps: int = MAX_STEPS) -> dict:
     """Weights from ``(problem, truth)`` pairs of a family's train split; the mean NC w on
     the ``val`` pairs is recorded (the architecture was chosen on the val split)."""
     pairs = iter(pairs)
     first = list(itertools.islice(pairs, N_REFERENCE))
     if not first:
         raise ValueError("no training instances")
-    if members < 1 or epochs < 1:
-        raise ValueError(f"learned: members and epochs must be >= 1, got {members}, {epochs}")
+    if members < 1 or epochs < 1 or max_steps < 1:
+        raise ValueError("learned: members, epochs and max_steps must be >= 1, got "
+                         f"{members}, {epochs}, {max_steps}")
     basis = reference_basis([problem for problem, _ in first])
     train = [instance_features(problem, truth, basis)
              for problem, truth in itertools.chain(first, pairs)]
     held = [instance_features(p, t, basis) for p, t in val]
-    weights = fit_features(train, basis, members, epochs)
+    weights = fit_features(train, basis, members, epochs, max_steps)
     weights["n_val"] = len(held)
     weights["val_nc_w"] = mean_nc(weights, held) if held else None
     return weights
@@ -302,7 +369,8 @@ class LearnedSolver:
 
     name = "learned"
     version = "3.0.0"
-    trainable = True  # module-level fit() and save_weights(): `vvtbench train learned FAMILY`
+    trainable = True  # module-level fit() and save_weights(): `vvtbench train learned FAMILY`;
+    # fit_store() and the feature hooks: `--drop-instances` (vvtbench.learning.feature_store)
     description = ("Learned baseline: a per-voxel network on one linearized inversion step "
                    "(eigenvalue misfits and mode mixing on a Ritz basis) and its "
                    "neighbourhood, trained on a family's train split")

@@ -243,3 +243,210 @@ def test_estimate_keeps_the_predicted_fields_nc_and_is_positive():
     assert normalized_correlation(w, truth) == pytest.approx(
         normalized_correlation(field, truth), abs=1e-12)
     assert np.all(field_to_w(np.zeros(512), 9000.0) == 9000.0)
+
+
+# --------------------------------------------------------------------------- feature store
+TRAIN_OPTS = ["--n", "6", "--val", "2", "--modes", "8", "--grid", "4", "4", "4",
+              "--set", "members=1", "--set", "epochs=2"]
+
+
+def _tiny_cube_family(folder: Path) -> Path:
+    """The shipped cube family, made small: 5^3 cells, 12 modes, 96^2 px."""
+    from vvtbench.scene import SCENES_DIR
+
+    text = (SCENES_DIR / "families" / "cube_defects.toml").read_text()
+    text = text.replace('name = "cube_defects"', 'name = "tinycube"')
+    text += ('"simulation.n_modes" = { choice = [12] }\n'
+             '"geometry.cells" = { choice = [[5, 5, 5]] }\n'
+             '"camera.resolution" = { choice = [[96, 96]] }\n')
+    path = folder / "tinycube.toml"
+    path.write_text(text)
+    return path
+
+
+def _tree(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() if p.is_file() else None
+            for p in sorted(folder.rglob("*"))}
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """The same 6 train and 2 val instances trained on kept instances and through a feature
+    store with --drop-instances (default store folder, in a working folder of its own)."""
+    import os
+
+    from vvtbench.cli import main
+
+    root = tmp_path_factory.mktemp("store")
+    family = _tiny_cube_family(root)
+    work = root / "work"
+    (work / "mine").mkdir(parents=True)
+    (work / "mine" / "notes.txt").write_text("a user's file")
+    before = _tree(work)
+    here = os.getcwd()
+    os.chdir(work)
+    try:
+        assert main(["train", "learned", str(family), *TRAIN_OPTS, "--drop-instances",
+                     "-o", str(root / "dropped.npz")]) == 0
+    finally:
+        os.chdir(here)
+    after = _tree(work)
+    assert main(["train", "learned", str(family), *TRAIN_OPTS, "--data",
+                 str(root / "kept" / "train"), "-o", str(root / "kept.npz")]) == 0
+    return {"root": root, "family": family, "store": work / "data" / "tinycube" /
+            "train-features", "before": before, "after": after}
+
+
+def test_a_store_built_dropping_instances_gives_the_weights_of_the_kept_instances(trained):
+    import hashlib
+
+    from solvers.learned import load_weights
+    from vvtbench.learning.feature_store import FeatureStore
+
+    kept, kept_meta = load_weights(trained["root"] / "kept.npz")
+    dropped, meta = load_weights(trained["root"] / "dropped.npz")
+    assert meta["instances"] == kept_meta["instances"] == [
+        f"tinycube-train-{i:05d}" for i in range(6)]
+    assert meta["val_instances"] == kept_meta["val_instances"]
+    store = FeatureStore.open(trained["store"])
+    for entry in store.entries("train") + store.entries("val"):  # the same instances
+        split = entry.name.split("-")[1]
+        manifest = trained["root"] / "kept" / split / entry.name / "manifest.json"
+        assert entry.manifest_sha256 == hashlib.sha256(manifest.read_bytes()).hexdigest()
+    assert np.array_equal(dropped["basis"], kept["basis"])
+    assert set(dropped) == set(kept)
+    for key in kept:
+        assert dropped[key] == pytest.approx(kept[key], rel=1e-9, abs=1e-12), key
+    assert meta["val_nc_w"] == pytest.approx(kept_meta["val_nc_w"], abs=1e-5)
+    record = meta["train_store"]
+    assert record["instances"] == 6 and len(record["sha256"]) == 64
+    assert record["path"] == str(trained["store"].resolve())
+    assert meta["val_store"]["instances"] == 2 and meta["fit_seconds"] > 0
+
+
+def test_dropped_instances_are_gone_and_nothing_else_was_touched(trained):
+    from vvtbench.learning.feature_store import SCRATCH, FeatureStore
+
+    store = trained["store"]
+    assert not (store / SCRATCH).exists()
+    added = set(trained["after"]) - set(trained["before"])
+    assert all(name in ("data", "data/tinycube") or name.startswith(
+        "data/tinycube/train-features") for name in added), sorted(added)
+    assert all(trained["after"][k] == v for k, v in trained["before"].items())
+    assert sorted(p.name for p in (store / "shards").iterdir()) == [
+        "train-000000-000005.npz", "val-000000-000001.npz"]
+    opened = FeatureStore.open(store)
+    assert [e.name for e in opened.entries("train")] == [
+        f"tinycube-train-{i:05d}" for i in range(6)]
+    arrays = dict(opened.iter_arrays(opened.entries("val"), ("X", "w")))
+    assert all(a["X"].shape == (64, 42) and a["w"].shape == (64,) for a in arrays.values())
+
+
+def test_only_the_stores_own_scratch_instances_are_deleted(tmp_path):
+    from vvtbench.learning.feature_store import (
+        SCRATCH,
+        SCRATCH_MARK,
+        FeatureStoreError,
+        drop_instance,
+    )
+
+    user = tmp_path / SCRATCH / "train" / "tinycube-train-00003"
+    user.mkdir(parents=True)
+    (user / "manifest.json").write_text("{}")
+    with pytest.raises(FeatureStoreError, match="not an instance this store generated"):
+        drop_instance(tmp_path, "train", "tinycube-train-00003")  # no scratch mark
+    (tmp_path / SCRATCH / SCRATCH_MARK).touch()
+    for name in ("../../x", "tinycube-val-00003", "notes"):
+        with pytest.raises(FeatureStoreError):
+            drop_instance(tmp_path, "train", name)
+    assert user.is_dir()
+    drop_instance(tmp_path, "train", "tinycube-train-00003")
+    assert not user.exists()
+
+
+@pytest.mark.parametrize("change", ["observe", "basis", "data"])
+def test_a_store_of_other_options_or_basis_is_refused_in_one_line(trained, tmp_path, change,
+                                                                  capsys):
+    import shutil
+
+    from vvtbench.cli import main
+    from vvtbench.io import write_npz
+
+    store = tmp_path / "store"
+    shutil.copytree(trained["store"], store)
+    opts = list(TRAIN_OPTS)
+    if change == "observe":
+        opts[opts.index("--modes") + 1] = "6"
+    elif change == "basis":
+        with np.load(store / "basis.npz") as z:
+            basis = z["basis"]
+        write_npz(store / "basis.npz", {"basis": basis[:, ::-1].copy()})
+    else:
+        opts += ["--data", str(tmp_path / "train")]
+    before = _tree(store)
+    capsys.readouterr()
+    assert main(["train", "learned", str(trained["family"]), *opts, "--drop-instances",
+                 "--features", str(store), "-o", str(tmp_path / "w.npz")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ")
+    assert {"observe": "key 'observe'", "basis": "basis", "data": "--data"}[change] in err
+    assert _tree(store) == before and not (tmp_path / "w.npz").exists()
+    assert not (tmp_path / "train").exists()
+
+
+def test_a_killed_store_build_resumes_without_generating_finished_instances(tmp_path,
+                                                                           monkeypatch):
+    import solvers.learned as learned
+    from vvtbench.learning import feature_store as fs
+
+    spec = fs.StoreSpec(solver="learned", module="solvers.learned",
+                        solver_version=learned.LearnedSolver.version, model=learned.MODEL,
+                        family=str(_tiny_cube_family(tmp_path)), family_name="tinycube",
+                        observe={"n_modes": 8, "inference_shape": (4, 4, 4),
+                                 "visibility": "depth"})
+    root = tmp_path / "store"
+    monkeypatch.setattr(learned, "N_REFERENCE", 2)  # the basis from instances 0 and 1
+    generated = []
+    real_generate, real_features = fs._generate, learned.instance_features
+    monkeypatch.setattr(fs, "_generate", lambda job: generated.append(
+        (job["name"], (Path(job["out"]) / job["name"] / "manifest.json").is_file()))
+        or real_generate(job))
+    calls = []
+
+    def killed_at_the_third(problem, truth, basis):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # the run is killed while featurizing instance 2
+        return real_features(problem, truth, basis)
+
+    monkeypatch.setattr(learned, "instance_features", killed_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        fs.build_store(root, spec, {"train": (0, 4)}, shard_instances=2)
+    store = fs.FeatureStore.open(root)
+    assert [e.index for e in store.entries("train")] == [0, 1]  # complete shards only
+    assert (root / fs.SCRATCH / "train" / "tinycube-train-00002" / "manifest.json").is_file()
+    (root / fs.SHARDS / ".train-000002-000003.123-abcd.tmp.npz").write_bytes(b"half")
+    generated.clear()
+    monkeypatch.setattr(learned, "instance_features", real_features)
+    store = fs.build_store(root, spec, {"train": (0, 4)}, shard_instances=2)
+    # instances 0 and 1 are not generated again; 2 was complete in the scratch folder
+    assert generated == [("tinycube-train-00002", True), ("tinycube-train-00003", False)]
+    assert [e.index for e in store.entries("train")] == [0, 1, 2, 3]
+    assert sorted(p.name for p in (root / fs.SHARDS).iterdir()) == [
+        "train-000000-000001.npz", "train-000002-000003.npz"]
+    assert not (root / fs.SCRATCH).exists()
+    first = store.digest(store.entries("train"))
+    again = fs.build_store(root, spec, {"train": (0, 4)}, shard_instances=2)
+    assert again.digest(again.entries("train")) == first and len(generated) == 2
+
+
+def test_training_cost_is_bounded_by_a_number_of_steps():
+    from solvers.learned import BATCH, bounded_epochs
+
+    assert bounded_epochs(668 * 512) == 15  # the shipped model's data: unchanged
+    assert bounded_epochs(20000 * 512, 15, 20000) == 20000 // -(-20000 * 512 // BATCH)
+    assert bounded_epochs(20000 * 512, 15, 100) == 1
+    for n in (1000, 5000, 20000, 80000, 200000):
+        epochs = bounded_epochs(n * 512)
+        assert epochs * -(-n * 512 // BATCH) <= 20000 or epochs == 1
+    assert bounded_epochs(1000 * 512) == 15 and bounded_epochs(200000 * 512) == 1

@@ -16,8 +16,9 @@ from . import bounded, positive_int
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vvtbench train", description=(
         "generate the train split of a scene family (modes only, resumable) and fit a "
-        "learned solver on it; the weights file records the family, split, instances and "
-        "seeds it saw (docs/learning.md)"))
+        "learned solver on it, or (--drop-instances) keep only each instance's training "
+        "features in a resumable store; the weights file records the family, split, "
+        "instances and seeds it saw (docs/learning.md)"))
     p.add_argument("solver", help="a solver whose module has fit() and save_weights() "
                    "(shipped: learned)")
     p.add_argument("family", help="a scene family (scenes/families/NAME.toml) or its file")
@@ -34,6 +35,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="training option of the solver (e.g. members=3)")
     p.add_argument("--workers", type=positive_int, default=1, help="generation workers (1)")
+    p.add_argument("--drop-instances", action="store_true",
+                   help="featurize and drop: generate each train and val instance into the "
+                   "feature store's scratch folder, keep only its training features (a "
+                   "resumable store of shards) and delete the instance; for tens of thousands "
+                   "of instances (docs/learning.md)")
+    p.add_argument("--features", type=Path, default=None, metavar="DIR",
+                   help="the feature store with --drop-instances (default "
+                   "data/FAMILY/train-features)")
     return p
 
 
@@ -55,6 +64,20 @@ def main_train(argv: list[str] | None = None) -> int:
     if args.output.suffix != ".npz":
         print(f"error: -o {args.output}: the weights file must end in .npz", file=sys.stderr)
         return 2
+    options = {"n_modes": args.modes, "visibility": "depth",
+               **({"inference_shape": tuple(args.grid)} if args.grid else {})}
+    kwargs = {k: v for k, v in vars(config).items() if k != "weights"}
+    digest = hashlib.sha256(Path(family.source).read_bytes()).hexdigest()
+    meta = {"family": family.name, "family_sha256": digest, "split": "train",
+            "indices": [args.start, args.start + args.n - 1], "observe": options,
+            "vvtbench": __version__, "solver": cls.name, "seed": "instance i of a split is "
+            "drawn from (family, split, i) alone (docs/families.md)"}
+    if args.drop_instances:
+        return _train_from_store(args, cls, module, family, options, kwargs, meta)
+    if args.features is not None:
+        print(f"error: --features {args.features}: the feature store is written with "
+              "--drop-instances", file=sys.stderr)
+        return 2
     data = args.data or Path("data") / family.name / "train"
     t0 = time.perf_counter()
     rc = generate_main([str(family.source), "--split", "train", "--n", str(args.n),
@@ -71,22 +94,14 @@ def main_train(argv: list[str] | None = None) -> int:
             return rc
     chosen = _chosen(data, family.name, "train", args.start, args.n)
     held = _chosen(val_data, family.name, "val", 0, args.val) if args.val else []
-    options = {"n_modes": args.modes, "visibility": "depth",
-               **({"inference_shape": tuple(args.grid)} if args.grid else {})}
-    kwargs = {k: v for k, v in vars(config).items() if k != "weights"}
     if held:
         kwargs["val"] = (pair for _, src in held for pair in iter_instances(src, None, **options))
     t_fit = time.perf_counter()
     weights = module.fit((pair for _, src in chosen
                           for pair in iter_instances(src, None, **options)), **kwargs)
     fit_seconds = time.perf_counter() - t_fit
-    digest = hashlib.sha256(Path(family.source).read_bytes()).hexdigest()
-    meta = {"family": family.name, "family_sha256": digest, "split": "train",
-            "indices": [args.start, args.start + args.n - 1],
-            "instances": [name for name, _ in chosen], "observe": options,
-            "vvtbench": __version__, "solver": cls.name, "generated_in": str(data),
-            "train_sha256": _split_digest(chosen), "seed": "instance i of a split is drawn "
-            "from (family, split, i) alone (docs/families.md)", "fit_seconds": fit_seconds}
+    meta.update({"instances": [name for name, _ in chosen], "generated_in": str(data),
+                 "train_sha256": _split_digest(chosen), "fit_seconds": fit_seconds})
     if held:
         meta.update({"val_split": "val", "val_instances": [name for name, _ in held],
                      "val_sha256": _split_digest(held)})
@@ -95,6 +110,53 @@ def main_train(argv: list[str] | None = None) -> int:
     print(f"{cls.name}: trained on {len(chosen)} {family.name} train instances in "
           f"{time.perf_counter() - t0:.0f} s -> {args.output} (use: --set "
           f"weights={args.output})")
+    return 0
+
+
+def _train_from_store(args, cls, module, family, options: dict, kwargs: dict, meta: dict
+                      ) -> int:
+    """``--drop-instances``: build (or resume) the feature store, then fit from it."""
+    from ..learning.feature_store import StoreSpec, build_store
+
+    hooks = ("fit_store", "instance_features", "reference_basis", "N_REFERENCE",
+             "STORED_FEATURES")
+    missing = [h for h in hooks if not hasattr(module, h)]
+    if missing:
+        print(f"error: solver {cls.name!r} cannot train from a feature store (its module has "
+              f"no {', '.join(missing)}); train without --drop-instances", file=sys.stderr)
+        return 2
+    if args.data is not None:
+        print(f"error: --data {args.data}: with --drop-instances the instances are generated "
+              "into the feature store's own scratch folder and deleted; give the store with "
+              "--features DIR", file=sys.stderr)
+        return 2
+    root = args.features or Path("data") / family.name / "train-features"
+    spec = StoreSpec(solver=cls.name, module=cls.__module__, solver_version=cls.version,
+                     model=str(getattr(module, "MODEL", cls.version)),
+                     family=str(family.source), family_name=family.name, observe=options,
+                     reference_start=args.start)
+    plan = {**({"val": (0, args.val)} if args.val else {}), "train": (args.start, args.n)}
+    t0 = time.perf_counter()
+    try:
+        store = build_store(root, spec, plan, workers=args.workers,
+                            log=lambda line: print(line, flush=True))
+    except RuntimeError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    train = store.select("train", args.start, args.n)
+    held = store.select("val", 0, args.val) if args.val else []
+    t_fit = time.perf_counter()
+    weights = module.fit_store(store, train, held, **kwargs)
+    meta.update({"instances": [e.name for e in train], "train_store": store.record(train),
+                 "fit_seconds": time.perf_counter() - t_fit})
+    if held:
+        meta.update({"val_split": "val", "val_instances": [e.name for e in held],
+                     "val_store": store.record(held)})
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    module.save_weights(args.output, weights, meta)
+    print(f"{cls.name}: trained on {len(train)} {family.name} train instances from the "
+          f"feature store {root} in {time.perf_counter() - t0:.0f} s -> {args.output} (use: "
+          f"--set weights={args.output})")
     return 0
 
 
