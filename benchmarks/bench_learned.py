@@ -1,20 +1,27 @@
 """The learned solver against ``sensitivity`` and ``homogeneous`` on a family's test split.
 
-    python benchmarks/bench_learned.py --data DIR [DIR ...] [--n-val 50] [--sizes 25 50 ...]
-        [--reference ref.json] [--features feats.npz] [--previous old.npz]
+    python benchmarks/bench_learned.py --store STORE --data TEST_DIR [--n-val 50]
+        [--sizes 25 50 ...] [--reference ref.json] [--test-features test.npz]
+        [--choose-steps 1000 2500] [--time-at 20000] [--rows R.json]
         [--curve benchmarks/learning_curve.png]
+    python benchmarks/bench_learned.py --data DIR [DIR ...] [--features feats.npz] ...
 
-DIR: folders (or exported datasets) of generated samples of the family (modes only), e.g. a
-release's ``cube_defects-modes`` and extra train instances from ``vvtbench generate FAMILY
---split train --no-video``. The train split trains (nested subsets of the first N train
-instances, one network ensemble per size), the val split selects (the architecture was chosen
-on it), the test split is scored once per model. All solvers go through the normal plug-in
-path (``load_solver``) on the same true-mode observations. ``--reference`` keeps the
-per-instance scores and times of the slow reference solvers in a JSON file, so a second run
-reuses them; ``--features`` keeps every instance's per-voxel features (and the basis) in an
-``.npz``, so a second run trains without observing again. ``--previous`` scores an older
-weights file of the linear model ("modal-step-ridge") on the same val and test instances.
-Prints the learning-curve table (markdown) and writes the curve figure.
+STORE: a feature store of the family (``vvtbench train learned FAMILY --drop-instances
+--features STORE``): the train instances (nested subsets of the first N, one network ensemble
+per size, every size up to the largest stored) and the val instances come from it, featurized
+against its basis; TEST_DIR holds the test split's samples (modes only, e.g. a release's
+``cube_defects-modes``), featurized against the same basis. Without ``--store``, DIR folders
+hold all three splits as samples and ``--features`` keeps their features in an ``.npz``.
+
+The val split selects (the architecture and ``--choose-steps``: the bounded training cost,
+scored on val only), the test split is scored once per size, each mean with a bootstrap 95 %
+interval over the test instances. All solvers go through the normal plug-in path
+(``load_solver``) on the same true-mode observations. ``--reference`` keeps the per-instance
+scores and times of the slow reference solvers in a JSON file, so a second run reuses them.
+``--time-at N`` times one network's epoch on the stored train voxels repeated to N instances'
+worth (the fit time and peak memory at that size). ``--previous`` scores an older weights file
+of the linear model ("modal-step-ridge") on the same val and test instances. Prints the
+learning-curve table (markdown) and writes the curve figure.
 """
 
 from __future__ import annotations
@@ -122,10 +129,69 @@ def items_of(feats: dict, split: str) -> list[dict]:
             for X, w in zip(feats[f"{split}_X"], feats[f"{split}_w"], strict=True)]
 
 
+def store_features(store_dir: Path, roots: list[Path], n_val: int, cache: Path | None
+                   ) -> tuple:
+    """The store, its train and val entries, and the test split's features against the
+    store's basis (kept in ``cache``, keyed by the basis)."""
+    from vvtbench.learning.feature_store import FeatureStore
+
+    store = FeatureStore.open(store_dir)
+    basis_sha = store.meta["basis_sha256"]
+    test = None
+    if cache is not None and cache.is_file():
+        with np.load(cache, allow_pickle=False) as z:
+            if str(z["basis_sha256"]) == basis_sha:
+                test = {k: z[k] for k in ("X", "w", "names")}
+    if test is None:
+        t0 = time.perf_counter()
+        test = split_features(roots, "test", None, store.basis)
+        print(f"features of {len(test['X'])} test instances: {time.perf_counter() - t0:.0f} s",
+              flush=True)
+        if cache is not None:
+            from vvtbench.io import write_npz
+
+            write_npz(cache, {**test, "basis_sha256": np.array(basis_sha)})
+    return store, store.entries("train"), store.select("val", 0, n_val), test
+
+
+def time_at_scale(store, n_instances: int, members: int = 1) -> dict:
+    """One network trained for one epoch on the stored train voxels repeated to
+    ``n_instances`` instances' worth: seconds per epoch and Adam step, and peak memory."""
+    import resource
+
+    from solvers.learned import BATCH, HIDDEN, standardized
+    from vvtbench.learning.mlp import fit_mlp
+
+    X, y = [], []
+    entries = store.entries("train")
+    for _, a in store.iter_arrays(entries, ("X", "w")):
+        t = standardized(a["w"])
+        if t is not None:  # a uniform truth has no target: as many left out as in the store
+            X.append(a["X"])
+            y.append(t)
+    rows = int(n_instances * sum(len(t) for t in y) / len(entries))
+    reps = -(-rows // sum(len(t) for t in y))
+    X = np.tile(np.vstack(X), (reps, 1))[:rows]
+    y = np.tile(np.concatenate(y), reps)[:rows]
+    t0, c0 = time.perf_counter(), time.process_time()
+    for seed in range(members):
+        fit_mlp(X, y, hidden=HIDDEN, epochs=1, batch=BATCH, seed=seed)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    steps = members * -(-rows // BATCH)
+    return {"n_instances": n_instances, "rows": rows, "features_gb": X.nbytes / 2**30,
+            "epoch_seconds": wall / members, "epoch_cpu_seconds": cpu / members,
+            "seconds_per_step": wall / steps,
+            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}
+
+
 def main(argv: list[str] | None = None) -> int:
     from solvers.learned import (
+        EPOCHS,
+        MAX_STEPS,
+        MEMBERS,
         LearnedConfig,
         fit_features,
+        fit_store,
         load_weights,
         mean_nc,
         predict_w,
@@ -135,8 +201,20 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, nargs="+", required=True)
+    p.add_argument("--store", type=Path, default=None,
+                   help="feature store: train and val from it, test from --data")
+    p.add_argument("--test-features", type=Path, default=None,
+                   help="with --store: keep the test split's features in this .npz")
+    p.add_argument("--choose-steps", type=int, nargs="*", default=[],
+                   help="max_steps values fitted at the largest size and scored on val only")
+    p.add_argument("--time-at", type=int, nargs="*", default=[],
+                   help="instances' worth of voxels to time one epoch of one network on")
+    p.add_argument("--only-time", action="store_true", help="stop after --time-at")
+    p.add_argument("--plugin", type=int, default=5,
+                   help="test instances solved again through load_solver (0: none)")
     p.add_argument("--n-val", type=int, default=50)
-    p.add_argument("--sizes", type=int, nargs="+", default=[25, 50, 100, 200, 400, 800, 1600])
+    p.add_argument("--sizes", type=int, nargs="+",
+                   default=[25, 50, 100, 200, 400, 1000, 2000, 5000, 10000, 20000])
     p.add_argument("--reference", type=Path, default=None)
     p.add_argument("--references", nargs="*", default=["homogeneous", "sensitivity"])
     p.add_argument("--features", type=Path, default=None)
@@ -154,16 +232,47 @@ def main(argv: list[str] | None = None) -> int:
         report(json.loads(args.rows.read_text()), ref, args.curve)
         return 0
 
+    if args.store is not None:
+        for n in args.time_at:
+            from vvtbench.learning.feature_store import FeatureStore
+
+            timing = time_at_scale(FeatureStore.open(args.store), n)
+            print(f"one network, one epoch at {n} instances' voxels ({timing['rows']} rows, "
+                  f"{timing['features_gb']:.2f} GB of features): {timing['epoch_seconds']:.0f}"
+                  f" s wall, {timing['epoch_cpu_seconds']:.0f} s CPU, "
+                  f"{1000 * timing['seconds_per_step']:.1f} ms per step, peak RSS "
+                  f"{timing['peak_rss_gb']:.2f} GB", flush=True)
+        if args.only_time:
+            return 0
     ref = reference_scores(args.data, args.references, args.reference)
-    feats = cached_features(args.data, max(args.sizes), args.n_val, args.features)
-    basis = feats["basis"]
-    train, val, test = (items_of(feats, s) for s in ("train", "val", "test"))
-    sizes = [s for s in args.sizes if s <= len(train)]
-    if len(train) not in sizes:
-        sizes.append(len(train))
+    if args.store is not None:
+        store, train_entries, val_entries, test_feats = store_features(
+            args.store, args.data, args.n_val, args.test_features)
+        n_train, basis = len(train_entries), store.basis
+
+        def fitted(size: int, max_steps: int = MAX_STEPS) -> dict:
+            return fit_store(store, train_entries[:size], val_entries, MEMBERS, EPOCHS,
+                             max_steps)
+
+        test = items_of({"test_X": test_feats["X"], "test_w": test_feats["w"]}, "test")
+        val = None
+    else:
+        feats = cached_features(args.data, max(args.sizes), args.n_val, args.features)
+        basis = feats["basis"]
+        train, val, test = (items_of(feats, s) for s in ("train", "val", "test"))
+        n_train = len(train)
+
+        def fitted(size: int, max_steps: int = MAX_STEPS) -> dict:
+            weights = fit_features(train[:size], basis, MEMBERS, EPOCHS, max_steps)
+            weights["val_nc_w"] = mean_nc(weights, val)
+            return weights
+
+    sizes = [s for s in args.sizes if s <= n_train]
+    if n_train not in sizes:
+        sizes.append(n_train)
     rows = []
     args.tmp.mkdir(parents=True, exist_ok=True)
-    if args.previous is not None:
+    if args.previous is not None and val is not None:
         old, meta = load_weights(args.previous)
         old = {**old, "model": meta.get("model")}
         for split, items in (("val", val), ("test", test)):
@@ -174,56 +283,75 @@ def main(argv: list[str] | None = None) -> int:
         ref = {**ref, f"learned {meta.get('solver_version')}": {"nc_w": nc, "seconds": []}}
     for size in sizes:
         t0 = time.perf_counter()
-        weights = fit_features(train[:size], basis)
+        weights = fitted(size)
         fit_s = time.perf_counter() - t0
-        val_nc = mean_nc(weights, val)
         nc = [normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
-        rows.append({"n_train": size, "val_nc_w": val_nc, "nc_w": nc, "test": mean_ci(nc),
-                     "fit_seconds": fit_s})
-        print(f"n={size}: fit {fit_s:.0f} s val {val_nc:+.3f} test {rows[-1]['test'][0]:+.3f}",
-              flush=True)
+        rows.append({"n_train": size, "val_nc_w": weights["val_nc_w"], "nc_w": nc,
+                     "test": mean_ci(nc), "fit_seconds": fit_s,
+                     "epochs": int(weights["epochs"]), "n_voxels": int(weights["n_voxels"])})
+        print(f"n={size}: fit {fit_s:.0f} s ({weights['epochs']} epochs) val "
+              f"{weights['val_nc_w']:+.3f} test {rows[-1]['test'][0]:+.3f}", flush=True)
+        if args.rows is not None:
+            from vvtbench.io import write_json
+
+            write_json(args.rows, rows)
+    choices = []
+    for max_steps in args.choose_steps:  # val only: the test split is not scored
+        t0 = time.perf_counter()
+        alt = fitted(sizes[-1], max_steps)
+        choices.append({"n_train": sizes[-1], "max_steps": max_steps,
+                        "epochs": int(alt["epochs"]), "val_nc_w": alt["val_nc_w"],
+                        "fit_seconds": time.perf_counter() - t0})
+        print(f"n={sizes[-1]} max_steps={max_steps}: {alt['epochs']} epochs, fit "
+              f"{choices[-1]['fit_seconds']:.0f} s, val {alt['val_nc_w']:+.3f}", flush=True)
     # the largest model once more through the plug-in path: same scores, and the solve time
     path = save_weights(args.tmp / "learned.npz", weights, {"family": "bench",
                                                              "split": "train"})
     solver = load_solver("learned")(LearnedConfig(weights=str(path)))
     secs, cpu = [], []
-    for (problem, truth), expected in zip(_pairs(args.data, "test"), rows[-1]["nc_w"],
-                                          strict=True):
+    for (problem, truth), expected in zip(_pairs(args.data, "test", args.plugin),
+                                          rows[-1]["nc_w"], strict=False):
         t, c = time.perf_counter(), time.process_time()
         est = solver.solve(problem)
         secs.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
         assert abs(normalized_correlation(est.w, truth.w) - expected) < 1e-9
-    print(f"plug-in solve of the {rows[-1]['n_train']}-instance model: median "
-          f"{np.median(secs):.3f} s wall, {np.median(cpu):.3f} s CPU", flush=True)
+    if secs:
+        print(f"plug-in solve of the {rows[-1]['n_train']}-instance model ({len(secs)} test "
+              f"instances): median {np.median(secs):.3f} s wall, {np.median(cpu):.3f} s CPU",
+              flush=True)
     for row in rows:
-        row["seconds"] = float(np.median(secs))
-        row["cpu_seconds"] = float(np.median(cpu))
+        row["seconds"] = float(np.median(secs)) if secs else None
+        row["cpu_seconds"] = float(np.median(cpu)) if cpu else None
     if args.rows is not None:
         from vvtbench.io import write_json
 
         write_json(args.rows, rows)
+        if choices:
+            write_json(args.rows.with_name(args.rows.stem + "-choices.json"), choices)
     report(rows, ref, args.curve)
     return 0
 
 
 def report(rows: list[dict], ref: dict, curve: Path) -> None:
     """The learning-curve table (markdown, stdout) and figure."""
-    print("\n| train instances | fit (s) | val NC w | test NC w [95 % CI] | s / instance |")
-    print("|---|---|---|---|---|")
+    print("\n| train instances | epochs | fit (s) | val NC w | test NC w [95 % CI] | "
+          "s / instance |")
+    print("|---|---|---|---|---|---|")
     for r in rows:
         m, lo, hi = r["test"]
-        print(f"| {r['n_train']} | {r['fit_seconds']:.0f} | {r['val_nc_w']:+.3f} | "
-              f"{m:+.3f} [{lo:+.3f}, {hi:+.3f}] | {r['seconds']:.3f} |")
+        t = f"{r['cpu_seconds']:.3f} CPU" if r.get("cpu_seconds") is not None else ""
+        print(f"| {r['n_train']} | {r.get('epochs', '')} | {r['fit_seconds']:.0f} | "
+              f"{r['val_nc_w']:+.3f} | {m:+.3f} [{lo:+.3f}, {hi:+.3f}] | {t} |")
     for name, d in ref.items():
         m, lo, hi = mean_ci(d["nc_w"])
         k = len(d["nc_w"])
         t = f"{np.median(d['seconds']):.3f}" if d["seconds"] else ""
-        print(f"| `{name}` ({k} test instances) | | | {m:+.3f} [{lo:+.3f}, "
+        print(f"| `{name}` ({k} test instances) | | | | {m:+.3f} [{lo:+.3f}, "
               f"{hi:+.3f}] | {t} |")
         if rows and k < len(rows[-1]["nc_w"]):
             m, lo, hi = mean_ci(rows[-1]["nc_w"][:k])
-            print(f"| learned ({rows[-1]['n_train']}) on the same {k} | | | {m:+.3f} "
+            print(f"| learned ({rows[-1]['n_train']}) on the same {k} | | | | {m:+.3f} "
                   f"[{lo:+.3f}, {hi:+.3f}] | |")
     plot_curve(rows, ref, curve)
     print(f"figure: {curve}")
@@ -237,12 +365,14 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(7.5, 5))
     n = [r["n_train"] for r in rows]
     m = np.array([r["test"] for r in rows])
+    k = len(rows[-1]["nc_w"]) if rows else 0
+    ax.fill_between(n, m[:, 1], m[:, 2], color="C0", alpha=0.18, lw=0)
     ax.errorbar(n, m[:, 0], yerr=[m[:, 0] - m[:, 1], m[:, 2] - m[:, 0]], marker="o",
-                capsize=3, label="learned (test, 95 % CI)")
-    ax.plot(n, [r["val_nc_w"] for r in rows], "s--", color="0.5", label="learned (val)")
+                capsize=3, color="C0", label=f"learned (test mean, {k} instances)")
+    ax.plot(n, [r["val_nc_w"] for r in rows], "s--", color="0.5", label="learned (val mean)")
     colors = {"sensitivity": "C3", "homogeneous": "k", "learned 2.0.0": "C2"}
     for name, d in ref.items():
         mean, lo, hi = mean_ci(d["nc_w"])
@@ -252,10 +382,11 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
     ax.set_xscale("log")
     ax.set_xticks(n, [str(k) for k in n])
     ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-    ax.set_xlabel("train instances")
+    ax.set_xlabel("train instances\nbars and bands: bootstrap 95 % interval of the mean over "
+                  "the test instances (2000 resamples)", fontsize=9)
     ax.set_ylabel("mean NC of w (test split, true modes)")
     ax.set_title("learned solver: cube_defects learning curve")
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="upper left")
     ax.grid(alpha=0.3)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -79,7 +79,7 @@ class LearnedConfig:
         "help": "training only: networks in the ensemble (member i seeded with i)"})
     epochs: int = field(default=15, metadata={
         "help": "training only: passes of Adam over the train voxels per network"})
-    max_steps: int = field(default=20000, metadata={
+    max_steps: int = field(default=10000, metadata={
         "help": "training only: Adam steps per network at most (fewer epochs on a train set "
                 "larger than this many minibatches of 2048 voxels: bounds the fit time)"})
 
@@ -136,7 +136,7 @@ HIDDEN = (64, 32)  # chosen on val: wider (128, 64) and deeper (64, 64, 32) nets
 EPOCHS = 15
 MEMBERS = 3
 BATCH = 2048  # voxels per Adam step
-MAX_STEPS = 20000  # Adam steps per network at most: about 4 epochs of 20 000 cube instances
+MAX_STEPS = 10000  # Adam steps per network at most: 2 epochs of 20 000 cube instances
 STORED_FEATURES = ("X", "w")  # what a feature store keeps of an instance_features item
 
 

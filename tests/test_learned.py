@@ -441,12 +441,12 @@ def test_a_killed_store_build_resumes_without_generating_finished_instances(tmp_
 
 
 def test_training_cost_is_bounded_by_a_number_of_steps():
-    from solvers.learned import BATCH, bounded_epochs
+    from solvers.learned import BATCH, MAX_STEPS, bounded_epochs
 
     assert bounded_epochs(668 * 512) == 15  # the shipped model's data: unchanged
-    assert bounded_epochs(20000 * 512, 15, 20000) == 20000 // -(-20000 * 512 // BATCH)
-    assert bounded_epochs(20000 * 512, 15, 100) == 1
+    assert bounded_epochs(20000 * 381, 15, 20000) == 5  # 3 721 steps an epoch
+    assert bounded_epochs(20000 * 381) == 2 and bounded_epochs(20000 * 512, 15, 100) == 1
     for n in (1000, 5000, 20000, 80000, 200000):
         epochs = bounded_epochs(n * 512)
-        assert epochs * -(-n * 512 // BATCH) <= 20000 or epochs == 1
+        assert epochs * -(-n * 512 // BATCH) <= MAX_STEPS or epochs == 1
     assert bounded_epochs(1000 * 512) == 15 and bounded_epochs(200000 * 512) == 1
