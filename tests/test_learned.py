@@ -364,7 +364,7 @@ def test_only_the_stores_own_scratch_instances_are_deleted(tmp_path):
     assert not user.exists()
 
 
-@pytest.mark.parametrize("change", ["observe", "basis", "data"])
+@pytest.mark.parametrize("change", ["observe", "basis", "data", "not a store"])
 def test_a_store_of_other_options_or_basis_is_refused_in_one_line(trained, tmp_path, change,
                                                                   capsys):
     import shutil
@@ -381,15 +381,20 @@ def test_a_store_of_other_options_or_basis_is_refused_in_one_line(trained, tmp_p
         with np.load(store / "basis.npz") as z:
             basis = z["basis"]
         write_npz(store / "basis.npz", {"basis": basis[:, ::-1].copy()})
-    else:
+    elif change == "data":
         opts += ["--data", str(tmp_path / "train")]
+    else:
+        shutil.rmtree(store)
+        store.mkdir()
+        (store / "results.csv").write_text("a user's file")
     before = _tree(store)
     capsys.readouterr()
     assert main(["train", "learned", str(trained["family"]), *opts, "--drop-instances",
                  "--features", str(store), "-o", str(tmp_path / "w.npz")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ")
-    assert {"observe": "key 'observe'", "basis": "basis", "data": "--data"}[change] in err
+    assert {"observe": "key 'observe'", "basis": "basis", "data": "--data",
+            "not a store": "not a feature store"}[change] in err
     assert _tree(store) == before and not (tmp_path / "w.npz").exists()
     assert not (tmp_path / "train").exists()
 
