@@ -356,7 +356,7 @@ def test_only_the_stores_own_scratch_instances_are_deleted(tmp_path):
     with pytest.raises(FeatureStoreError, match="not an instance this store generated"):
         drop_instance(tmp_path, "train", "tinycube-train-00003")  # no scratch mark
     (tmp_path / SCRATCH / SCRATCH_MARK).touch()
-    for name in ("../../x", "tinycube-val-00003", "notes"):
+    for name in ("../../x", "../tinycube-train-00003", "tinycube-val-00003", "notes"):
         with pytest.raises(FeatureStoreError):
             drop_instance(tmp_path, "train", name)
     assert user.is_dir()

@@ -57,7 +57,8 @@ IDENTITY = ("solver", "solver_version", "model", "family", "family_sha256", "obs
 #: Disk one modes-only instance may take in the scratch folder at its peak (measured 2.5-3.5
 #: MB for cube_defects).
 INSTANCE_BYTES = 4 * 2**20
-_NAME = re.compile(r"^(?P<family>.+)-(?P<split>train|val|test)-(?P<index>\d{5,})$")
+_NAME = re.compile(r"^(?P<family>[A-Za-z0-9][A-Za-z0-9_.-]*)-(?P<split>train|val|test)-"
+                   r"(?P<index>\d{5,})$")
 
 
 class FeatureStoreError(ValueError):
@@ -271,8 +272,6 @@ def featurize_instance(task: dict) -> dict:
     ``task``: ``job`` (a :func:`vvtbench.generate_jobs.generate_instance` job), ``module``,
     ``basis`` (path) and ``basis_sha256``, ``observe`` (options), ``index``.
     """
-    import resource
-
     from ..observe import ObserveOptions, observe
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -295,7 +294,6 @@ def featurize_instance(task: dict) -> dict:
         out.update(status="error", error=f"{type(error).__name__}: {error}")
     out["seconds"] = time.perf_counter() - t0
     out["cpu_seconds"] = time.process_time() - c0
-    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return out
 
 
