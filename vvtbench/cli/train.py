@@ -34,7 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="inference voxel grid (default 8 8 8; drums 20 20)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="training option of the solver (e.g. members=3)")
-    p.add_argument("--workers", type=positive_int, default=1, help="generation workers (1)")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="generation workers, with --drop-instances also featurizing (1)")
     p.add_argument("--drop-instances", action="store_true",
                    help="featurize and drop: generate each train and val instance into the "
                    "feature store's scratch folder, keep only its training features (a "
