@@ -106,11 +106,15 @@ def main_train(argv: list[str] | None = None) -> int:
     if held:
         meta.update({"val_split": "val", "val_instances": [name for name, _ in held],
                      "val_sha256": _split_digest(held)})
+    return _save(args, cls, module, weights, meta,
+                 f"{len(chosen)} {family.name} train instances", t0)
+
+
+def _save(args, cls, module, weights, meta: dict, what: str, t0: float) -> int:
     args.output.parent.mkdir(parents=True, exist_ok=True)
     module.save_weights(args.output, weights, meta)
-    print(f"{cls.name}: trained on {len(chosen)} {family.name} train instances in "
-          f"{time.perf_counter() - t0:.0f} s -> {args.output} (use: --set "
-          f"weights={args.output})")
+    print(f"{cls.name}: trained on {what} in {time.perf_counter() - t0:.0f} s -> "
+          f"{args.output} (use: --set weights={args.output})")
     return 0
 
 
@@ -153,12 +157,8 @@ def _train_from_store(args, cls, module, family, options: dict, kwargs: dict, me
     if held:
         meta.update({"val_split": "val", "val_instances": [e.name for e in held],
                      "val_store": store.record(held)})
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    module.save_weights(args.output, weights, meta)
-    print(f"{cls.name}: trained on {len(train)} {family.name} train instances from the "
-          f"feature store {root} in {time.perf_counter() - t0:.0f} s -> {args.output} (use: "
-          f"--set weights={args.output})")
-    return 0
+    return _save(args, cls, module, weights, meta,
+                 f"{len(train)} {family.name} train instances from the feature store {root}", t0)
 
 
 def _chosen(data: Path, family: str, split: str, start: int, n: int) -> list:
