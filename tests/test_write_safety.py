@@ -120,6 +120,25 @@ def test_generate_refuses_up_front_a_disk_without_room(tmp_path, monkeypatch, ca
     assert not out.exists()
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_generate_asks_room_for_finished_samples_and_the_segments_in_flight(
+        tmp_path, monkeypatch, capsys, workers):
+    from vvtbench.cli.generate import disk_bytes, raw_video_bytes
+    from vvtbench.families import draw
+
+    scene = draw("cube_defects", "val", 0)
+    peak, raw = disk_bytes(scene, True, None), raw_video_bytes(scene, True, None)
+    need = 3 * (peak - raw) + workers * raw  # not 3 peaks: segments go once joined
+    assert raw > 0 and need < 3 * peak
+    _disk_with(monkeypatch, need - 1)
+    out = tmp_path / "out"
+    assert main(["generate", "cube_defects", "--split", "val", "--n", "3", "--workers",
+                 str(workers), "-o", str(out), "--no-progress"]) == 2
+    line = _one_line(capsys)
+    assert f"needs about {need:,} bytes" in line and "3 sample(s)" in line, line
+    assert not out.exists()
+
+
 def test_the_generate_estimate_bounds_what_is_written(tiny):
     from vvtbench.cli.generate import disk_bytes
     from vvtbench.scene import parse_scene

@@ -64,16 +64,36 @@ def render_memory_bytes(height: int, width: int, supersample: int) -> int:
     return BASE_MEMORY + BYTES_PER_SUBPIXEL * height * width * supersample**2
 
 
-def disk_bytes(scene, video: bool, consumer_crf: int | None) -> int:
-    """Free space the generation of ``scene`` needs at its peak: the video segments and the
-    joined video (each at most the raw frames' size: the lossless codec stores rendered
-    speckle at about 0.6 of it, noise at up to 1), the dense image modes and 4 MiB."""
+def raw_video_bytes(scene, video: bool, consumer_crf: int | None) -> int:
+    """The raw frames' size of ``scene``'s video (0 without video): a bound on the encoded
+    video, which the lossless codec stores at about 0.6 of it for rendered speckle and at up
+    to 1 for noise."""
+    if not video:
+        return 0
     H, W = scene.camera.resolution
     frames = round(scene.simulation.duration * scene.simulation.fps)
-    modes = scene.simulation.n_modes * H * W * 2 * 4
     crf = consumer_crf if consumer_crf is not None else scene.render.consumer_crf
-    raw = frames * H * W * (1 if crf is not None else 2) if video else 0
-    return 2 * raw + modes + 4 * 2**20
+    return frames * H * W * (1 if crf is not None else 2)
+
+
+def disk_bytes(scene, video: bool, consumer_crf: int | None) -> int:
+    """Free space the generation of ``scene`` needs at its peak: the video segments and the
+    joined video (each at most :func:`raw_video_bytes`), the dense image modes and 4 MiB. The
+    segments go once the video is joined: a finished sample keeps one raw size less."""
+    H, W = scene.camera.resolution
+    modes = scene.simulation.n_modes * H * W * 2 * 4
+    return 2 * raw_video_bytes(scene, video, consumer_crf) + modes + 4 * 2**20
+
+
+def total_disk_bytes(peaks: list[int], raws: list[int], workers: int) -> int:
+    """Free space ``len(peaks)`` samples need when ``workers`` are generated at a time: each
+    finished sample's size, and the segments of the ``workers`` largest in flight.
+
+    >>> total_disk_bytes([30, 30, 30], [10, 10, 10], workers=1)
+    70
+    """
+    kept = sum(p - r for p, r in zip(peaks, raws, strict=True))
+    return kept + sum(sorted(raws, reverse=True)[:max(1, workers)])
 
 
 def _physical_memory() -> int:
@@ -120,9 +140,13 @@ def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
                 "or 'render.supersample', or use fewer --workers")
     todo = [args.overwrite or not (args.out / str(job.get("name") or job["scene"]["name"])
                                    / "manifest.json").is_file() for job in jobs]
-    per_scene = [disk_bytes(sc, not args.no_video, args.consumer_crf) for sc in scenes]
-    total = sum(b for b, t in zip(per_scene, todo, strict=False) if t) \
-        if len(scenes) == len(jobs) else per_scene[0] * sum(todo)
+    sizes = [(disk_bytes(sc, not args.no_video, args.consumer_crf),
+              raw_video_bytes(sc, not args.no_video, args.consumer_crf)) for sc in scenes]
+    sizes = ([b for b, t in zip(sizes, todo, strict=False) if t] if len(scenes) == len(jobs)
+             else sizes[:1] * sum(todo))
+    in_flight = len(sizes) if args.scheduler is not None else workers  # a cluster: all
+    total = total_disk_bytes([p for p, _ in sizes], [r for _, r in sizes], in_flight) \
+        if sizes else 0
     if total:
         check_free_space(args.out, total, f"{sum(todo)} sample(s)")
 
