@@ -294,3 +294,24 @@ def test_files_of_the_base_scene_stay_found(tmp_path):
     scene = fam.draw(tmp_path / "fam" / "tapped.toml", "val", 0)
     path = Path(scene.excitation.signal.path)
     assert path.is_absolute() and path.is_file()
+
+
+@pytest.mark.parametrize("argv", [
+    ["generate", "cube_defects", "--split", "val", "--n", "99999999999999999999"],
+    ["generate", "cube_defects", "--split", "val", "--start", "4294967290", "--n", "10"],
+    ["train", "learned", "cube_defects", "--n", "99999999999999999999", "--drop-instances"],
+    ["train", "learned", "cube_defects", "--start", "4294967295", "--n", "2"],
+])
+def test_a_huge_or_out_of_range_instance_count_is_one_line_before_any_work(argv, tmp_path,
+                                                                           capsys):
+    """Not a list of 10^20 jobs: refused up front, nothing written."""
+    from vvtbench.cli import main
+
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as stop:
+        code = main([*argv, "-o", str(out if argv[0] == "generate" else out / "w.npz")])
+        raise SystemExit(code)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and ("--n" in err[0] or "--start" in err[0]), err
+    assert not out.exists()

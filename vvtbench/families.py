@@ -68,6 +68,14 @@ class FamilyError(SceneError):
     """A family file is malformed or cannot be drawn: one line naming the file, key, allowed."""
 
 
+def check_index_range(start: int, n: int) -> None:
+    """Refuse instances ``start .. start + n - 1`` beyond a split's last index
+    (:data:`MAX_INDEX`)."""
+    if int(start) + int(n) - 1 > MAX_INDEX:
+        raise FamilyError(f"--start {start} --n {n}: the last instance would be "
+                          f"{int(start) + int(n) - 1}; allowed: indices 0..{MAX_INDEX}")
+
+
 # --------------------------------------------------------------------------- distributions
 @dataclass(frozen=True)
 class Dist:

@@ -64,6 +64,9 @@ def bounded(kind: type = float, *, gt: float | None = None, ge: float | None = N
 
 
 positive_int = bounded(int, ge=1)
+#: family instances one command may ask for
+MAX_INSTANCES = 1_000_000
+instance_count = bounded(int, ge=1, le=MAX_INSTANCES)
 nonnegative_int = bounded(int, ge=0)
 positive_float = bounded(float, gt=0)
 nonnegative_float = bounded(float, ge=0)

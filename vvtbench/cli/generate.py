@@ -39,16 +39,6 @@ def _positive(text: str) -> int:
     return n
 
 
-def _non_negative(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = -1
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
-    return n
-
-
 def _workers(text: str) -> int:
     from ..bench.executors import max_workers
 
@@ -153,6 +143,9 @@ def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """The ``generate`` parser (fills ``parser`` if given, e.g. a sub-command's)."""
+    from ..families import MAX_INDEX
+    from . import bounded, instance_count
+
     p = parser or argparse.ArgumentParser(
         prog="vvtbench generate", description="Render scenes into sample folders "
         "(video + ground truth); see docs/dataset.md and docs/families.md.")
@@ -163,8 +156,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     fam = p.add_argument_group("scene families (docs/families.md)")
     fam.add_argument("--split", choices=("train", "val", "test"),
                      help="family split to draw instances from")
-    fam.add_argument("--n", type=_positive, help="number of family instances")
-    fam.add_argument("--start", type=_non_negative, default=0,
+    fam.add_argument("--n", type=instance_count, help="number of family instances")
+    fam.add_argument("--start", type=bounded(int, ge=0, le=MAX_INDEX), default=0,
                      help="first instance index (default 0): instances START..START+N-1")
     length = p.add_mutually_exclusive_group()
     length.add_argument("--frames", type=int, help="number of video frames (overrides duration)")
@@ -186,7 +179,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def _jobs(args: argparse.Namespace) -> list[dict]:
-    from ..families import is_family, load_family
+    from ..families import check_index_range, is_family, load_family
     from ..scene import SceneError
     from ..scenes_resolve import resolve_scenes, with_overrides
 
@@ -201,6 +194,7 @@ def _jobs(args: argparse.Namespace) -> list[dict]:
             raise SceneError(f"{args.scene}: a scene family needs --split (train, val or test) "
                              "and --n (number of instances)")
         fam = load_family(args.scene)
+        check_index_range(args.start, args.n)
         return [{**common, "family": fam.source, "split": args.split, "index": i,
                  "name": f"{fam.name}-{args.split}-{i:05d}", "overrides": overrides}
                 for i in range(args.start, args.start + args.n)]

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from . import bounded, positive_int
+from . import MAX_INSTANCES, bounded, instance_count, positive_int
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,9 +23,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "(shipped: learned)")
     p.add_argument("family", help="a scene family (scenes/families/NAME.toml) or its file")
     p.add_argument("-o", "--output", required=True, type=Path, help="the weights file (.npz)")
-    p.add_argument("--n", type=positive_int, default=200, help="train instances (200)")
-    p.add_argument("--start", type=bounded(int, ge=0), default=0, help="first instance (0)")
-    p.add_argument("--val", type=bounded(int, ge=0), default=50,
+    from ..families import MAX_INDEX
+
+    p.add_argument("--n", type=instance_count, default=200, help="train instances (200)")
+    p.add_argument("--start", type=bounded(int, ge=0, le=MAX_INDEX), default=0,
+                   help="first instance (0)")
+    p.add_argument("--val", type=bounded(int, ge=0, le=MAX_INSTANCES), default=50,
                    help="val instances for model selection (50; 0: none)")
     p.add_argument("--data", type=Path, default=None,
                    help="where the train instances are generated (default data/FAMILY/train)")
@@ -49,11 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main_train(argv: list[str] | None = None) -> int:
     from ..data import iter_instances
-    from ..families import load_family
+    from ..families import check_index_range, load_family
     from ..plugins import load_solver, parse_overrides
     from .generate import main as generate_main
 
     args = build_parser().parse_args(argv)
+    check_index_range(args.start, args.n)
     cls = load_solver(args.solver)
     module = importlib.import_module(cls.__module__)
     if not (hasattr(module, "fit") and hasattr(module, "save_weights")):
