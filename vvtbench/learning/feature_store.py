@@ -361,7 +361,7 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
     count = max(1, min(int(hooks.N_REFERENCE), int(n_train)))
     indices = range(spec.reference_start, spec.reference_start + count)
     jobs = [_job(spec, root, "train", i, executor.slots) for i in indices]
-    results = [f.result() for f in _run(executor, _generate, jobs)]
+    results = _run(executor, _generate, jobs)
     _raise_failed(results)
     options = ObserveOptions.resolve(None, **spec.observe)
     basis = hooks.reference_basis([observe(Path(r["path"]), options)[0]
@@ -380,12 +380,9 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
 
 
 def _run(executor, fn, items: list) -> list:
+    """``fn`` of every item on ``executor``, in the items' order."""
     futures = [executor.submit(fn, item) for item in items]
-    pending = list(futures)
-    while pending:
-        done = executor.wait_any(pending)
-        pending = [f for f in pending if f not in done]
-    return futures
+    return [f.result() for f in futures]
 
 
 def _raise_failed(results: list[dict]) -> None:
@@ -494,7 +491,7 @@ def build_store(root: str | Path, spec: StoreSpec, plan: dict[str, tuple[int, in
                           "module": spec.module, "basis": str(root / BASIS_FILE),
                           "basis_sha256": store.meta["basis_sha256"],
                           "observe": spec.observe} for i in chunk]
-                results = [f.result() for f in _run(executor, featurize_instance, tasks)]
+                results = _run(executor, featurize_instance, tasks)
                 done = [r for r in results if r["status"] != "error"]
                 if done:
                     shard = _write_shard(store, split, done, keys)
