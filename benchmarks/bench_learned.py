@@ -288,7 +288,8 @@ def main(argv: list[str] | None = None) -> int:
         nc = [normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
         rows.append({"n_train": size, "val_nc_w": weights["val_nc_w"], "nc_w": nc,
                      "test": mean_ci(nc), "fit_seconds": fit_s,
-                     "epochs": int(weights["epochs"]), "n_voxels": int(weights["n_voxels"])})
+                     "epochs": float(weights["epochs"]), "steps": int(weights["steps"]),
+                     "n_voxels": int(weights["n_voxels"])})
         print(f"n={size}: fit {fit_s:.0f} s ({weights['epochs']} epochs) val "
               f"{weights['val_nc_w']:+.3f} test {rows[-1]['test'][0]:+.3f}", flush=True)
         if args.rows is not None:
@@ -300,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         alt = fitted(sizes[-1], max_steps)
         choices.append({"n_train": sizes[-1], "max_steps": max_steps,
-                        "epochs": int(alt["epochs"]), "val_nc_w": alt["val_nc_w"],
+                        "epochs": float(alt["epochs"]), "steps": int(alt["steps"]),
+                        "val_nc_w": alt["val_nc_w"],
                         "fit_seconds": time.perf_counter() - t0})
         print(f"n={sizes[-1]} max_steps={max_steps}: {alt['epochs']} epochs, fit "
               f"{choices[-1]['fit_seconds']:.0f} s, val {alt['val_nc_w']:+.3f}", flush=True)

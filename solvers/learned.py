@@ -35,7 +35,6 @@ information) are still read and solved with their model.
 
 from __future__ import annotations
 
-import itertools
 import json
 import time
 import zipfile
@@ -80,8 +79,9 @@ class LearnedConfig:
     epochs: int = field(default=15, metadata={
         "help": "training only: passes of Adam over the train voxels per network"})
     max_steps: int = field(default=10000, metadata={
-        "help": "training only: Adam steps per network at most (fewer epochs on a train set "
-                "larger than this many minibatches of 2048 voxels: bounds the fit time)"})
+        "help": "training only: Adam steps per network at most (the epochs are cut short "
+                "on a train set larger than this many minibatches of 2048 voxels: bounds "
+                "the fit time)"})
 
 
 def features(problem: InverseProblem) -> tuple[np.ndarray, float]:
@@ -136,16 +136,47 @@ HIDDEN = (64, 32)  # chosen on val: wider (128, 64) and deeper (64, 64, 32) nets
 EPOCHS = 15
 MEMBERS = 3
 BATCH = 2048  # voxels per Adam step
-MAX_STEPS = 10000  # Adam steps per network at most: 2 epochs of 20 000 cube instances
+MAX_STEPS = 10000  # Adam steps per network at most: 2.7 epochs of 20 000 cube instances
 STORED_FEATURES = ("X", "w")  # what a feature store keeps of an instance_features item
 
 
 def reference_basis(problems) -> np.ndarray:
-    """The modal basis the weights carry: the low homogeneous modes of a few train instances
+    """The modal basis of one mesh: the low homogeneous modes of a few train instances
     (:func:`vvtbench.learning.modal_features.reference_basis`)."""
     from vvtbench.learning.modal_features import reference_basis as basis_of
 
     return basis_of(problems)
+
+
+def mesh_key(problem: InverseProblem) -> str:
+    """The mesh a basis belongs to (:func:`vvtbench.learning.modal_features.mesh_key`)."""
+    from vvtbench.learning.modal_features import mesh_key as key_of
+
+    return key_of(problem.model)
+
+
+def basis_entries(bases: dict[str, np.ndarray]) -> dict:
+    """What the weights keep of the bases of their meshes (``mesh_key: basis``, in the order
+    the train split first showed each mesh): ``basis`` for one mesh, ``basis_0``,
+    ``basis_1``... for several, and ``mesh_keys``."""
+    keys = list(bases)
+    if len(keys) == 1:
+        return {"basis": bases[keys[0]], "mesh_keys": keys}
+    return {"mesh_keys": keys, **{f"basis_{i}": bases[k] for i, k in enumerate(keys)}}
+
+
+def basis_for(weights: dict, problem: InverseProblem) -> np.ndarray:
+    """The weights' basis of the problem's mesh. Weights without ``mesh_keys`` carry one
+    basis, checked only by its number of free DOFs (:func:`ritz_modes`)."""
+    keys = weights.get("mesh_keys")
+    if not keys:
+        return weights["basis"]
+    key = mesh_key(problem)
+    if key not in keys:
+        raise ValueError(f"learned: the problem's mesh ({key}) is none of the {len(keys)} "
+                         f"the weights were trained on ({', '.join(keys)}): weights of another "
+                         "family, or a mesh its train split never showed")
+    return weights["basis"] if len(keys) == 1 else weights[f"basis_{keys.index(key)}"]
 
 
 def voxel_features(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, float]:
@@ -198,37 +229,46 @@ def instance_features(problem: InverseProblem, truth, basis: np.ndarray) -> dict
     return feature_item(voxel_features(problem, basis)[0], truth.w)
 
 
-def bounded_epochs(n_voxels: int, epochs: int = EPOCHS, max_steps: int = MAX_STEPS) -> int:
-    """Epochs a network is trained for on ``n_voxels`` samples: ``epochs``, fewer when they
-    would take more than ``max_steps`` minibatches (at least one epoch)."""
+def bounded_steps(n_voxels: int, epochs: int = EPOCHS, max_steps: int = MAX_STEPS) -> int:
+    """Adam steps a network is trained for on ``n_voxels`` samples: ``epochs`` passes of
+    minibatches, or ``max_steps`` if fewer (the last pass then cut short).
+
+    >>> bounded_steps(500 * 512), bounded_steps(20000 * 381)  # the shipped cube fit; 20 000
+    (1875, 10000)
+    """
     per_epoch = max(1, -(-int(n_voxels) // BATCH))
-    return max(1, min(int(epochs), int(max_steps) // per_epoch))
+    return min(int(epochs) * per_epoch, int(max_steps))
 
 
-def fit_arrays(X: np.ndarray, y: np.ndarray, basis: np.ndarray, n_instances: int,
-               n_used: int, members: int = MEMBERS, epochs: int = EPOCHS,
+def fit_arrays(X: np.ndarray, y: np.ndarray, basis: np.ndarray | dict[str, np.ndarray],
+               n_instances: int, n_used: int, members: int = MEMBERS, epochs: int = EPOCHS,
                max_steps: int = MAX_STEPS) -> dict:
     """Weights of the per-voxel network ensemble from stacked per-voxel features ``X`` and
     targets ``y`` of ``n_used`` instances (of ``n_instances``; member i seeded with i),
-    trained for :func:`bounded_epochs` epochs."""
+    trained for :func:`bounded_steps` Adam steps. ``basis``: one basis, or the basis of
+    each mesh (:func:`basis_entries`)."""
     from vvtbench.learning.mlp import fit_mlp
 
     if members < 1 or epochs < 1 or max_steps < 1:
         raise ValueError("learned: members, epochs and max_steps must be >= 1, got "
                          f"{members}, {epochs}, {max_steps}")
-    run = bounded_epochs(len(X), epochs, max_steps)
-    weights = {"model": MODEL, "basis": basis, "n_instances": int(n_instances),
+    steps = bounded_steps(len(X), epochs, max_steps)
+    per_epoch = max(1, -(-len(X) // BATCH))
+    bases = basis_entries(basis) if isinstance(basis, dict) else {"basis": basis}
+    weights = {"model": MODEL, **bases, "n_instances": int(n_instances),
                "n_used": int(n_used), "n_voxels": int(len(X)), "members": int(members),
-               "hidden": list(HIDDEN), "epochs": run, "epochs_asked": int(epochs),
+               "hidden": list(HIDDEN), "epochs": round(steps / per_epoch, 3),
+               "steps": steps, "epochs_asked": int(epochs),
                "max_steps": int(max_steps), "n_slots": N_SLOTS,
                "target": "standardized w per instance"}
     for i in range(members):
-        params = fit_mlp(X, y, hidden=HIDDEN, epochs=run, batch=BATCH, seed=i)
+        params = fit_mlp(X, y, hidden=HIDDEN, batch=BATCH, seed=i, steps=steps)
         weights.update({f"m{i}_{k}": np.asarray(v) for k, v in params.items()})
     return weights
 
 
-def fit_features(items: list[dict], basis: np.ndarray, members: int = MEMBERS,
+def fit_features(items: list[dict], basis: np.ndarray | dict[str, np.ndarray],
+                 members: int = MEMBERS,
                  epochs: int = EPOCHS, max_steps: int = MAX_STEPS) -> dict:
     """Weights of the per-voxel network ensemble from :func:`instance_features` items
     (:func:`fit_arrays`); instances with a uniform truth carry no target and are left out."""
@@ -267,7 +307,9 @@ def fit_store(store, train: list, val: list = (), members: int = MEMBERS,
         y[at:at + len(target)] = target
         at += len(target)
     n_used = sum(t is not None for t in targets)
-    weights = fit_arrays(X, y, store.basis, len(train), n_used, members, epochs, max_steps)
+    key = store.meta.get("mesh_key")
+    basis = {key: store.basis} if key else store.basis
+    weights = fit_arrays(X, y, basis, len(train), n_used, members, epochs, max_steps)
     del X, y
     held = [feature_item(a["X"], a["w"]) for _, a in store.iter_arrays(list(val), ("X", "w"))]
     weights["n_val"] = len(held)
@@ -314,22 +356,50 @@ def mean_nc(weights: dict, items: list[dict]) -> float:
                           for it in items]))
 
 
+def featurize_by_mesh(pairs: Iterable) -> tuple[list[dict], dict[str, np.ndarray]]:
+    """Features of every ``(problem, truth)`` pair in order, and the basis of every mesh
+    among them (in the order the pairs first show each mesh). A mesh's basis is fixed by its
+    first ``N_REFERENCE`` instances (all of them if fewer), which wait unfeaturized until
+    then: for a family of one mesh, its first ``N_REFERENCE`` instances; of several (square
+    and circular drums), each mesh's own."""
+    bases: dict[str, np.ndarray] = {}
+    waiting: dict[str, list] = {}
+    items: dict[int, dict] = {}
+
+    def fix(key: str) -> None:
+        group = waiting.pop(key)
+        bases[key] = reference_basis([problem for _, problem, _ in group])
+        for i, problem, truth in group:
+            items[i] = instance_features(problem, truth, bases[key])
+
+    first: dict[str, int] = {}
+    for i, (problem, truth) in enumerate(pairs):
+        key = mesh_key(problem)
+        first.setdefault(key, i)
+        if key in bases:
+            items[i] = instance_features(problem, truth, bases[key])
+            continue
+        waiting.setdefault(key, []).append((i, problem, truth))
+        if len(waiting[key]) == N_REFERENCE:
+            fix(key)
+    for key in list(waiting):
+        fix(key)
+    return [items[i] for i in sorted(items)], {k: bases[k] for k in sorted(bases, key=first.get)}
+
+
 def fit(pairs: Iterable, members: int = MEMBERS, epochs: int = EPOCHS,
         val: Iterable = (), max_steps: int = MAX_STEPS) -> dict:
     """Weights from ``(problem, truth)`` pairs of a family's train split; the mean NC w on
-    the ``val`` pairs is recorded (the architecture was chosen on the val split)."""
-    pairs = iter(pairs)
-    first = list(itertools.islice(pairs, N_REFERENCE))
-    if not first:
-        raise ValueError("no training instances")
+    the ``val`` pairs is recorded (the architecture was chosen on the val split). A family
+    of several meshes gets one basis per mesh (:func:`featurize_by_mesh`)."""
     if members < 1 or epochs < 1 or max_steps < 1:
         raise ValueError("learned: members, epochs and max_steps must be >= 1, got "
                          f"{members}, {epochs}, {max_steps}")
-    basis = reference_basis([problem for problem, _ in first])
-    train = [instance_features(problem, truth, basis)
-             for problem, truth in itertools.chain(first, pairs)]
-    held = [instance_features(p, t, basis) for p, t in val]
-    weights = fit_features(train, basis, members, epochs, max_steps)
+    train, bases = featurize_by_mesh(pairs)
+    if not train:
+        raise ValueError("no training instances")
+    weights = fit_features(train, bases, members, epochs, max_steps)
+    held = [instance_features(p, t, basis_for(weights, p)) for p, t in val]
     weights["n_val"] = len(held)
     weights["val_nc_w"] = mean_nc(weights, held) if held else None
     return weights
@@ -408,9 +478,10 @@ class LearnedSolver:
         wts, meta = load_weights(path)
         model = meta.get("model", LEGACY_MODEL)
         if model in (MODEL, RIDGE_MODEL):
-            wts = {**wts, "model": model, "members": meta.get("members", 0)}
+            wts = {**wts, "model": model, "members": meta.get("members", 0),
+                   "mesh_keys": meta.get("mesh_keys")}
             featurize = voxel_features if model == MODEL else ridge_voxel_features
-            X, v_hom = featurize(problem, wts["basis"])
+            X, v_hom = featurize(problem, basis_for(wts, problem))
             w = predict_w(wts, X, problem.w_mean)
             v = np.full(problem.n_params, v_hom)
         else:

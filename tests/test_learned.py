@@ -114,6 +114,41 @@ def test_weights_of_another_mesh_are_refused_in_one_error(data, tmp_path):
         LearnedSolver(LearnedConfig(weights=str(path))).solve(problem)
 
 
+def test_a_family_of_two_meshes_trains_one_basis_per_mesh(data, tmp_path):
+    """Square and circular drums in small: instances on two inference meshes (4 x 4 x 4 and
+    3 x 4 x 4 voxels) interleaved in one train split. Each mesh's basis is the one its own
+    first instances give; both meshes are solved; a mesh the train split never showed is
+    refused in one error."""
+    from solvers.learned import (
+        LearnedConfig,
+        LearnedSolver,
+        fit,
+        load_weights,
+        mesh_key,
+        reference_basis,
+        save_weights,
+    )
+
+    first = list(iter_instances(data, "train", n_modes=8, inference_shape=(4, 4, 4)))
+    second = list(iter_instances(data, "train", n_modes=8, inference_shape=(3, 4, 4)))[:3]
+    mixed = [first[0], second[0], first[1], second[1], *first[2:], second[2]]
+    weights = fit(iter(mixed), members=1, epochs=1)
+    keys = weights["mesh_keys"]
+    assert keys == [mesh_key(first[0][0]), mesh_key(second[0][0])] and keys[0] != keys[1]
+    assert weights["n_instances"] == 9
+    assert np.array_equal(weights["basis_0"], reference_basis([p for p, _ in first]))
+    assert np.array_equal(weights["basis_1"], reference_basis([p for p, _ in second]))
+    path = save_weights(tmp_path / "w.npz", weights, {"family": "tinyfam", "split": "train"})
+    assert load_weights(path)[1]["mesh_keys"] == keys
+    solver = LearnedSolver(LearnedConfig(weights=str(path)))
+    for problem, _ in (first[0], second[0]):
+        est = solver.solve(problem)
+        assert np.all(np.isfinite(est.w)) and np.all(est.w > 0)
+    third, _ = next(iter_instances(data, "test", n_modes=8, inference_shape=(4, 3, 4)))
+    with pytest.raises(ValueError, match="none of the 2"):
+        solver.solve(third)
+
+
 def test_shipped_cube_weights_carry_a_complete_training_record():
     from solvers.learned import MODEL, load_weights, weights_path
 
@@ -445,13 +480,48 @@ def test_a_killed_store_build_resumes_without_generating_finished_instances(tmp_
     assert again.digest(again.entries("train")) == first and len(generated) == 2
 
 
-def test_training_cost_is_bounded_by_a_number_of_steps():
-    from solvers.learned import BATCH, MAX_STEPS, bounded_epochs
+@pytest.mark.parametrize("where", ["reference", "later"])
+def test_a_store_refuses_a_family_of_several_meshes_in_one_line(tmp_path, monkeypatch, where):
+    """A store keeps one basis: a second mesh among the reference instances, or in a later
+    instance, stops the build with an error naming the way out (mesh keys stubbed: the tiny
+    family has one mesh)."""
+    import solvers.learned as learned
+    from vvtbench.learning import feature_store as fs
 
-    assert bounded_epochs(668 * 512) == 15  # the shipped model's data: unchanged
-    assert bounded_epochs(20000 * 381, 15, 20000) == 5  # 3 721 steps an epoch
-    assert bounded_epochs(20000 * 381) == 2 and bounded_epochs(20000 * 512, 15, 100) == 1
+    spec = fs.StoreSpec(solver="learned", module="solvers.learned",
+                        solver_version=learned.LearnedSolver.version, model=learned.MODEL,
+                        family=str(_tiny_cube_family(tmp_path)), family_name="tinycube",
+                        observe={"n_modes": 8, "inference_shape": (4, 4, 4),
+                                 "visibility": "depth"})
+    monkeypatch.setattr(learned, "N_REFERENCE", 2)
+    keys = iter(["square", "circle"] if where == "reference" else ["square"] * 4 + ["circle"])
+    monkeypatch.setattr(learned, "mesh_key", lambda problem: next(keys))
+    root = tmp_path / "store"
+    with pytest.raises(fs.FeatureStoreError, match="without --drop-instances") as error:
+        fs.build_store(root, spec, {"train": (0, 3)}, shard_instances=1)
+    assert "\n" not in str(error.value)
+    if where == "reference":
+        assert not (root / fs.STORE_FILE).exists()
+    else:  # instances 0 and 1 (the same mesh) are kept; 2 is not
+        assert [e.index for e in fs.FeatureStore.open(root).entries("train")] == [0, 1]
+
+
+def test_training_cost_is_bounded_by_a_number_of_steps():
+    from solvers.learned import BATCH, MAX_STEPS, bounded_steps
+    from vvtbench.learning.mlp import fit_mlp
+
+    assert bounded_steps(500 * 512) == 15 * 125  # the shipped model's data: 15 full epochs
+    assert bounded_steps(20000 * 381) == MAX_STEPS  # 3 721 steps an epoch: cut at 10 000
+    assert bounded_steps(20000 * 512, 15, 100) == 100 and bounded_steps(10, 3, 100) == 3
     for n in (1000, 5000, 20000, 80000, 200000):
-        epochs = bounded_epochs(n * 512)
-        assert epochs * -(-n * 512 // BATCH) <= MAX_STEPS or epochs == 1
-    assert bounded_epochs(1000 * 512) == 15 and bounded_epochs(200000 * 512) == 1
+        assert bounded_steps(n * 512) == min(15 * -(-n * 512 // BATCH), MAX_STEPS)
+    # `steps` counts Adam steps exactly, across passes; `epochs` alone is unchanged
+    rng = np.random.default_rng(0)
+    X, y = rng.standard_normal((50, 3)), rng.standard_normal(50)
+    two = fit_mlp(X, y, hidden=(4,), epochs=2, batch=10, seed=1)
+    same = fit_mlp(X, y, hidden=(4,), batch=10, seed=1, steps=10)
+    assert all(np.array_equal(two[k], same[k]) for k in two)
+    longer = fit_mlp(X, y, hidden=(4,), batch=10, seed=1, steps=11)
+    assert not np.array_equal(two["W0"], longer["W0"])
+    with pytest.raises(ValueError, match="steps"):
+        fit_mlp(X, y, steps=0)

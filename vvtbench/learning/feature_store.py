@@ -270,7 +270,8 @@ def featurize_instance(task: dict) -> dict:
     compute its stored features; a worker's job, never raises.
 
     ``task``: ``job`` (a :func:`vvtbench.generate_jobs.generate_instance` job), ``module``,
-    ``basis`` (path) and ``basis_sha256``, ``observe`` (options), ``index``.
+    ``basis`` (path) and ``basis_sha256``, ``mesh_key`` (the basis' mesh, or None),
+    ``observe`` (options), ``index``.
     """
     from ..observe import ObserveOptions, observe
 
@@ -285,6 +286,11 @@ def featurize_instance(task: dict) -> dict:
         hooks = importlib.import_module(task["module"])
         basis = _basis(task["basis"], task["basis_sha256"])
         problem, truth = observe(Path(res["path"]), ObserveOptions.resolve(None, **task["observe"]))
+        if task.get("mesh_key") and hooks.mesh_key(problem) != task["mesh_key"]:
+            out.update(status="error", input_error=True,
+                       error="another mesh than the store's basis; a family of several "
+                             "meshes trains without --drop-instances")
+            return out
         item = hooks.instance_features(problem, truth, basis)
         arrays = {k: np.ascontiguousarray(item[k]) for k in hooks.STORED_FEATURES}
         manifest = Path(res["path"]) / "manifest.json"
@@ -364,12 +370,19 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
     results = _run(executor, _generate, jobs)
     _raise_failed(results)
     options = ObserveOptions.resolve(None, **spec.observe)
-    basis = hooks.reference_basis([observe(Path(r["path"]), options)[0]
-                                   for r in sorted(results, key=lambda r: r["name"])])
+    problems = [observe(Path(r["path"]), options)[0]
+                for r in sorted(results, key=lambda r: r["name"])]
+    meshes = sorted({hooks.mesh_key(p) for p in problems}) if hasattr(hooks, "mesh_key") else []
+    if len(meshes) > 1:
+        raise FeatureStoreError(f"{root}: the first {len(problems)} train instances have "
+                                f"{len(meshes)} meshes; a feature store keeps one basis, so "
+                                "a family of several meshes trains without --drop-instances")
+    basis = hooks.reference_basis(problems)
     write_npz(root / BASIS_FILE, {"basis": basis})
     from .._version import __version__
 
     meta = {"format": FORMAT, **identity, "basis_sha256": array_sha256({"basis": basis}),
+            **({"mesh_key": meshes[0]} if meshes else {}),
             "reference": [r["name"] for r in sorted(results, key=lambda r: r["name"])],
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "vvtbench": __version__}
@@ -490,6 +503,7 @@ def build_store(root: str | Path, spec: StoreSpec, plan: dict[str, tuple[int, in
                 tasks = [{"job": _job(spec, root, split, i, workers), "index": i,
                           "module": spec.module, "basis": str(root / BASIS_FILE),
                           "basis_sha256": store.meta["basis_sha256"],
+                          "mesh_key": store.meta.get("mesh_key"),
                           "observe": spec.observe} for i in chunk]
                 results = _run(executor, featurize_instance, tasks)
                 done = [r for r in results if r["status"] != "error"]

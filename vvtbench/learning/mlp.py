@@ -34,9 +34,41 @@ def mlp_predict(params: dict, X: np.ndarray) -> np.ndarray:
     return mlp_forward(params, Z)[0] * float(params["y_std"]) + float(params["y_mean"])
 
 
+CHUNK = 1 << 18  # rows standardized at a time: memory of a float64 copy of X never needed
+
+
+def column_moments(X: np.ndarray, chunk: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation of each column of ``X``, accumulated over row chunks in
+    float64 (no copy of ``X`` is made).
+
+    >>> X = np.arange(12.0).reshape(6, 2)
+    >>> [np.allclose(a, b) for a, b in zip(column_moments(X, chunk=4), (X.mean(0), X.std(0)))]
+    [True, True]
+    """
+    n = len(X)
+    mean = np.zeros(X.shape[1])
+    for a in range(0, n, chunk):
+        mean += X[a:a + chunk].sum(axis=0, dtype=np.float64)
+    mean /= n
+    var = np.zeros(X.shape[1])
+    for a in range(0, n, chunk):
+        var += ((X[a:a + chunk] - mean) ** 2).sum(axis=0)
+    return mean, np.sqrt(var / n)
+
+
+def standardize(X: np.ndarray, mean: np.ndarray, std: np.ndarray, chunk: int = CHUNK
+                ) -> np.ndarray:
+    """``(X - mean) / std`` as float32, computed a chunk of rows at a time."""
+    Z = np.empty(X.shape, dtype=np.float32)
+    for a in range(0, len(X), chunk):
+        Z[a:a + chunk] = (X[a:a + chunk] - mean) / std
+    return Z
+
+
 def fit_mlp(X: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] = (64, 32),
             epochs: int = 20, batch: int = 2048, lr: float = 2e-3, weight_decay: float = 1e-5,
-            seed: int = 0, sample_weight: np.ndarray | None = None) -> dict:
+            seed: int = 0, sample_weight: np.ndarray | None = None,
+            steps: int | None = None) -> dict:
     """Least-squares fit of an MLP (ReLU hidden layers, linear output) by Adam.
 
     Parameters
@@ -45,6 +77,8 @@ def fit_mlp(X: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] = (64, 32),
     y : (n,) targets; standardized inside.
     hidden : widths of the hidden layers.
     epochs, batch, lr : passes over the data, minibatch size, Adam step (cosine-decayed).
+    steps : Adam steps in all, if given, instead of ``epochs`` full passes (the last pass
+        is cut short; each pass draws a new minibatch order).
     weight_decay : L2 penalty on the weight matrices.
     seed : seeds the initialization (He) and the minibatch order.
     sample_weight : (n,) optional per-sample weights of the squared error.
@@ -52,16 +86,20 @@ def fit_mlp(X: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] = (64, 32),
     Returns
     -------
     dict of arrays: ``W0, b0, ...``, ``x_mean``, ``x_std``, ``y_mean``, ``y_std``.
+
+    Memory: ``X`` and one float32 copy of it (standardized in chunks of rows).
     """
     X = np.asarray(X, dtype=float)
     y = np.asarray(y, dtype=float)
     if X.ndim != 2 or len(X) != len(y) or len(X) == 0:
         raise ValueError(f"fit_mlp: X (n, f) and y (n,) of one length, got {X.shape}, {y.shape}")
+    if steps is not None and steps < 1:
+        raise ValueError(f"fit_mlp: steps must be >= 1, got {steps}")
     rng = np.random.default_rng(seed)
-    x_mean, x_std = X.mean(axis=0), X.std(axis=0)
+    x_mean, x_std = column_moments(X)
     x_std[x_std == 0] = 1.0
     y_mean, y_std = float(y.mean()), float(y.std()) or 1.0
-    Z = ((X - x_mean) / x_std).astype(np.float32)
+    Z = standardize(X, x_mean, x_std)
     t = ((y - y_mean) / y_std).astype(np.float32)
     sw = (np.ones(len(y)) if sample_weight is None else np.asarray(sample_weight, float))
     sw = (sw / sw.mean()).astype(np.float32)
@@ -75,11 +113,11 @@ def fit_mlp(X: np.ndarray, y: np.ndarray, hidden: tuple[int, ...] = (64, 32),
     b1, b2, eps = 0.9, 0.999, 1e-8
     n_layers = len(sizes) - 1
     steps_per_epoch = max(1, int(np.ceil(len(Z) / batch)))
-    total = epochs * steps_per_epoch
+    total = int(steps) if steps is not None else epochs * steps_per_epoch
     step = 0
-    for _ in range(epochs):
+    while step < total:
         order = rng.permutation(len(Z))
-        for k in range(steps_per_epoch):
+        for k in range(min(steps_per_epoch, total - step)):
             idx = order[k * batch:(k + 1) * batch]
             zb, tb, wb = Z[idx], t[idx], sw[idx]
             out, hidden_act = mlp_forward(params, zb)

@@ -17,12 +17,27 @@ visible vertices, the observation operator P and the mesh; never the truth.
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.optimize import linear_sum_assignment
 
 from vvtbench.problem import InverseProblem
+
+
+def mesh_key(model) -> str:
+    """Fingerprint of a model's mesh: its free DOFs and element connectivity, not its node
+    coordinates (a family varies the aspect of one mesh; a basis serves every aspect).
+
+    Instances with the same key can share one modal basis (:func:`reference_basis`)."""
+    digest = hashlib.sha256()
+    for part in (model.free_dofs, model.element_dofs):
+        part = np.ascontiguousarray(part, dtype=np.int64)
+        digest.update(repr(part.shape).encode())
+        digest.update(part.tobytes())
+    return digest.hexdigest()[:16]
 
 
 def reference_basis(problems, n_modes: int = 30, n_basis: int = 120) -> np.ndarray:
@@ -51,8 +66,8 @@ def ritz_modes(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, 
     homogeneous model (w = v = 1) in the span of ``basis``."""
     model = problem.model
     if basis.shape[0] != model.n_free:
-        raise ValueError(f"learned: the weights' modal basis has {basis.shape[0]} free DOFs, the "
-                         f"problem's model {model.n_free}: weights of another family's mesh")
+        raise ValueError(f"learned: the modal basis has {basis.shape[0]} free DOFs, the "
+                         f"problem's model {model.n_free}: a basis of another mesh")
     Kb = model.K(1.0) @ basis
     Mb = model.M(1.0) @ basis
     Kr = basis.T @ Kb
