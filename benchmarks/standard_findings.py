@@ -18,7 +18,11 @@ Prints, per track (instances of the families' test split):
    of DOFs observed, NC w, the paired difference against one view on the same instances, and the
    cost per instance (the views' extractions, the observation and the solve, from the run's
    cache); then NC w against the fraction of DOFs observed (the pooled within-instance slope of
-   the gain in NC w over the gain in DOFs observed, bootstrap over instances).
+   the gain in NC w over the gain in DOFs observed, bootstrap over instances);
+8. the modes' damping intervals on the video tracks: per track, the share of resolved damping
+   ratios whose 95 % interval covers the true one, and of every interval, against the true
+   modes within 1 % in frequency (``benchmarks/bench_damping_coverage.py``, from the run's
+   cached samples and mode sets; the target is >= 90 % of the resolved ones).
 
 Every interval is :func:`vvtbench.stats.summarize` / :func:`vvtbench.stats.paired_comparison`
 (percentile bootstrap over instances, 2000 resamples, seed 0), the leaderboard's statistics.
@@ -123,6 +127,7 @@ def main() -> None:
             print("  runtime s (median / max): " + ", ".join(
                 f"{k} {r['median']:.1f} / {r['max']:.1f}" for k, r in rt.iterrows()))
         _extractors(d)
+    _damping_intervals(df, Path(args.results).parent, order)
 
 
 def _extractors(d) -> None:
@@ -147,6 +152,45 @@ def _extractors(d) -> None:
                       if np.isfinite(p["ci_low"]) else " (no interval)")
                 print(f"  {solver}: paired NC w extracted - {other}: {p['mean_diff']:+.3f}{ci}"
                       f" ({p['n']} videos)")
+
+
+def _mode_sets(run_dir: Path, estimate_path) -> list[tuple[Path, Path]]:
+    """(sample folder, mode set folder) of every view's extraction a row was observed from."""
+    if not isinstance(estimate_path, str) or not estimate_path:
+        return []
+    fields = Path(estimate_path)  # cache/evaluate/KEY/fields.npz
+    cache = run_dir / fields.parents[2]
+    deps = _task(cache, f"{fields.parts[-3]}/{fields.parts[-2]}").get("deps", [])
+    if len(deps) < 2:
+        return []
+    pairs = []
+    for key in _task(cache, deps[1]).get("deps", [])[1:]:
+        extract = _task(cache, key)
+        if extract.get("stage") == "extract" and extract.get("deps"):
+            pairs.append((cache / extract["deps"][0] / "sample", cache / key))
+    return pairs
+
+
+def _damping_intervals(df, run_dir: Path, order: list[str]) -> None:
+    """Coverage of the damping intervals of every mode set the video tracks observed."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from bench_damping_coverage import sample_coverage
+    from bench_damping_coverage import summarize as coverage
+
+    for track in order:
+        d = df[(df.track == track) & df.observation.str.startswith("extracted")]
+        sets = dict.fromkeys(pair for path in d.estimate_path
+                             for pair in _mode_sets(run_dir, path))
+        rows = [r for sample, modes in sets
+                if (sample / "truth.json").is_file() and (modes / "modes.json").is_file()
+                for r in sample_coverage(sample, modes, 0.01)]
+        if rows:
+            print(f"\n== {track}: damping intervals of {len(sets)} mode sets "
+                  "(coverage k/n = % [exact 95 % binomial interval])")
+            for line in coverage(rows):
+                print("  " + line)
 
 
 def _views_of(d):

@@ -4,16 +4,16 @@ A learned baseline for the dataset generator's families: trained only on a famil
 split (``vvtbench train learned FAMILY``; its architecture chosen on the val split), scored on
 its test split like every solver.
 
-Model ("modal-step-mlp", :mod:`vvtbench.learning.modal_features`). A family's instances
-share one mesh topology, so the weights carry a modal basis: the lowest homogeneous modes of a
-few train instances. For a new instance a Rayleigh-Ritz projection on that basis gives its own
-homogeneous modes in milliseconds (no eigensolve); the observed modes are paired with them by
-MAC, and one linearized (Born) inversion from the homogeneous model is solved for
-log(w / w_mean) per voxel, from the eigenvalue misfits *and* the mixing of homogeneous modes
-in each observed shape, at three smoothness weights, beside the eigenvalue-only and
-shape-only gradients. Per voxel, an ensemble of small networks (numpy, two ReLU layers,
-:mod:`vvtbench.learning.mlp`) reads these step maps, their means over the voxel's 3- and
-5-voxel neighbourhood, their ranks within the instance, the voxel's observability and
+Model ("modal-step-mlp", :mod:`vvtbench.learning.modal_features`). A family's instances share
+one inference mesh per geometry (drums: two), so the weights carry a modal basis per mesh: the
+lowest homogeneous modes of its first few train instances. For a new instance a Rayleigh-Ritz
+projection on that basis gives its own homogeneous modes in milliseconds (no eigensolve); the
+observed modes are paired with them by MAC, and one linearized (Born) inversion from the
+homogeneous model is solved for log(w / w_mean) per voxel, from the eigenvalue misfits *and*
+the mixing of homogeneous modes in each observed shape, at three smoothness weights, beside the
+eigenvalue-only and shape-only gradients. Per voxel, an ensemble of small networks (numpy, two
+ReLU layers, :mod:`vvtbench.learning.mlp`) reads these step maps, their means over the voxel's
+3- and 5-voxel neighbourhood, their ranks within the instance, the voxel's observability and
 position and the instance's eigenvalue misfits, and predicts the truth's w standardized per
 instance (the least-squares surrogate of the NC of w; instances with a uniform truth carry no
 target). w is a positive affine map of that prediction (mean w_mean, the lowest voxel at half
