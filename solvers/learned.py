@@ -176,7 +176,11 @@ def basis_for(weights: dict, problem: InverseProblem) -> np.ndarray:
         raise ValueError(f"learned: the problem's mesh ({key}) is none of the {len(keys)} "
                          f"the weights were trained on ({', '.join(keys)}): weights of another "
                          "family, or a mesh its train split never showed")
-    return weights["basis"] if len(keys) == 1 else weights[f"basis_{keys.index(key)}"]
+    name = "basis" if len(keys) == 1 else f"basis_{keys.index(key)}"
+    if name not in weights:
+        raise ValueError(f"learned: the weights name mesh {key} but hold no {name!r} array "
+                         "(a damaged weights file)")
+    return weights[name]
 
 
 def voxel_features(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, float]:
