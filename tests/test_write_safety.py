@@ -139,6 +139,32 @@ def test_generate_asks_room_for_finished_samples_and_the_segments_in_flight(
     assert not out.exists()
 
 
+def test_generate_sizes_the_rest_by_the_samples_it_has_finished(tmp_path, monkeypatch,
+                                                                 capsys):
+    """The bound counts the image modes dense; once modes-only samples of the run are
+    finished, the rest are sized by the largest of them (a video run is not)."""
+    from vvtbench.cli.generate import disk_bytes
+    from vvtbench.families import draw
+
+    out = tmp_path / "out"
+    assert main(["generate", "cube_defects", "--split", "val", "--n", "1", "--no-video",
+                 "-o", str(out), "--no-progress"]) == 0
+    sample = out / "cube_defects-val-00000"
+    measured = sum(p.stat().st_size for p in sample.rglob("*") if p.is_file())
+    bound = disk_bytes(draw("cube_defects", "val", 0), False, None)
+    assert measured < bound
+    before = sorted(p.name for p in out.iterdir())
+    _disk_with(monkeypatch, 2 * measured - 1)
+    args = ["generate", "cube_defects", "--split", "val", "--n", "3", "-o", str(out),
+            "--no-progress"]
+    assert main([*args, "--no-video"]) == 2
+    line = _one_line(capsys)
+    assert f"needs about {2 * measured:,} bytes" in line and "2 sample(s)" in line, line
+    assert main(args) == 2  # with video: the finished modes-only sample says nothing
+    assert f"needs about {2 * measured:,} bytes" not in _one_line(capsys)
+    assert sorted(p.name for p in out.iterdir()) == before
+
+
 def test_the_generate_estimate_bounds_what_is_written(tiny):
     from vvtbench.cli.generate import disk_bytes
     from vvtbench.scene import parse_scene

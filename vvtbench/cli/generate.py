@@ -75,6 +75,30 @@ def disk_bytes(scene, video: bool, consumer_crf: int | None) -> int:
     return 2 * raw_video_bytes(scene, video, consumer_crf) + modes + 4 * 2**20
 
 
+def finished_bytes(out: Path, names: list[str], video: bool, limit: int = 20) -> int | None:
+    """The largest of the first ``limit`` finished samples among ``names`` in ``out`` made
+    the same way (with video, or modes only), in bytes; None when there is none. A measured
+    size of this run's samples: :func:`disk_bytes` bounds the dense image modes, which the
+    store compresses (a modes-only drum takes about 12 MB of its 83 MB bound)."""
+    import json
+
+    sizes = []
+    for name in names:
+        folder = out / name
+        try:
+            if not (folder / "manifest.json").is_file():
+                continue
+            info = json.loads((folder / "truth.json").read_text())
+            if (info["video"].get("file") is not None) != video:
+                continue
+            sizes.append(sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
+        if len(sizes) >= limit:
+            break
+    return max(sizes) if sizes else None
+
+
 def total_disk_bytes(peaks: list[int], raws: list[int], workers: int) -> int:
     """Free space ``len(peaks)`` samples need when ``workers`` are generated at a time: each
     finished sample's size, and the segments of the ``workers`` largest in flight.
@@ -105,7 +129,8 @@ def _job_scene(job: dict):
 def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
     """Refuse, before anything is rendered, a frame ffmpeg cannot take, a render larger than
     the memory each worker may use, and a total size larger than the output's free space.
-    A family's instances are sized by the first one drawn."""
+    A family's instances are sized by the first one drawn; where samples of this run are
+    already finished in the output, by the largest of them (:func:`finished_bytes`)."""
     from ..io import check_free_space
     from ..scene import SceneError
 
@@ -128,10 +153,14 @@ def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
                 f"about {need:,} bytes of memory; each of {workers} worker(s) may use "
                 f"{budget:,} (75 % of this machine's memory); lower key 'camera.resolution' "
                 "or 'render.supersample', or use fewer --workers")
-    todo = [args.overwrite or not (args.out / str(job.get("name") or job["scene"]["name"])
-                                   / "manifest.json").is_file() for job in jobs]
+    names = [str(job.get("name") or job["scene"]["name"]) for job in jobs]
+    todo = [args.overwrite or not (args.out / name / "manifest.json").is_file()
+            for name in names]
     sizes = [(disk_bytes(sc, not args.no_video, args.consumer_crf),
               raw_video_bytes(sc, not args.no_video, args.consumer_crf)) for sc in scenes]
+    measured = None if args.overwrite else finished_bytes(args.out, names, not args.no_video)
+    if measured is not None:  # a finished sample's size, plus the segments while in flight
+        sizes = [(min(peak, measured + raw), raw) for peak, raw in sizes]
     sizes = ([b for b, t in zip(sizes, todo, strict=False) if t] if len(scenes) == len(jobs)
              else sizes[:1] * sum(todo))
     in_flight = len(sizes) if args.scheduler is not None else workers  # a cluster: all
