@@ -21,7 +21,8 @@ scores and times of the slow reference solvers in a JSON file, so a second run r
 ``--time-at N`` times one network's epoch on the stored train voxels repeated to N instances'
 worth (the fit time and peak memory at that size). ``--previous`` scores an older weights file
 of the linear model ("modal-step-ridge") on the same val and test instances. Prints the
-learning-curve table (markdown) and writes the curve figure.
+learning-curve table (markdown) and writes the curve figure. An instance whose truth is uniform
+(no defect) has no NC: its per-instance value is null and it is in no mean.
 """
 
 from __future__ import annotations
@@ -63,8 +64,8 @@ def reference_scores(roots: list[Path], solvers: list[str], cache: Path | None) 
             t0 = time.perf_counter()
             est = solver.solve(problem)
             secs.append(time.perf_counter() - t0)
-            nc.append(normalized_correlation(est.w, truth.w))
-            print(f"{name}: {len(nc)} nc_w {nc[-1]:+.3f} {secs[-1]:.2f} s", flush=True)
+            nc.append(instance_nc(est.w, truth.w))
+            print(f"{name}: {len(nc)} nc_w {nc[-1]} {secs[-1]:.2f} s", flush=True)
         done[name] = {"nc_w": nc, "seconds": secs}
         if cache is not None:
             from vvtbench.io import write_json
@@ -73,9 +74,16 @@ def reference_scores(roots: list[Path], solvers: list[str], cache: Path | None) 
     return done
 
 
+def instance_nc(estimate, truth) -> float | None:
+    """NC w of one instance; None for a uniform truth (NC undefined: never scored as 0)."""
+    from solvers.learned import standardized
+
+    return None if standardized(truth) is None else normalized_correlation(estimate, truth)
+
+
 def mean_ci(values, n_boot: int = 2000, seed: int = 0) -> tuple[float, float, float]:
-    """Mean and a 95 % bootstrap interval (seeded)."""
-    x = np.asarray(values, dtype=float)
+    """Mean and a 95 % bootstrap interval (seeded) of the defined values (None left out)."""
+    x = np.array([v for v in values if v is not None], dtype=float)
     rng = np.random.default_rng(seed)
     boots = x[rng.integers(0, len(x), (n_boot, len(x)))].mean(axis=1)
     return float(x.mean()), float(np.quantile(boots, 0.025)), float(np.quantile(boots, 0.975))
@@ -276,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
         old, meta = load_weights(args.previous)
         old = {**old, "model": meta.get("model")}
         for split, items in (("val", val), ("test", test)):
-            nc = [normalized_correlation(predict_w(old, ridge_inputs(it["X"]), 1.0), it["w"])
+            nc = [instance_nc(predict_w(old, ridge_inputs(it["X"]), 1.0), it["w"])
                   for it in items]
             print(f"previous ({meta.get('model')} {meta.get('solver_version')}, "
                   f"{meta.get('n_instances')} train) {split} NC w {mean_ci(nc)}", flush=True)
@@ -285,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         weights = fitted(size)
         fit_s = time.perf_counter() - t0
-        nc = [normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
+        nc = [instance_nc(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
         rows.append({"n_train": size, "val_nc_w": weights["val_nc_w"], "nc_w": nc,
                      "test": mean_ci(nc), "fit_seconds": fit_s,
                      "epochs": float(weights["epochs"]), "steps": int(weights["steps"]),
@@ -317,7 +325,8 @@ def main(argv: list[str] | None = None) -> int:
         est = solver.solve(problem)
         secs.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)
-        assert abs(normalized_correlation(est.w, truth.w) - expected) < 1e-9
+        got = instance_nc(est.w, truth.w)
+        assert (got is None) == (expected is None) and (got is None or abs(got - expected) < 1e-9)
     if secs:
         print(f"plug-in solve of the {rows[-1]['n_train']}-instance model ({len(secs)} test "
               f"instances): median {np.median(secs):.3f} s wall, {np.median(cpu):.3f} s CPU",
@@ -347,12 +356,12 @@ def report(rows: list[dict], ref: dict, curve: Path) -> None:
               f"{r['val_nc_w']:+.3f} | {m:+.3f} [{lo:+.3f}, {hi:+.3f}] | {t} |")
     for name, d in ref.items():
         m, lo, hi = mean_ci(d["nc_w"])
-        k = len(d["nc_w"])
+        k = sum(v is not None for v in d["nc_w"])
         t = f"{np.median(d['seconds']):.3f}" if d["seconds"] else ""
-        print(f"| `{name}` ({k} test instances) | | | | {m:+.3f} [{lo:+.3f}, "
+        print(f"| `{name}` ({k} test instances with a defect) | | | | {m:+.3f} [{lo:+.3f}, "
               f"{hi:+.3f}] | {t} |")
-        if rows and k < len(rows[-1]["nc_w"]):
-            m, lo, hi = mean_ci(rows[-1]["nc_w"][:k])
+        if rows and len(d["nc_w"]) < len(rows[-1]["nc_w"]):
+            m, lo, hi = mean_ci(rows[-1]["nc_w"][:len(d["nc_w"])])
             print(f"| learned ({rows[-1]['n_train']}) on the same {k} | | | | {m:+.3f} "
                   f"[{lo:+.3f}, {hi:+.3f}] | |")
     plot_curve(rows, ref, curve)
@@ -370,10 +379,10 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7.5, 5))
     n = [r["n_train"] for r in rows]
     m = np.array([r["test"] for r in rows])
-    k = len(rows[-1]["nc_w"]) if rows else 0
+    k = sum(v is not None for v in rows[-1]["nc_w"]) if rows else 0
     ax.fill_between(n, m[:, 1], m[:, 2], color="C0", alpha=0.18, lw=0)
     ax.errorbar(n, m[:, 0], yerr=[m[:, 0] - m[:, 1], m[:, 2] - m[:, 0]], marker="o",
-                capsize=3, color="C0", label=f"learned (test mean, {k} instances)")
+                capsize=3, color="C0", label=f"learned (test mean, {k} instances with a defect)")
     ax.plot(n, [r["val_nc_w"] for r in rows], "s--", color="0.5", label="learned (val mean)")
     colors = {"sensitivity": "C3", "homogeneous": "k", "learned 2.0.0": "C2"}
     for name, d in ref.items():

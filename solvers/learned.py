@@ -316,9 +316,16 @@ def fit_store(store, train: list, val: list = (), members: int = MEMBERS,
     weights = fit_arrays(X, y, basis, len(train), n_used, members, epochs, max_steps)
     del X, y
     held = [feature_item(a["X"], a["w"]) for _, a in store.iter_arrays(list(val), ("X", "w"))]
-    weights["n_val"] = len(held)
-    weights["val_nc_w"] = mean_nc(weights, held) if held else None
+    _record_val(weights, held)
     return weights
+
+
+def _record_val(weights: dict, held: list[dict]) -> None:
+    """``n_val`` (val instances), ``n_val_scored`` (those with a contrast) and ``val_nc_w``
+    (their mean NC w, :func:`mean_nc`)."""
+    weights["n_val"] = len(held)
+    weights["n_val_scored"] = sum(standardized(it["w"]) is not None for it in held)
+    weights["val_nc_w"] = mean_nc(weights, held)
 
 
 def _members(weights: dict) -> list[dict]:
@@ -352,12 +359,17 @@ def predict_w(weights: dict, X: np.ndarray, w_mean: float) -> np.ndarray:
     return field_to_w(predict_field(weights, X), w_mean)
 
 
-def mean_nc(weights: dict, items: list[dict]) -> float:
-    """Mean NC w of the weights on feature items (their ``X`` and truth ``w``)."""
+def mean_nc(weights: dict, items: list[dict]) -> float | None:
+    """Mean NC w of the weights on feature items (their ``X`` and truth ``w``) whose truth
+    has a contrast: NC is undefined for a uniform truth, so those items are left out (None
+    when every item's truth is uniform)."""
     from vvtbench.metrics import normalized_correlation
 
+    scored = [it for it in items if standardized(it["w"]) is not None]
+    if not scored:
+        return None
     return float(np.mean([normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"])
-                          for it in items]))
+                          for it in scored]))
 
 
 def featurize_by_mesh(pairs: Iterable) -> tuple[list[dict], dict[str, np.ndarray]]:
@@ -404,8 +416,7 @@ def fit(pairs: Iterable, members: int = MEMBERS, epochs: int = EPOCHS,
         raise ValueError("no training instances")
     weights = fit_features(train, bases, members, epochs, max_steps)
     held = [instance_features(p, t, basis_for(weights, p)) for p, t in val]
-    weights["n_val"] = len(held)
-    weights["val_nc_w"] = mean_nc(weights, held) if held else None
+    _record_val(weights, held)
     return weights
 
 

@@ -267,6 +267,23 @@ def test_neighbourhood_means_match_scipys_nan_mean_filter():
             assert got[:, k * 2 + j] == pytest.approx(ref, rel=1e-10, abs=1e-12)
 
 
+def test_the_val_score_leaves_out_a_uniform_truth_where_nc_is_undefined():
+    from solvers import learned
+
+    rng = np.random.default_rng(7)
+    truth = np.exp(rng.standard_normal(64))
+    weights = {"model": learned.RIDGE_MODEL, "mean": np.zeros(1), "std": np.ones(1),
+               "coef_w": np.ones(1)}
+    X = np.log(truth)[:, None]  # predicts the truth exactly: NC 1
+    flat = {"X": X, "w": np.full(64, 3.0)}
+    assert learned.mean_nc(weights, [{"X": X, "w": truth}, flat]) == pytest.approx(1.0)
+    assert learned.mean_nc(weights, [flat]) is None
+    record: dict = dict(weights)
+    learned._record_val(record, [{"X": X, "w": truth}, flat, flat])
+    assert (record["n_val"], record["n_val_scored"]) == (3, 1)
+    assert record["val_nc_w"] == pytest.approx(1.0)
+
+
 def test_estimate_keeps_the_predicted_fields_nc_and_is_positive():
     from solvers.learned import field_to_w
 
