@@ -390,6 +390,9 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
         c = colors.get(name, "C2")
         ax.axhline(mean, color=c, lw=1.2, label=f"{name} (test)")
         ax.axhspan(lo, hi, color=c, alpha=0.12)
+        if name == "sensitivity":
+            ax.axhline(mean - 0.05, color=c, lw=1.0, ls=":",
+                       label="target: sensitivity's mean - 0.05")
     ax.set_xscale("log")
     ax.set_xticks(n, [str(k) for k in n])
     ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
