@@ -76,9 +76,9 @@ def reference_scores(roots: list[Path], solvers: list[str], cache: Path | None) 
 
 def instance_nc(estimate, truth) -> float | None:
     """NC w of one instance; None for a uniform truth (NC undefined: never scored as 0)."""
-    from solvers.learned import standardized
+    from vvtbench.metrics import is_constant
 
-    return None if standardized(truth) is None else normalized_correlation(estimate, truth)
+    return None if is_constant(truth) else normalized_correlation(estimate, truth)
 
 
 def mean_ci(values, n_boot: int = 2000, seed: int = 0) -> tuple[float, float, float]:
