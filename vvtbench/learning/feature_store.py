@@ -374,6 +374,9 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
                 for r in sorted(results, key=lambda r: r["name"])]
     meshes = sorted({hooks.mesh_key(p) for p in problems}) if hasattr(hooks, "mesh_key") else []
     if len(meshes) > 1:
+        for r in results:  # the refusal is final: nothing of it stays
+            drop_instance(root, "train", r["name"])
+        _remove_scratch(root)
         raise FeatureStoreError(f"{root}: the first {len(problems)} train instances have "
                                 f"{len(meshes)} meshes; a feature store keeps one basis, so "
                                 "a family of several meshes trains without --drop-instances")
@@ -477,6 +480,7 @@ def build_store(root: str | Path, spec: StoreSpec, plan: dict[str, tuple[int, in
             raise FeatureStoreError(f"{root}: exists and is not a feature store (no "
                                     f"{STORE_FILE}; holds {extra[0]}); give a new or empty "
                                     "folder")
+    created = not root.exists()
     root.mkdir(parents=True, exist_ok=True)
     try:
         lock = RunLock(root, remove=True).acquire()
@@ -526,4 +530,6 @@ def build_store(root: str | Path, spec: StoreSpec, plan: dict[str, tuple[int, in
     finally:
         executor.close()
         lock.release()
+        if created and root.is_dir() and not any(root.iterdir()):
+            root.rmdir()  # a refused new store leaves no folder
     return store
