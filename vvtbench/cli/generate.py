@@ -79,7 +79,7 @@ def finished_bytes(out: Path, names: list[str], video: bool, limit: int = 20) ->
     """The largest of the first ``limit`` finished samples among ``names`` in ``out`` made
     the same way (with video, or modes only), in bytes; None when there is none. A measured
     size of this run's samples: :func:`disk_bytes` bounds the dense image modes, which the
-    store compresses (a modes-only drum takes about 12 MB of its 83 MB bound)."""
+    store compresses (a modes-only drum takes 12-13 MB of its 137 MB bound)."""
     import json
 
     sizes = []
