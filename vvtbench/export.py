@@ -42,7 +42,7 @@ from ._version import __version__
 from .croissant import samples_croissant
 from .dataset import VIEW_GROUPS
 from .export_card import dataset_card, sample_revision
-from .io import NoSpaceError, check_free_space, is_disk_full, open_new
+from .io import NoSpaceError, check_free_space, is_disk_full, open_new, tree_bytes
 from .packed import (
     FORMAT,
     FORMAT_VERSION,
@@ -131,11 +131,6 @@ def _names(samples: list[Path]) -> list[str]:
 
 
 # --------------------------------------------------------------------------- size
-def _tree_bytes(folder: Path) -> int:
-    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()
-               and not p.is_symlink())
-
-
 def _raw_bytes(sample: Path, mode_dirs: list[Path]) -> int:
     """The uncompressed size of everything packed for ``sample`` (an upper bound of its packed
     size: the compressors never grow a chunk by more than a few bytes)."""
@@ -171,7 +166,7 @@ def estimate_bytes(samples: list[Path], extracted: dict[Path, list[Path]], fmt: 
     if fmt == "hdf5":
         body = sum(_raw_bytes(s, extracted.get(s, [])) for s in samples)
     else:
-        body = sum(_tree_bytes(s) + sum(_tree_bytes(d) for d in extracted.get(s, []))
+        body = sum(tree_bytes(s) + sum(tree_bytes(d) for d in extracted.get(s, []))
                    for s in samples)
     return int(body * 1.05) + (1 << 20) * (1 + len(samples))
 

@@ -46,6 +46,12 @@ def check_free_space(folder: str | Path, needed: int, what: str = "the output") 
                            f"({_human(free)}) free; free some space or choose another folder")
 
 
+def tree_bytes(folder: str | Path) -> int:
+    """Bytes of the regular files under ``folder`` (links not followed)."""
+    return sum(p.stat().st_size for p in Path(folder).rglob("*") if p.is_file()
+               and not p.is_symlink())
+
+
 def _human(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
         if n < 1024 or unit == "TiB":

@@ -75,27 +75,23 @@ def disk_bytes(scene, video: bool, consumer_crf: int | None) -> int:
     return 2 * raw_video_bytes(scene, video, consumer_crf) + modes + 4 * 2**20
 
 
-def finished_bytes(out: Path, names: list[str], video: bool, limit: int = 20) -> int | None:
-    """The largest of the first ``limit`` finished samples among ``names`` in ``out`` made
-    the same way (with video, or modes only), in bytes; None when there is none. A measured
-    size of this run's samples: :func:`disk_bytes` bounds the dense image modes, which the
-    store compresses (a modes-only drum takes 12-13 MB of its 137 MB bound)."""
+def finished_bytes(out: Path, finished: list[str], video: bool, limit: int = 20) -> int | None:
+    """The largest of the first ``limit`` of the ``finished`` samples in ``out`` made the same
+    way (with video, or modes only), in bytes; None when there is none. A measured size of
+    this run's samples: :func:`disk_bytes` bounds the dense image modes, which the store
+    compresses (a modes-only drum takes 12-13 MB of its 137 MB bound)."""
     import json
 
+    from ..io import tree_bytes
+
     sizes = []
-    for name in names:
-        folder = out / name
+    for name in finished[:limit]:
         try:
-            if not (folder / "manifest.json").is_file():
-                continue
-            info = json.loads((folder / "truth.json").read_text())
-            if (info["video"].get("file") is not None) != video:
-                continue
-            sizes.append(sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()))
+            info = json.loads((out / name / "truth.json").read_text())
+            if (info["video"].get("file") is not None) == video:
+                sizes.append(tree_bytes(out / name))
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             continue
-        if len(sizes) >= limit:
-            break
     return max(sizes) if sizes else None
 
 
@@ -158,7 +154,8 @@ def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
             for name in names]
     sizes = [(disk_bytes(sc, not args.no_video, args.consumer_crf),
               raw_video_bytes(sc, not args.no_video, args.consumer_crf)) for sc in scenes]
-    measured = None if args.overwrite else finished_bytes(args.out, names, not args.no_video)
+    finished = [name for name, t in zip(names, todo, strict=True) if not t]
+    measured = finished_bytes(args.out, finished, not args.no_video)
     if measured is not None:  # a finished sample's size, plus the segments while in flight
         sizes = [(min(peak, measured + raw), raw) for peak, raw in sizes]
     sizes = ([b for b, t in zip(sizes, todo, strict=False) if t] if len(scenes) == len(jobs)
