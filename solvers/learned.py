@@ -216,7 +216,7 @@ def standardized(w: np.ndarray) -> np.ndarray | None:
     from vvtbench.metrics import is_constant
 
     w = np.asarray(w, dtype=float)
-    if is_constant(w) or float(w.std()) == 0.0:
+    if is_constant(w):
         return None
     return (w - w.mean()) / float(w.std())
 
@@ -242,8 +242,11 @@ def bounded_steps(n_voxels: int, epochs: int = EPOCHS, max_steps: int = MAX_STEP
     >>> bounded_steps(500 * 512), bounded_steps(20000 * 381)  # the shipped cube fit; 20 000
     (1875, 10000)
     """
-    per_epoch = max(1, -(-int(n_voxels) // BATCH))
-    return min(int(epochs) * per_epoch, int(max_steps))
+    return min(int(epochs) * _steps_per_epoch(n_voxels), int(max_steps))
+
+
+def _steps_per_epoch(n_voxels: int) -> int:
+    return max(1, -(-int(n_voxels) // BATCH))
 
 
 def fit_arrays(X: np.ndarray, y: np.ndarray, basis: np.ndarray | dict[str, np.ndarray],
@@ -259,11 +262,10 @@ def fit_arrays(X: np.ndarray, y: np.ndarray, basis: np.ndarray | dict[str, np.nd
         raise ValueError("learned: members, epochs and max_steps must be >= 1, got "
                          f"{members}, {epochs}, {max_steps}")
     steps = bounded_steps(len(X), epochs, max_steps)
-    per_epoch = max(1, -(-len(X) // BATCH))
     bases = basis_entries(basis) if isinstance(basis, dict) else {"basis": basis}
     weights = {"model": MODEL, **bases, "n_instances": int(n_instances),
                "n_used": int(n_used), "n_voxels": int(len(X)), "members": int(members),
-               "hidden": list(HIDDEN), "epochs": round(steps / per_epoch, 3),
+               "hidden": list(HIDDEN), "epochs": round(steps / _steps_per_epoch(len(X)), 3),
                "steps": steps, "epochs_asked": int(epochs),
                "max_steps": int(max_steps), "n_slots": N_SLOTS,
                "target": "standardized w per instance"}
@@ -326,8 +328,14 @@ def _record_val(weights: dict, held: list[dict]) -> None:
     """``n_val`` (val instances), ``n_val_scored`` (those with a contrast) and ``val_nc_w``
     (their mean NC w, :func:`mean_nc`)."""
     weights["n_val"] = len(held)
-    weights["n_val_scored"] = sum(standardized(it["w"]) is not None for it in held)
+    weights["n_val_scored"] = sum(_has_contrast(it) for it in held)
     weights["val_nc_w"] = mean_nc(weights, held)
+
+
+def _has_contrast(item: dict) -> bool:
+    from vvtbench.metrics import is_constant
+
+    return not is_constant(item["w"])
 
 
 def _members(weights: dict) -> list[dict]:
@@ -367,7 +375,7 @@ def mean_nc(weights: dict, items: list[dict]) -> float | None:
     when every item's truth is uniform)."""
     from vvtbench.metrics import normalized_correlation
 
-    scored = [it for it in items if standardized(it["w"]) is not None]
+    scored = [it for it in items if _has_contrast(it)]
     if not scored:
         return None
     return float(np.mean([normalized_correlation(predict_w(weights, it["X"], 1.0), it["w"])

@@ -369,9 +369,9 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
     jobs = [_job(spec, root, "train", i, executor.slots) for i in indices]
     results = _run(executor, _generate, jobs)
     _raise_failed(results)
+    results = sorted(results, key=lambda r: r["name"])
     options = ObserveOptions.resolve(None, **spec.observe)
-    problems = [observe(Path(r["path"]), options)[0]
-                for r in sorted(results, key=lambda r: r["name"])]
+    problems = [observe(Path(r["path"]), options)[0] for r in results]
     meshes = sorted({hooks.mesh_key(p) for p in problems}) if hasattr(hooks, "mesh_key") else []
     if len(meshes) > 1:
         for r in results:  # the refusal is final: nothing of it stays
@@ -386,7 +386,7 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
 
     meta = {"format": FORMAT, **identity, "basis_sha256": array_sha256({"basis": basis}),
             **({"mesh_key": meshes[0]} if meshes else {}),
-            "reference": [r["name"] for r in sorted(results, key=lambda r: r["name"])],
+            "reference": [r["name"] for r in results],
             "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "vvtbench": __version__}
     write_json(root / STORE_FILE, meta)
