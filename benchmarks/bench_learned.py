@@ -81,12 +81,13 @@ def instance_nc(estimate, truth) -> float | None:
     return None if is_constant(truth) else normalized_correlation(estimate, truth)
 
 
-def mean_ci(values, n_boot: int = 2000, seed: int = 0) -> tuple[float, float, float]:
-    """Mean and a 95 % bootstrap interval (seeded) of the defined values (None left out)."""
+def mean_ci(values) -> tuple[float, float, float]:
+    """Mean and its 95 % bootstrap interval (the leaderboard's, :mod:`vvtbench.stats`) of the
+    defined values (None left out)."""
+    from vvtbench.stats import bootstrap_ci
+
     x = np.array([v for v in values if v is not None], dtype=float)
-    rng = np.random.default_rng(seed)
-    boots = x[rng.integers(0, len(x), (n_boot, len(x)))].mean(axis=1)
-    return float(x.mean()), float(np.quantile(boots, 0.025)), float(np.quantile(boots, 0.975))
+    return (float(x.mean()), *bootstrap_ci(x))
 
 
 def split_features(roots: list[Path], split: str, limit: int | None, basis: np.ndarray
