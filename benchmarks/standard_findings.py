@@ -154,17 +154,25 @@ def _extractors(d) -> None:
                       f" ({p['n']} videos)")
 
 
-def _mode_sets(run_dir: Path, estimate_path) -> list[tuple[Path, Path]]:
-    """(sample folder, mode set folder) of every view's extraction a row was observed from."""
+def _observe_of(run_dir: Path, estimate_path) -> tuple[Path, str] | None:
+    """(the run's cache, the key of the observe task) a row's estimate was scored against;
+    None when the row has no cached evaluation."""
     if not isinstance(estimate_path, str) or not estimate_path:
-        return []
+        return None
     fields = Path(estimate_path)  # cache/evaluate/KEY/fields.npz
     cache = run_dir / fields.parents[2]
     deps = _task(cache, f"{fields.parts[-3]}/{fields.parts[-2]}").get("deps", [])
-    if len(deps) < 2:
+    return (cache, deps[1]) if len(deps) >= 2 else None
+
+
+def _mode_sets(run_dir: Path, estimate_path) -> list[tuple[Path, Path]]:
+    """(sample folder, mode set folder) of every view's extraction a row was observed from."""
+    found = _observe_of(run_dir, estimate_path)
+    if found is None:
         return []
+    cache, observe_key = found
     pairs = []
-    for key in _task(cache, deps[1]).get("deps", [])[1:]:
+    for key in _task(cache, observe_key).get("deps", [])[1:]:
         extract = _task(cache, key)
         if extract.get("stage") == "extract" and extract.get("deps"):
             pairs.append((cache / extract["deps"][0] / "sample", cache / key))
@@ -207,15 +215,12 @@ def _observed(run_dir: Path, estimate_path) -> tuple[float, float, float]:
     """(fraction of DOFs observed, seconds of the views' extractions and the observation,
     seconds of the shared generation) of a row, from its cached tasks; NaN when not cached."""
     nan = (float("nan"),) * 3
-    if not isinstance(estimate_path, str) or not estimate_path:
+    found = _observe_of(run_dir, estimate_path)
+    if found is None:
         return nan
-    fields = Path(estimate_path)  # cache/evaluate/KEY/fields.npz
-    cache = run_dir / fields.parents[2]
-    deps = _task(cache, f"{fields.parts[-3]}/{fields.parts[-2]}").get("deps", [])
-    if len(deps) < 2:
-        return nan
-    observe = _task(cache, deps[1])
-    problem = cache / deps[1] / "problem.json"
+    cache, observe_key = found
+    observe = _task(cache, observe_key)
+    problem = cache / observe_key / "problem.json"
     if not observe or not problem.is_file():
         return nan
     dof = json.loads(problem.read_text())["meta"].get("observed_dof_fraction", float("nan"))
