@@ -102,6 +102,28 @@ def test_linearized_eigenvalue_shifts_match_exact_eigenvalues(data):
     assert np.abs(exact - exact0)[:8].max() > 1e-7 * exact0[7]  # far above round-off
 
 
+def test_pairing_drops_a_shape_it_cannot_place(data):
+    """Observed modes made of the instance's own homogeneous modes, a gappy subset as an
+    extraction gives, pair with them one to one; a noise shape (MAC ~ 0) is dropped by the
+    MAC gate and kept (mispaired) without it."""
+    import dataclasses
+
+    from vvtbench.learning.modal_features import pair_observed, reference_basis, ritz_modes
+
+    problem, _ = next(iter_instances(data, "test", n_modes=8, inference_shape=(4, 4, 4)))
+    mu, psi = ritz_modes(problem, reference_basis([problem], n_modes=12))
+    order = np.array([0, 2, 4, 6, 7, 9, 10, 11])          # gappy, as an extraction is
+    gamma = np.asarray(problem.P @ psi[:, order]).T
+    lam = 3.0 * mu[order]                                 # a common density scale
+    gamma[3] = np.random.default_rng(1).standard_normal(gamma.shape[1])
+    noisy = dataclasses.replace(problem, gamma=gamma, eigenvalues=lam)
+    rows, cols, _, log_v = pair_observed(noisy, mu, psi, 12, mac_min=0.5)
+    assert rows.tolist() == [0, 1, 2, 4, 5, 6, 7] and cols.tolist() == order[rows].tolist()
+    assert log_v == pytest.approx(np.log(problem.w_mean / 3.0))
+    rows, cols, _, _ = pair_observed(noisy, mu, psi, 12)
+    assert rows.tolist() == list(range(8))
+
+
 def test_weights_of_another_mesh_are_refused_in_one_error(data, tmp_path):
     from solvers.learned import LearnedConfig, LearnedSolver, fit, save_weights
 

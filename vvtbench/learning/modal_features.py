@@ -9,7 +9,8 @@ its homogeneous model (w = v = 1 on its own geometry) onto that basis gives its 
 modes psi_c and eigenvalues mu_c in milliseconds, without a sparse eigensolve
 (:func:`ritz_modes`). Each observed mode is paired (Hungarian, on the MAC of its image-space
 shape with P psi_c) with one of the first ``n_slots`` homogeneous modes and expanded on the
-projected basis P psi (:func:`pair_observed`). :func:`linear_step` then solves the first-order
+projected basis P psi (:func:`pair_observed`); a pairing of low MAC, which the linearization
+cannot use, is dropped. :func:`linear_step` then solves the first-order
 (Born) equations of the eigenvalue misfits and of the mode mixing in each observed shape for
 log(w / w_mean) per voxel. Only the observation enters: eigenvalues, image-space shapes at
 visible vertices, the observation operator P and the mesh; never the truth.
@@ -79,11 +80,17 @@ def ritz_modes(problem: InverseProblem, basis: np.ndarray) -> tuple[np.ndarray, 
 N_FIT = 40  # Ritz modes an observed shape is expanded on (higher ones are poorly resolved)
 
 
-def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_slots: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_slots: int,
+                  mac_min: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Observed modes paired with homogeneous modes: (observed index, homogeneous index,
     least-squares coefficients (n_basis, n_pairs) of each observed shape on P psi, and the
-    log of the fitted homogeneous density ratio v_hom / w_mean)."""
+    log of the fitted homogeneous density ratio v_hom / w_mean).
+
+    The pairing is a one-to-one assignment maximizing the total MAC; a pair is kept when its
+    MAC is at least ``mac_min``. A mode the slots do not hold, a false mode or a shape too
+    noisy to place still gets *some* slot from the assignment, at a low MAC: its first-order
+    equations would be wrong, not just noisy.
+    """
     from vvtbench.mac import mac_matrix
 
     n_basis = min(psi.shape[1], N_FIT)
@@ -91,8 +98,9 @@ def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_sl
     gamma = np.asarray(problem.gamma, dtype=float)
     lam = np.asarray(problem.eigenvalues, dtype=float)
     slots = min(n_slots, n_basis)
-    rows, cols = linear_sum_assignment(-mac_matrix(gamma, A[:, :slots].T))
-    ok = (lam[rows] > 0) & (mu[cols] > 0)
+    mac = mac_matrix(gamma, A[:, :slots].T)
+    rows, cols = linear_sum_assignment(-mac)
+    ok = (lam[rows] > 0) & (mu[cols] > 0) & (mac[rows, cols] >= mac_min)
     rows, cols = rows[ok], cols[ok]
     log_v = float(np.mean(np.log(problem.w_mean * mu[cols] / lam[rows]))) if len(rows) else 0.0
     scale = np.linalg.norm(A, axis=0)
@@ -144,8 +152,8 @@ def voxel_laplacian(voxel_map) -> np.ndarray:
 
 
 def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
-                smooth: tuple[float, ...] = (0.1, 1.0, 10.0), gap: float = 0.02
-                ) -> tuple[np.ndarray, dict]:
+                smooth: tuple[float, ...] = (0.1, 1.0, 10.0), gap: float = 0.02,
+                mac_min: float = 0.0) -> tuple[np.ndarray, dict]:
     """One linearized (Born) inversion from the homogeneous model, per voxel.
 
     Unknown theta_e = log(w_e / w_mean). Equations: the eigenvalue misfits
@@ -153,7 +161,8 @@ def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
     observed shapes' mixing coefficients a_d / a_c = sum_e theta_e psi_d^T K_e psi_c /
     (mu_c - mu_d) for homogeneous modes d whose eigenvalue differs from mu_c by more than
     ``gap`` (relative; nearer ones mix beyond first order). Solved with a smoothness penalty
-    (voxel Laplacian) of each weight in ``smooth``.
+    (voxel Laplacian) of each weight in ``smooth``. Only the pairs :func:`pair_observed`
+    keeps (MAC at least ``mac_min``) enter.
 
     Returns
     -------
@@ -165,7 +174,7 @@ def linear_step(problem: InverseProblem, basis: np.ndarray, n_slots: int,
         how strongly the paired modes see each voxel.
     """
     mu, psi = ritz_modes(problem, basis)
-    rows, cols, coef, log_v = pair_observed(problem, mu, psi, n_slots)
+    rows, cols, coef, log_v = pair_observed(problem, mu, psi, n_slots, mac_min)
     lam = np.asarray(problem.eigenvalues, dtype=float)
     m = problem.n_params
     if len(cols) == 0:
@@ -243,7 +252,8 @@ def within_instance_rank(values: np.ndarray) -> np.ndarray:
 
 
 def step_features(problem: InverseProblem, basis: np.ndarray, n_slots: int,
-                  smooth: tuple[float, ...], n_misfits: int) -> tuple[np.ndarray, float]:
+                  smooth: tuple[float, ...], n_misfits: int, mac_min: float = 0.0
+                  ) -> tuple[np.ndarray, float]:
     """(n_params, n_features) per-voxel inputs of the ``learned`` solver's network, and v_hom.
 
     Per voxel: the linearized steps (:func:`linear_step`) as solved and scaled to unit RMS
@@ -253,7 +263,7 @@ def step_features(problem: InverseProblem, basis: np.ndarray, n_slots: int,
     tell a soft defect from a stiff one) and the voxel's position and its square (grid units
     about the centre).
     """
-    steps, info = linear_step(problem, basis, n_slots, smooth=smooth)
+    steps, info = linear_step(problem, basis, n_slots, smooth=smooth, mac_min=mac_min)
     unit = steps / (np.sqrt(np.mean(steps**2, axis=0)) + 1e-12)
     near = neighbourhood_means(problem.voxel_map, unit)
     rank = within_instance_rank(unit)
