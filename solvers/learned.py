@@ -29,8 +29,8 @@ hundreds of samples) and keeps the physics of the inversion in its inputs. A lin
 map (2.0, "modal-step-ridge") is flat from 100 instances on; the network, its neighbourhood
 inputs and the NC-shaped target are what 3.0 adds. 3.1 pairs into 40 slots instead of 20 and
 drops pairs of low MAC: the Born equations of a mispaired mode are wrong, not noisy (val NC w
-from 10 true modes, 400 train instances: 0.288 without the gate, 0.346 with it; from the
-extracted modes of 5 val videos: 0.09 and 0.19). Weights record their pairing
+from 10 true modes, 400 train instances: 0.288 without the gate, 0.347 with it; from the
+extracted modes of 5 val videos: 0.09 and 0.20). Weights record their pairing
 (:class:`Pairing`) and are solved with it. Cost per solve: one Ritz projection, one dense
 solve per smoothness weight and three tiny networks (tens of ms on a quiet core).
 
