@@ -371,10 +371,12 @@ class USolver:
 
     def _factor(self, S, keep: bool):
         """Numeric Cholesky of S on the shared symbolic analysis; ``keep``: a new factor object
-        (to cache), else the reusable work factor is overwritten."""
+        (to cache), else the reusable work factor is overwritten. An S that is not numerically
+        positive definite (a near-singular K - lam M beside a thin P^T P) gets the LU of
+        :class:`Factorization`, as the z-step's systems do."""
         self.stats["factorizations"] += 1
         try:
-            from sksparse.cholmod import analyze
+            from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
         except ImportError:
             return Factorization(S)
         if self._symbolic is None:
@@ -385,7 +387,10 @@ class USolver:
             if self._work is None:
                 self._work = self._symbolic.copy()
             F = self._work
-        F.cholesky_inplace(S)
+        try:
+            F.cholesky_inplace(S)
+        except CholmodNotPositiveDefiniteError:
+            return Factorization(S)
         return F
 
     def _fits(self, n_more: int) -> bool:

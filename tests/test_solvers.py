@@ -196,6 +196,29 @@ def test_vvt_u_update_is_exact_after_the_homogeneous_start(problem6):
                 assert np.linalg.norm(U[:, i] - ref) < 1e-8 * np.linalg.norm(ref)
 
 
+def test_vvt_u_step_solves_a_system_cholesky_refuses_by_lu(problem6):
+    """A u-step system that is not numerically positive definite (met on a bunny: a
+    near-singular K - lam M beside a thin P^T P) is solved by LU, as the z-step's are, rather
+    than failing the solve."""
+    import scipy.sparse as sp
+    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+
+    from solvers.vvt import USolver
+
+    model = problem6.model
+    PtP = (problem6.P.T @ problem6.P).tocsc()
+    K, M = model.K(9000.0), model.M(1270.0)
+    us = USolver(model, PtP, 10.0, method="direct")
+    us._build_pattern(K, M)
+    S = sp.csc_matrix(K - 1.01 * problem6.eigenvalues[5] * M)   # indefinite
+    with pytest.raises(CholmodNotPositiveDefiniteError):
+        cholesky(S)
+    b = np.random.default_rng(0).standard_normal(S.shape[0])
+    for keep in (True, False):
+        x = us._factor(S, keep=keep)(b)
+        assert np.linalg.norm(S @ x - b) < 1e-8 * np.linalg.norm(b)
+
+
 def test_vvt_u_solvers_give_the_same_iterates(problem6):
     cls = load_solver("vvt")
     runs = {m: cls(cls.Config(max_iter=8, tol=0.0, u_solver=m, u_rtol=1e-8)).solve(problem6)
