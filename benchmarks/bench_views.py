@@ -119,7 +119,7 @@ def rows_from_cache(cache: Path) -> list[dict]:
 
 
 def table(rows: list[dict], args, title: str) -> None:
-    from vvtbench.stats import paired_comparison, summarize
+    from vvtbench.stats import paired_comparison, summarize, win_rate_text
 
     print(f"\n{title}\n")
     cost = all("cost_s" in r for r in rows)
@@ -146,7 +146,7 @@ def table(rows: list[dict], args, title: str) -> None:
                 c = paired_comparison(a, b)
                 paired = (f"{c['mean_diff']:+.3f} [{c['ci_low']:+.3f}, {c['ci_high']:+.3f}] "
                           f"(n {c['n']})")
-                win = f"{c['win_rate']:.2f}"
+                win = win_rate_text(c["win_rate"], c["ties"], c["n"])
             print(f"| {family} | {solver} | {views} | {frac:.3f} | {s['mean']:.3f} "
                   f"[{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}] | {valid}/{len(sel)} | "
                   f"{paired} | {win} |"

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from vvtbench.bench import read_results
-from vvtbench.stats import paired_comparison, summarize
+from vvtbench.stats import paired_comparison, summarize, win_rate_text
 
 
 def _ci(values) -> str:
@@ -100,8 +100,10 @@ def main() -> None:
                     p = paired_comparison(w[a], w[b])
                     ci = (f" [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}]"
                           if np.isfinite(p["ci_low"]) else " (no interval)")
+                    higher = round(p["win_rate"] * p["n"] - p["ties"] / 2)
+                    tied = f", {p['ties']} tied" if p["ties"] else ""
                     print(f"  paired NC w {a} - {b}: {p['mean_diff']:+.3f}{ci}, {a} higher on "
-                          f"{p['win_rate']:.0%} of {p['n']} instances")
+                          f"{higher} of {p['n']} instances{tied}")
             for r in ref:
                 if r not in w:
                     continue
@@ -260,9 +262,10 @@ def _views(d, run_dir: Path) -> None:
                 paired = "--"
                 if n != 1 and 1 in w and n in w:
                     p = paired_comparison(w[n], w[1])
+                    win = win_rate_text(p["win_rate"], p["ties"], p["n"])
                     paired = (f"{p['mean_diff']:+.3f} [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}] "
-                              f"| {p['win_rate']:.2f}") if np.isfinite(p["ci_low"]) else (
-                        f"{p['mean_diff']:+.3f} (n={p['n']}) | {p['win_rate']:.2f}")
+                              f"| {win}") if np.isfinite(p["ci_low"]) else (
+                        f"{p['mean_diff']:+.3f} (n={p['n']}) | {win}")
                 cost = (good.prep_s + good.runtime_s).median()
                 print(f"  {solver} | {n} | {rows.dof.mean():.3f} | {s['mean']:.3f} "
                       f"[{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}] | {paired}"

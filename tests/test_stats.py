@@ -37,8 +37,18 @@ def test_paired_comparison_uses_only_shared_instances():
     b = np.array([0.4, 0.6, 0.5, 0.1, np.nan])
     c = paired_comparison(a, b)
     assert c["n"] == 3 and np.isclose(c["mean_diff"], (0.1 + 0 + 0.2) / 3)
-    assert np.isclose(c["win_rate"], (1 + 0.5 + 1) / 3)
+    assert np.isclose(c["win_rate"], (1 + 0.5 + 1) / 3) and c["ties"] == 1
     assert c["ci_low"] <= c["mean_diff"] <= c["ci_high"]
+
+
+def test_a_win_rate_of_ties_alone_is_shown_as_ties_not_as_a_rate():
+    from vvtbench.stats import win_rate_text
+
+    same = paired_comparison([0.0] * 4, [0.0] * 4)
+    assert same["win_rate"] == 0.5 and same["ties"] == 4
+    assert win_rate_text(same["win_rate"], same["ties"], same["n"]) == "all tied"
+    c = paired_comparison([0.5, 0.6, 0.7], [0.4, 0.6, 0.5])
+    assert win_rate_text(c["win_rate"], c["ties"], c["n"]) == "0.83 (1 tied)"
 
 
 def _table():

@@ -42,6 +42,7 @@ from .stats import (
     paired_table,
     tie_groups,
     track_statistics,
+    win_rate_text,
 )
 
 #: ranked metrics, each as mean and median with their bootstrap intervals over instances
@@ -298,7 +299,8 @@ def _paired_rows(p) -> tuple[list[str], list[tuple[list[str], str]]]:
         rows.append(([f"{r['observation']} modes", str(r["variation"]), str(r["a"]),
                       str(r["b"]), ci_cell(r["mean_diff"], r["ci_low"], r["ci_high"],
                                            r["n"], sign=True),
-                      _num(r["win_rate"]), str(int(r["n"]))],
+                      win_rate_text(r["win_rate"], int(r.get("ties", 0)), int(r["n"])),
+                      str(int(r["n"]))],
                      "group" if key != last else ""))
         last = key
     return head, rows

@@ -18,7 +18,7 @@ import numpy as np
 
 __all__ = ["GROUP", "LEVEL", "MIN_RANK_N", "N_BOOT", "SEED", "bootstrap_ci", "instance_ids",
            "paired_comparison", "paired_table", "summarize", "TIE_RULE", "tie_groups",
-           "track_statistics"]
+           "track_statistics", "win_rate_text"]
 
 #: the cell of a statistic: one track, observation source, variation (sweep value) and solver
 GROUP = ["track", "observation", "variation", "solver"]
@@ -99,8 +99,9 @@ def paired_comparison(a: Sequence[float], b: Sequence[float], seed: int = SEED,
     Returns
     -------
     dict
-        ``n`` (pairs), ``mean_diff`` with its bootstrap interval ``ci_low``, ``ci_high``, and
-        ``win_rate``: the share of pairs where ``a`` is higher (ties count half).
+        ``n`` (pairs), ``mean_diff`` with its bootstrap interval ``ci_low``, ``ci_high``,
+        ``win_rate``: the share of pairs where ``a`` is higher (ties count half), and ``ties``:
+        the pairs where ``a`` equals ``b`` (shown with the rate: :func:`win_rate_text`).
     """
     x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     ok = np.isfinite(x) & np.isfinite(y)
@@ -108,7 +109,20 @@ def paired_comparison(a: Sequence[float], b: Sequence[float], seed: int = SEED,
     lo, hi = bootstrap_ci(d, n_boot=n_boot, level=level, seed=seed)
     wins = float(np.mean((d > 0) + 0.5 * (d == 0))) if d.size else float("nan")
     return {"n": int(d.size), "mean_diff": float(d.mean()) if d.size else float("nan"),
-            "ci_low": lo, "ci_high": hi, "win_rate": wins}
+            "ci_low": lo, "ci_high": hi, "win_rate": wins, "ties": int(np.sum(d == 0))}
+
+
+def win_rate_text(win_rate: float, ties: int, n: int) -> str:
+    """A win rate as shown beside its ties: a rate of ties alone would read as a result.
+
+    >>> win_rate_text(0.5, 4, 4), win_rate_text(0.75, 1, 4), win_rate_text(1.0, 0, 3)
+    ('all tied', '0.75 (1 tied)', '1.00')
+    """
+    if not n or not np.isfinite(win_rate):
+        return "–"
+    if ties == n:
+        return "all tied"
+    return f"{win_rate:.2f}" + (f" ({ties} tied)" if ties else "")
 
 
 def instance_ids(df):
@@ -213,7 +227,7 @@ def paired_table(df, metric: str = "nc_w", seed: int = SEED, n_boot: int = N_BOO
     import pandas as pd
 
     cols = [*GROUP[:-1], "a", "b", "metric", "n", "mean_diff", "ci_low", "ci_high",
-            "win_rate"]
+            "win_rate", "ties"]
     d = df.assign(_inst=instance_ids(df))[(df.status == "ok") & ~_reference(df)]
     groups = dict(iter(d.groupby(GROUP[:-1], sort=False)))
     rows = []
