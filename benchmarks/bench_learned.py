@@ -235,10 +235,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="JSON of the learning-curve rows: written after training; with "
                    "--replot read instead (table and figure again, e.g. with more references)")
     p.add_argument("--replot", action="store_true")
+    p.add_argument("--label", default="learned", help="the model's name in the figure")
+    p.add_argument("--earlier", nargs=2, metavar=("ROWS", "LABEL"), default=None,
+                   help="with --replot: another model's rows (JSON), drawn beside")
     args = p.parse_args(argv)
     if args.replot:
         ref = json.loads(args.reference.read_text())
-        report(json.loads(args.rows.read_text()), ref, args.curve)
+        earlier = ((args.earlier[1], json.loads(Path(args.earlier[0]).read_text()))
+                   if args.earlier else None)
+        report(json.loads(args.rows.read_text()), ref, args.curve, args.label, earlier)
         return 0
 
     if args.store is not None:
@@ -345,8 +350,10 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def report(rows: list[dict], ref: dict, curve: Path) -> None:
-    """The learning-curve table (markdown, stdout) and figure."""
+def report(rows: list[dict], ref: dict, curve: Path, label: str = "learned",
+           earlier: tuple[str, list[dict]] | None = None) -> None:
+    """The learning-curve table (markdown, stdout) and figure; ``earlier``: (label, rows) of
+    another model's curve drawn beside it."""
     print("\n| train instances | epochs | fit (s) | val NC w | test NC w [95 % CI] | "
           "s / instance |")
     print("|---|---|---|---|---|---|")
@@ -365,12 +372,14 @@ def report(rows: list[dict], ref: dict, curve: Path) -> None:
             m, lo, hi = mean_ci(rows[-1]["nc_w"][:len(d["nc_w"])])
             print(f"| learned ({rows[-1]['n_train']}) on the same {k} | | | | {m:+.3f} "
                   f"[{lo:+.3f}, {hi:+.3f}] | |")
-    plot_curve(rows, ref, curve)
+    plot_curve(rows, ref, curve, label, earlier)
     print(f"figure: {curve}")
 
 
-def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
-    """NC w on the test split against the number of train instances."""
+def plot_curve(rows: list[dict], ref: dict, path: Path, label: str = "learned",
+               earlier: tuple[str, list[dict]] | None = None) -> None:
+    """NC w on the test split against the number of train instances (and ``earlier``'s: a
+    (label, rows) pair of another model, its test means with their intervals)."""
     import matplotlib
     import matplotlib.ticker
 
@@ -383,8 +392,16 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
     k = sum(v is not None for v in rows[-1]["nc_w"]) if rows else 0
     ax.fill_between(n, m[:, 1], m[:, 2], color="C0", alpha=0.18, lw=0)
     ax.errorbar(n, m[:, 0], yerr=[m[:, 0] - m[:, 1], m[:, 2] - m[:, 0]], marker="o",
-                capsize=3, color="C0", label=f"learned (test mean, {k} instances with a defect)")
-    ax.plot(n, [r["val_nc_w"] for r in rows], "s--", color="0.5", label="learned (val mean)")
+                capsize=3, color="C0", label=f"{label} (test mean, {k} instances with a defect)")
+    ax.plot(n, [r["val_nc_w"] for r in rows], "s--", color="0.5", label=f"{label} (val mean)")
+    ticks = set(n)
+    if earlier is not None:
+        name, old = earlier
+        n0 = [r["n_train"] for r in old]
+        m0 = np.array([r["test"] for r in old])
+        ax.errorbar(n0, m0[:, 0], yerr=[m0[:, 0] - m0[:, 1], m0[:, 2] - m0[:, 0]], marker="^",
+                    capsize=3, color="C1", alpha=0.8, label=f"{name} (test mean)")
+        ticks |= set(n0)
     colors = {"sensitivity": "C3", "homogeneous": "k", "learned 2.0.0": "C2"}
     for name, d in ref.items():
         mean, lo, hi = mean_ci(d["nc_w"])
@@ -395,7 +412,7 @@ def plot_curve(rows: list[dict], ref: dict, path: Path) -> None:
             ax.axhline(mean - 0.05, color=c, lw=1.0, ls=":",
                        label="target: sensitivity's mean - 0.05")
     ax.set_xscale("log")
-    ax.set_xticks(n, [str(k) for k in n])
+    ax.set_xticks(sorted(ticks), [str(k) for k in sorted(ticks)])
     ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xlabel("train instances\nbars and bands: bootstrap 95 % interval of the mean over "
                   "the test instances (2000 resamples)", fontsize=9)
