@@ -100,10 +100,9 @@ def main() -> None:
                     p = paired_comparison(w[a], w[b])
                     ci = (f" [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}]"
                           if np.isfinite(p["ci_low"]) else " (no interval)")
-                    higher = round(p["win_rate"] * p["n"] - p["ties"] / 2)
                     tied = f", {p['ties']} tied" if p["ties"] else ""
                     print(f"  paired NC w {a} - {b}: {p['mean_diff']:+.3f}{ci}, {a} higher on "
-                          f"{higher} of {p['n']} instances{tied}")
+                          f"{p['wins']} of {p['n']} instances{tied}")
             for r in ref:
                 if r not in w:
                     continue

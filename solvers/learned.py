@@ -16,11 +16,10 @@ smoothness weights, beside the eigenvalue-only and shape-only gradients. Per vox
 ensemble of small networks (numpy, two ReLU layers, :mod:`vvtbench.learning.mlp`) reads
 these step maps, their means over the voxel's 3- and 5-voxel neighbourhood, their ranks
 within the instance, the voxel's observability and position and the instance's eigenvalue
-misfits, and predicts the truth's w standardized per
-instance (the least-squares surrogate of the NC of w; instances with a uniform truth carry no
-target). w is a positive affine map of that prediction (mean w_mean, the lowest voxel at half
-of it): its NC is the prediction's, its contrast is not learned. v is the homogeneous density
-fitted to the eigenvalues.
+misfits, and predicts the truth's w standardized per instance (the least-squares surrogate of
+the NC of w; instances with a uniform truth carry no target). w is a positive affine map of
+that prediction (mean w_mean, the lowest voxel at half of it): its NC is the prediction's, its
+contrast is not learned. v is the homogeneous density fitted to the eigenvalues.
 
 Why this family of models: a global map from an instance's observation to the whole field
 (ridge on 800 modal features) does not generalize from hundreds of instances (val NC w 0.03);

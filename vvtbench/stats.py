@@ -100,16 +100,18 @@ def paired_comparison(a: Sequence[float], b: Sequence[float], seed: int = SEED,
     -------
     dict
         ``n`` (pairs), ``mean_diff`` with its bootstrap interval ``ci_low``, ``ci_high``,
-        ``win_rate``: the share of pairs where ``a`` is higher (ties count half), and ``ties``:
-        the pairs where ``a`` equals ``b`` (shown with the rate: :func:`win_rate_text`).
+        ``win_rate``: the share of pairs where ``a`` is higher (ties count half), ``wins``: the
+        pairs where ``a`` is higher, and ``ties``: the pairs where ``a`` equals ``b`` (shown
+        with the rate: :func:`win_rate_text`).
     """
     x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     ok = np.isfinite(x) & np.isfinite(y)
     d = x[ok] - y[ok]
     lo, hi = bootstrap_ci(d, n_boot=n_boot, level=level, seed=seed)
-    wins = float(np.mean((d > 0) + 0.5 * (d == 0))) if d.size else float("nan")
+    rate = float(np.mean((d > 0) + 0.5 * (d == 0))) if d.size else float("nan")
     return {"n": int(d.size), "mean_diff": float(d.mean()) if d.size else float("nan"),
-            "ci_low": lo, "ci_high": hi, "win_rate": wins, "ties": int(np.sum(d == 0))}
+            "ci_low": lo, "ci_high": hi, "win_rate": rate, "wins": int(np.sum(d > 0)),
+            "ties": int(np.sum(d == 0))}
 
 
 def win_rate_text(win_rate: float, ties: int, n: int) -> str:
