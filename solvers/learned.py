@@ -200,8 +200,18 @@ class Pairing:
     mac_min: float = MAC_MIN
 
     @classmethod
-    def of(cls, meta: dict) -> Pairing:
-        return cls(int(meta.get("n_slots", 20)), float(meta.get("mac_min", 0.0)))
+    def of(cls, meta: dict, source: str | Path = "weights") -> Pairing:
+        """The pairing a weights file's ``meta`` records; ``source`` names the file in the
+        error a damaged or hand-edited value raises."""
+        n_slots, mac_min = meta.get("n_slots", 20), meta.get("mac_min", 0.0)
+        if isinstance(n_slots, bool) or not isinstance(n_slots, int) or n_slots < 1:
+            raise ValueError(f"{source}: meta key 'n_slots' is {n_slots!r}; allowed: an "
+                             "integer >= 1 (the pairing slots the weights were trained with)")
+        if (isinstance(mac_min, bool) or not isinstance(mac_min, (int, float))
+                or not 0.0 <= mac_min <= 1.0):
+            raise ValueError(f"{source}: meta key 'mac_min' is {mac_min!r}; allowed: a number "
+                             "in [0, 1] (the lowest MAC a kept pair may have)")
+        return cls(n_slots, float(mac_min))
 
 
 def voxel_features(problem: InverseProblem, basis: np.ndarray, pairing: Pairing = Pairing()
@@ -528,10 +538,11 @@ class LearnedSolver:
         wts, meta = load_weights(path)
         model = meta.get("model", LEGACY_MODEL)
         if model in (MODEL, RIDGE_MODEL):
+            pairing = Pairing.of(meta, path)
             wts = {**wts, "model": model, "members": meta.get("members", 0),
                    "mesh_keys": meta.get("mesh_keys")}
             featurize = voxel_features if model == MODEL else ridge_voxel_features
-            X, v_hom = featurize(problem, basis_for(wts, problem), Pairing.of(meta))
+            X, v_hom = featurize(problem, basis_for(wts, problem), pairing)
             w = predict_w(wts, X, problem.w_mean)
             v = np.full(problem.n_params, v_hom)
         else:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -567,3 +568,24 @@ def test_training_cost_is_bounded_by_a_number_of_steps():
     assert not np.array_equal(two["W0"], longer["W0"])
     with pytest.raises(ValueError, match="steps"):
         fit_mlp(X, y, steps=0)
+
+
+@pytest.mark.parametrize("key, value", [("n_slots", "40"), ("n_slots", 0), ("n_slots", 2.5),
+                                        ("n_slots", True), ("mac_min", float("nan")),
+                                        ("mac_min", -0.1), ("mac_min", 1.5), ("mac_min", "0.5")])
+def test_a_damaged_pairing_in_the_weights_is_named_in_one_error(tmp_path, key, value):
+    from solvers.learned import LearnedConfig, LearnedSolver, load_weights, weights_path
+
+    arrays, meta = load_weights(weights_path("cube_defects"))
+    bad = tmp_path / "w.npz"
+    np.savez(bad, **arrays, meta_json=np.frombuffer(
+        json.dumps({**meta, key: value}).encode(), dtype=np.uint8))
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(bad))}: meta key '{key}' is .*allowed"):
+        LearnedSolver(LearnedConfig(weights=str(bad))).solve(None)
+
+
+def test_weights_without_a_pairing_solve_as_before_the_gate():
+    from solvers.learned import Pairing
+
+    assert Pairing.of({}) == Pairing(20, 0.0)
+    assert Pairing.of({"n_slots": 40, "mac_min": 0.5}) == Pairing(40, 0.5)
