@@ -35,7 +35,7 @@ _PER_MODE = (
 # metadata lists with one entry per analysed peak (kept and rejected), in the order analysed
 CANDIDATE_LISTS = ("roughness", "roughness_shape", "reliable_fraction", "phase_rad",
                    "frequency_std_hz", "damping_lo", "damping_hi", "shape_mac_expected",
-                   "close_mode_bias", "line_misfit")
+                   "close_mode_bias", "line_misfit", "damping_unwindowed")
 
 
 @dataclass
@@ -175,7 +175,10 @@ class ModeSet:
         Where the set carries the damping's 95 % interval (line fit, :meth:`damping_interval`)
         it must also be tighter than a factor 2 (``lo > 0`` and ``hi / lo <= 2``), and a mode
         flagged ``close_mode_bias`` (a close pair whose fit residual or parameter correlation
-        says the two lines bias each other) is not resolved.
+        says the two lines bias each other) is not resolved. A peak-picked damping's interval
+        spans the fits with and without the window (:mod:`.jackknife`), so a mode that did
+        not decay freely from the record's start (a sweep passed through it mid-record) is
+        resolved only where the two readings lie within a factor 2.
         """
         z, zh, f = self.damping, self.damping_half_power, self.frequencies_hz
         df = self.fps / self.n_frames if self.n_frames else np.inf

@@ -41,6 +41,7 @@ __all__ = [
     "block_columns",
     "bin_fields",
     "frequency_axis",
+    "hann_from_unwindowed",
     "motion_power_spectrum",
     "pixel_noise_power",
     "window_gain",
@@ -65,6 +66,33 @@ def window_gain(n_frames: int, window: Window) -> float:
     """``sum(w_t)``: a sinusoid of amplitude ``A`` on a bin gives ``|X_l| = A * gain / 2``."""
     w = window_weights(n_frames, window)
     return float(n_frames) if w is None else float(w.sum())
+
+
+def hann_from_unwindowed(X: NDArray[np.complex128], n_frames: int) -> NDArray[np.complex128]:
+    """The ``rfft`` (axis 0) of a record times the periodic Hann window, from the ``rfft`` ``X``
+    of the record itself: ``0.5 X_l - 0.25 (X_{l-1} + X_{l+1})``, the bins beyond either end
+    taken from the conjugate-symmetric full DFT.  Exact, so one transform gives both spectra.
+
+    >>> x = np.random.default_rng(0).standard_normal((10, 3))
+    >>> w = window_weights(10, "hann")[:, None]
+    >>> bool(np.allclose(hann_from_unwindowed(np.fft.rfft(x, axis=0), 10),
+    ...                  np.fft.rfft(x * w, axis=0)))
+    True
+    """
+    T = int(n_frames)
+    F = X.shape[0]
+    if F != T // 2 + 1:
+        raise ValueError(f"{F} rfft bins do not belong to {T} frames")
+    below = np.empty_like(X)
+    above = np.empty_like(X)
+    below[1:] = X[:-1]
+    below[0] = X[1].conj() if F > 1 else X[0].conj()
+    above[:-1] = X[1:]
+    above[-1] = X[-2].conj() if T % 2 == 0 and F > 1 else X[-1].conj()
+    below += above
+    below *= -0.25
+    below += 0.5 * X
+    return below
 
 
 DEFAULT_BUDGET = 1 << 30  # 1 GiB
