@@ -20,6 +20,7 @@ __all__ = [
     "damping_half_power",
     "damping_lorentzian",
     "decay_spectrum",
+    "lorentzian_fit",
 ]
 
 # a neighbouring peak rises above the valley by more than this factor (~0.5 decade, the
@@ -246,6 +247,23 @@ def damping_lorentzian(
         Fitted half width at half maximum of the unwindowed peak (Hz).  Noise limits how
         small a ``g`` can be told from 0: about ``0.05 fps / T`` for a clean peak.
     """
+    return lorentzian_fit(freqs, power, k, half_width_bins, window=window,
+                          n_frames=n_frames)[:3]
+
+
+def lorentzian_fit(
+    freqs: ArrayLike,
+    power: ArrayLike,
+    k: int,
+    half_width_bins: int | None = None,
+    *,
+    window: Window = "none",
+    n_frames: int | None = None,
+    start: NDArray[np.float64] | None = None,
+) -> tuple[float, float, float, NDArray[np.float64] | None]:
+    """:func:`damping_lorentzian` and the fitted parameters (``None`` where it failed), from
+    which a fit to a similar spectrum (a jackknife's leave-one-out) can ``start``: it is then
+    polished from there in log power, without the first, linear-amplitude stage."""
     f = np.asarray(freqs, dtype=np.float64)
     p = np.asarray(power, dtype=np.float64)
     T = _n_frames_of(f, n_frames)
@@ -263,7 +281,7 @@ def damping_lorentzian(
     bins = np.arange(lo, hi + 1)
     ps = p[lo : hi + 1]
     ok = ps > 0
-    nan3 = float("nan"), float(f[k]), float("nan")
+    nan3 = float("nan"), float(f[k]), float("nan"), None
     if ok.sum() < 5:
         return nan3
     lb_, ps = bins[ok].astype(np.float64), ps[ok]
@@ -293,19 +311,25 @@ def damping_lorentzian(
         return np.log(np.maximum(m + math.exp(z[n + 1]), 1e-300)) - lp
 
     try:
-        res = least_squares(resid, y0, bounds=(lb, ub), max_nfev=400)
-        coef, *_ = np.linalg.lstsq(design(res.x), np.ones_like(ps), rcond=None)
-        if not (np.all(np.isfinite(res.x)) and coef[0] > 0):
-            return nan3
+        if start is not None and len(start) == n + 2 and np.all(np.isfinite(start)):
+            z0 = np.asarray(start, np.float64).copy()
+            z0[n + 1] = np.clip(z0[n + 1], c_lo, c_hi)
+            a0 = float(z0[n])
+        else:
+            res = least_squares(resid, y0, bounds=(lb, ub), max_nfev=400)
+            coef, *_ = np.linalg.lstsq(design(res.x), np.ones_like(ps), rcond=None)
+            if not (np.all(np.isfinite(res.x)) and coef[0] > 0):
+                return nan3
+            a0 = math.log(coef[0])
+            z0 = np.r_[res.x, a0, np.clip(math.log(max(coef[1], 1e-30)), c_lo, c_hi)]
         # polish in log power: unbiased under the multiplicative noise of a periodogram
-        a0 = math.log(coef[0])
-        z0 = np.r_[res.x, a0, np.clip(math.log(max(coef[1], 1e-30)), c_lo, c_hi)]
         bounds = (lb + [a0 - 30.0, c_lo], ub + [a0 + 30.0, c_hi])
-        res = least_squares(log_resid, np.clip(z0, *bounds), bounds=bounds, max_nfev=400)
+        res = least_squares(log_resid, np.clip(z0, *bounds), bounds=bounds, max_nfev=400,
+                            xtol=1e-6, ftol=1e-6)
     except (ValueError, FloatingPointError, OverflowError, np.linalg.LinAlgError):
         return nan3
     if not np.all(np.isfinite(res.x)):
         return nan3
     fd, g = float(res.x[0] * df), float(math.exp(res.x[1]) * df)
     f0 = math.hypot(fd, g)
-    return (g / f0 if f0 > 0 else float("nan")), fd, g
+    return (g / f0 if f0 > 0 else float("nan")), fd, g, res.x

@@ -51,7 +51,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .damping import damping_lorentzian
+from .damping import damping_lorentzian, lorentzian_fit
 from .peaks import refine_frequency
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks, hann_from_unwindowed
@@ -230,15 +230,17 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
     k = np.atleast_1d(np.asarray(bins, np.int64))
     total = Pg.sum(axis=0)
     T = n_frames
-    z0 = (np.array([damping_lorentzian(f, total, int(b), window=window, n_frames=T)[0]
-                    for b in k]) if damping is None else np.asarray(damping, np.float64))
+    full = [lorentzian_fit(f, total, int(b), window=window, n_frames=T) for b in k]
+    z0 = (np.array([fit[0] for fit in full]) if damping is None
+          else np.asarray(damping, np.float64))
     fj = np.empty((G, k.size))
     zj = np.empty((G, k.size))
     for g in range(G):
         loo = total - Pg[g]
         for i, b in enumerate(k):
             fj[g, i] = refine_frequency(f, loo, int(b))
-            zj[g, i] = damping_lorentzian(f, loo, int(b), window=window, n_frames=T)[0]
+            zj[g, i] = lorentzian_fit(f, loo, int(b), window=window, n_frames=T,
+                                      start=full[i][3])[0]
     t95 = _t95(G - 1)
     sf = np.sqrt((G - 1) / G * np.sum((fj - fj.mean(axis=0)) ** 2, axis=0))
     from scipy.stats import chi2
