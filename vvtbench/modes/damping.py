@@ -251,16 +251,10 @@ def damping_lorentzian(
                           n_frames=n_frames)[:3]
 
 
-def lorentzian_fit(
-    freqs: ArrayLike,
-    power: ArrayLike,
-    k: int,
-    half_width_bins: int | None = None,
-    *,
-    window: Window = "none",
-    n_frames: int | None = None,
-    start: NDArray[np.float64] | None = None,
-) -> tuple[float, float, float, NDArray[np.float64] | None]:
+def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: int | None = None,
+                   *, window: Window = "none", n_frames: int | None = None,
+                   start: NDArray[np.float64] | None = None
+                   ) -> tuple[float, float, float, NDArray[np.float64] | None]:
     """:func:`damping_lorentzian` and the fitted parameters (``None`` where it failed), from
     which a fit to a similar spectrum (a jackknife's leave-one-out) can ``start``: it is then
     polished from there in log power, without the first, linear-amplitude stage."""
