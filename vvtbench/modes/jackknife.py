@@ -34,7 +34,7 @@ with another analysed peak within twice the bins its damping fit reaches
 three bins are not one line (:func:`blend_misfit` above :data:`.uncertainty.MAX_MISFIT`,
 stored as ``line_misfit``), is flagged ``close_mode_bias``; its damping is then not resolved.
 With the Hann window the damping is also fitted to the spectrum without window, from the same
-transforms, and the reported interval is extended to contain that second reading.
+transforms, with its own jackknife interval, and the reported interval is the hull of the two.
 Both fits are exact for a free decay from the record's first frame and then agree within their
 noise; a mode that starts later (a sweep passes through it mid-record) is read as decaying
 faster by the Hann fit, and the interval then spans both readings: a damping whose interval spans
@@ -425,7 +425,7 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         ``frequency_std_hz``, ``damping_lo``, ``damping_hi``, ``shape_mac_expected``,
         ``close_mode_bias``, ``line_misfit`` (``None``: no line is fitted) and, with the
         Hann window, ``damping_unwindowed`` (the damping fitted to the spectrum without
-        window; ``damping_lo`` and ``damping_hi`` then extend the interval to contain it),
+        window; ``damping_lo`` and ``damping_hi`` are then the hull of both fits' intervals),
         one entry per peak,
         JSON-ready, plus ``uncertainty_method`` and ``uncertainty_groups``.
     """
@@ -464,9 +464,15 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         total = plain[0].sum(axis=0)
         z_plain = np.array([damping_lorentzian(f, total, int(b), window="none",
                                                n_frames=store.n_frames)[0] for b in k])
-        both = np.isfinite(ju["damping_lo"]) & np.isfinite(ju["damping_hi"]) & np.isfinite(z_plain)
-        ju["damping_lo"] = np.where(both, np.fmin(ju["damping_lo"], z_plain), ju["damping_lo"])
-        ju["damping_hi"] = np.where(both, np.fmax(ju["damping_hi"], z_plain), ju["damping_hi"])
+        jp = jackknife_uncertainty(f, plain[0], k, window="none", n_frames=store.n_frames,
+                                   damping=z_plain, band=in_band,
+                                   floor_half_width_bins=floor_half_width_bins)
+        both = (np.isfinite(ju["damping_lo"]) & np.isfinite(ju["damping_hi"])
+                & np.isfinite(jp["damping_lo"]) & np.isfinite(jp["damping_hi"]))
+        ju["damping_lo"] = np.where(both, np.fmin(ju["damping_lo"], jp["damping_lo"]),
+                                    ju["damping_lo"])
+        ju["damping_hi"] = np.where(both, np.fmax(ju["damping_hi"], jp["damping_hi"]),
+                                    ju["damping_hi"])
     mac = _expected_shape_mac(Ps, k, in_band, floor_half_width_bins)
     misfit = np.where(inner, blend_misfit(cross, ju["noise"][np.clip(k, 0, F - 1)], window),
                       np.nan)
