@@ -369,3 +369,58 @@ def test_a_file_the_config_names_is_shown_to_the_child_where_it_names_it(tmp_pat
         d = describe_sealed("solver", "learned", {"weights": given})
         assert sha256_file(tmp_path / "w.npz") in json.dumps(d["inputs"]), d["inputs"]
         assert d["config"]["weights"] == given
+
+
+def test_working_folders_of_a_killed_process_are_removed_and_no_other(tmp_path):
+    """A process killed outright leaves its sealed working folders; the next sweep removes
+    those whose owner is gone and leaves live owners', foreign hosts', unmarked folders and
+    links alone."""
+    import subprocess
+
+    from vvtbench.sealed import OWNER, PREFIX, _owner, remove_stale_scratch
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    me = _owner()
+
+    def folder(name: str, owner: dict | None) -> Path:
+        path = tmp_path / (PREFIX + name)
+        (path / "scratch").mkdir(parents=True)
+        (path / "scratch" / "big.bin").write_bytes(b"x" * 1000)
+        if owner is not None:
+            (path / OWNER).write_text(json.dumps(owner))
+        return path
+
+    stale = folder("dead", {**me, "pid": dead.pid})
+    reused = folder("reused", {**me, "start": "1"})  # this pid, another start: a reused pid
+    live = folder("live", me)
+    foreign = folder("foreign", {**me, "host": me["host"] + "-other", "pid": dead.pid})
+    unmarked = folder("unmarked", None)
+    (tmp_path / (PREFIX + "link")).symlink_to(stale)
+    other = tmp_path / "not-ours"
+    other.mkdir()
+    (other / OWNER).write_text(json.dumps({**me, "pid": dead.pid}))
+    removed = remove_stale_scratch(tmp_path)
+    assert sorted(removed) == sorted([stale, reused])
+    assert not stale.exists() and not reused.exists()
+    assert live.is_dir() and foreign.is_dir() and unmarked.is_dir() and other.is_dir()
+    assert (tmp_path / (PREFIX + "link")).is_symlink()
+
+
+def test_the_first_sealed_call_sweeps_stale_folders_and_leaves_none_of_its_own(tmp_path,
+                                                                             monkeypatch):
+    import subprocess
+    import tempfile
+
+    from vvtbench import sealed
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(sealed, "_SWEPT", set())
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / (sealed.PREFIX + "dead")
+    stale.mkdir()
+    (stale / sealed.OWNER).write_text(json.dumps({**sealed._owner(), "pid": dead.pid}))
+    sealed.forget_descriptions()
+    assert sealed.describe_sealed("solver", "homogeneous", timeout=120)["name"] == "homogeneous"
+    assert not list(tmp_path.glob(sealed.PREFIX + "*"))

@@ -27,6 +27,10 @@ a plug-in's name, version and configuration -- runs in a child process started b
   response only after the child ended, and never trusts a missing one.
 
 Nothing but paths and JSON crosses the boundary (no pickle).
+
+Each working folder records the process that made it (``owner.json``: host, pid and the
+process's start time). A process killed outright cannot remove its folders; the first sealed
+call of a later process removes those whose owner no longer runs (:func:`remove_stale_scratch`).
 """
 
 from __future__ import annotations
@@ -48,8 +52,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SealedError", "describe_sealed", "extract_sealed", "list_sealed", "run_sealed",
-           "sandbox_kind", "solve_sealed"]
+__all__ = ["SealedError", "describe_sealed", "extract_sealed", "list_sealed",
+           "remove_stale_scratch", "run_sealed", "sandbox_kind", "solve_sealed"]
 
 DEFAULT_TIMEOUT = 3600.0
 _LOG_TAIL = 4000
@@ -276,6 +280,66 @@ def _reap_escaped(before: set[int], marker: str) -> None:
 # --------------------------------------------------------------------------- the parent side
 
 
+PREFIX = "vvtbench-sealed-"
+OWNER = "owner.json"
+_SWEPT: set[str] = set()
+
+
+def _process_start(pid: int) -> str | None:
+    """The start time of process ``pid`` (``/proc/PID/stat`` field 22, clock ticks since
+    boot), or None where there is no such file."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return text[text.rfind(")") + 2:].split()[19]
+
+
+def _owner() -> dict:
+    import socket
+
+    return {"host": socket.gethostname(), "pid": os.getpid(),
+            "start": _process_start(os.getpid())}
+
+
+def _owner_gone(doc: dict) -> bool:
+    pid = doc.get("pid")
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    start = _process_start(pid)
+    return doc.get("start") is not None and start is not None and start != doc["start"]
+
+
+def remove_stale_scratch(folder: str | Path | None = None) -> list[Path]:
+    """Remove the sealed working folders in ``folder`` (default: the system's temporary
+    folder) whose owner process, on this host, no longer runs; return them.
+
+    Only real folders named ``vvtbench-sealed-*``, owned by this user and holding an
+    ``owner.json`` are considered; anything else is left alone.
+    """
+    root = Path(folder) if folder is not None else Path(tempfile.gettempdir())
+    host = _owner()["host"]
+    removed = []
+    for path in sorted(root.glob(PREFIX + "*")):
+        try:
+            info = path.lstat()
+            if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid():
+                continue
+            doc = json.loads((path / OWNER).read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(doc, dict) and doc.get("host") == host and _owner_gone(doc):
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed
+
+
 def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
                secrets: Sequence[Path] = (), extra_ro: Sequence[Path] = (),
                timeout: float | None = DEFAULT_TIMEOUT, memory_bytes: int | None = None,
@@ -291,8 +355,13 @@ def run_sealed(spec: dict, inputs: Mapping[str, Path], dest: Path | None, *,
     :class:`SealedError`.
     """
     kind = sandbox_kind()
-    work = Path(tempfile.mkdtemp(prefix="vvtbench-sealed-", dir=scratch))
+    root = str(scratch if scratch is not None else tempfile.gettempdir())
+    if root not in _SWEPT:
+        _SWEPT.add(root)
+        remove_stale_scratch(root)
+    work = Path(tempfile.mkdtemp(prefix=PREFIX, dir=scratch))
     try:
+        (work / OWNER).write_text(json.dumps(_owner()))
         (work / "out").mkdir()
         (work / "in").mkdir()
         (work / "scratch").mkdir()
