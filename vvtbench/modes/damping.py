@@ -275,9 +275,9 @@ def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: 
     bins = np.arange(lo, hi + 1)
     ps = p[lo : hi + 1]
     ok = ps > 0
-    nan3 = float("nan"), float(f[k]), float("nan"), None
+    failed = float("nan"), float(f[k]), float("nan"), None
     if ok.sum() < 5:
-        return nan3
+        return failed
     lb_, ps = bins[ok].astype(np.float64), ps[ok]
     wt = 1.0 / ps
     image = ok.sum() >= 8
@@ -313,7 +313,7 @@ def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: 
             res = least_squares(resid, y0, bounds=(lb, ub), max_nfev=400)
             coef, *_ = np.linalg.lstsq(design(res.x), np.ones_like(ps), rcond=None)
             if not (np.all(np.isfinite(res.x)) and coef[0] > 0):
-                return nan3
+                return failed
             a0 = math.log(coef[0])
             z0 = np.r_[res.x, a0, np.clip(math.log(max(coef[1], 1e-30)), c_lo, c_hi)]
         # polish in log power: unbiased under the multiplicative noise of a periodogram
@@ -321,9 +321,9 @@ def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: 
         res = least_squares(log_resid, np.clip(z0, *bounds), bounds=bounds, max_nfev=400,
                             xtol=1e-6, ftol=1e-6)
     except (ValueError, FloatingPointError, OverflowError, np.linalg.LinAlgError):
-        return nan3
+        return failed
     if not np.all(np.isfinite(res.x)):
-        return nan3
+        return failed
     fd, g = float(res.x[0] * df), float(math.exp(res.x[1]) * df)
     f0 = math.hypot(fd, g)
     return (g / f0 if f0 > 0 else float("nan")), fd, g, res.x

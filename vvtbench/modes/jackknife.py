@@ -51,14 +51,13 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .damping import damping_lorentzian, lorentzian_fit
+from .damping import lorentzian_fit
 from .peaks import refine_frequency
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks, hann_from_unwindowed
 from .uncertainty import CLOSE_BINS, MAX_MISFIT, block_clusters
 
-__all__ = ["DEFAULT_GROUPS", "METHOD", "blend_misfit", "damping_fit_reach",
-           "group_labels",
+__all__ = ["DEFAULT_GROUPS", "METHOD", "blend_misfit", "damping_fit_reach", "group_labels",
            "group_spectra", "jackknife_uncertainty", "peak_uncertainty"]
 
 #: groups of pixel tiles left out one at a time
@@ -216,11 +215,11 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         ``noise`` (``(F,)`` mean noise power of the summed spectrum: its floor times the
         mean over the median of its chi-square law), ``frequency_std_hz`` (root-mean-square
         error: the jackknife variance plus the square of :func:`refine_bias_bins`),
-        ``frequency_jackknife_std_hz``, ``frequency_bias_hz``, ``damping_std``,
-        ``damping_lo``, ``damping_hi`` (``(M,)``; an interval of ``[0, 0.3]``, which says
-        nothing, where fewer than half the leave-one-out damping fits succeed; ``nan`` where
-        the estimate itself is not
-        finite) and ``t95`` (the quantile used).
+        ``frequency_jackknife_std_hz``, ``frequency_bias_hz``, ``damping`` (the estimates
+        the intervals are centred on), ``damping_std``, ``damping_lo``, ``damping_hi``
+        (``(M,)``; an interval of ``[0, 0.3]``, which says nothing, where fewer than half the
+        leave-one-out damping fits succeed; ``nan`` where the estimate itself is not finite)
+        and ``t95`` (the quantile used).
     """
     f = np.asarray(freqs, np.float64)
     Pg = np.asarray(group_power, np.float64)
@@ -270,7 +269,8 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         lo[i], hi[i] = z0[i] - q * sz[i], z0[i] + q * sz[i]
     return {"noise": noise, "frequency_std_hz": np.hypot(sf, bias),
             "frequency_jackknife_std_hz": sf,
-            "frequency_bias_hz": bias, "damping_std": sz, "damping_lo": lo, "damping_hi": hi,
+            "frequency_bias_hz": bias, "damping": z0, "damping_std": sz, "damping_lo": lo,
+            "damping_hi": hi,
             "t95": np.full(k.size, t95)}
 
 
@@ -426,8 +426,8 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         ``close_mode_bias``, ``line_misfit`` (``None``: no line is fitted) and, with the
         Hann window, ``damping_unwindowed`` (the damping fitted to the spectrum without
         window; ``damping_lo`` and ``damping_hi`` are then the hull of both fits' intervals),
-        one entry per peak,
-        JSON-ready, plus ``uncertainty_method`` and ``uncertainty_groups``.
+        one entry per peak, JSON-ready, plus ``uncertainty_method`` and
+        ``uncertainty_groups``.
     """
     store = _as_store(disp)
     k = np.atleast_1d(np.asarray(bins, np.int64))
@@ -461,12 +461,9 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                                floor_half_width_bins=floor_half_width_bins)
     z_plain = np.full(M, np.nan)
     if hann:
-        total = plain[0].sum(axis=0)
-        z_plain = np.array([damping_lorentzian(f, total, int(b), window="none",
-                                               n_frames=store.n_frames)[0] for b in k])
         jp = jackknife_uncertainty(f, plain[0], k, window="none", n_frames=store.n_frames,
-                                   damping=z_plain, band=in_band,
-                                   floor_half_width_bins=floor_half_width_bins)
+                                   band=in_band, floor_half_width_bins=floor_half_width_bins)
+        z_plain = jp["damping"]
         both = (np.isfinite(ju["damping_lo"]) & np.isfinite(ju["damping_hi"])
                 & np.isfinite(jp["damping_lo"]) & np.isfinite(jp["damping_hi"]))
         ju["damping_lo"] = np.where(both, np.fmin(ju["damping_lo"], jp["damping_lo"]),
