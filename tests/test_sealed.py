@@ -396,6 +396,9 @@ def test_working_folders_of_a_killed_process_are_removed_and_no_other(tmp_path):
     live = folder("live", me)
     foreign = folder("foreign", {**me, "host": me["host"] + "-other", "pid": dead.pid})
     unmarked = folder("unmarked", None)
+    odd = [folder(f"odd{i}", {**me, "pid": pid}) for i, pid in
+           enumerate([2**70, 2**40, -1, 0, "12", 1.5, True, None])]
+    (folder("garbled", None) / OWNER).write_bytes(b"\xff{not json")
     (tmp_path / (PREFIX + "link")).symlink_to(stale)
     other = tmp_path / "not-ours"
     other.mkdir()
@@ -404,6 +407,8 @@ def test_working_folders_of_a_killed_process_are_removed_and_no_other(tmp_path):
     assert sorted(removed) == sorted([stale, reused])
     assert not stale.exists() and not reused.exists()
     assert live.is_dir() and foreign.is_dir() and unmarked.is_dir() and other.is_dir()
+    assert all(path.is_dir() for path in odd)
+    assert (tmp_path / (PREFIX + "garbled")).is_dir()
     assert (tmp_path / (PREFIX + "link")).is_symlink()
 
 

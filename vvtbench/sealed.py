@@ -303,14 +303,16 @@ def _owner() -> dict:
 
 
 def _owner_gone(doc: dict) -> bool:
+    """Whether the process ``owner.json`` names has ended; False for anything that is not a
+    pid this system could hold."""
     pid = doc.get("pid")
-    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+    if not isinstance(pid, int) or isinstance(pid, bool) or not 0 < pid < 1 << 31:
         return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return True
-    except PermissionError:
+    except OSError:
         return False
     start = _process_start(pid)
     return doc.get("start") is not None and start is not None and start != doc["start"]
