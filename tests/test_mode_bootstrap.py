@@ -284,7 +284,11 @@ def test_a_mode_a_sweep_reaches_mid_record_has_an_interval_that_covers_its_dampi
     """The Hann fit models a free decay from the first frame; a mode a sweep passes through
     later decays under the window's fall and reads up to three times too damped. The interval
     spans the fit without window (near the truth): it covers the true damping or is wider than
-    a factor 2 (not resolved). A plucked mode keeps its narrow resolved interval."""
+    a factor 2 (not resolved). A plucked mode keeps its narrow resolved interval.
+
+    The displacement at onset is the largest the mode had (every mode of the field peaks at
+    0.05 px): the Hann fit's extrapolation to the first frame alone reads a swept mode 4x
+    too large; the two fits' amplitude ratio brings it back, and is 1 for a pluck."""
     modes = [(60.0, 0.010), (150.0, 0.008), (260.0, 0.006)]
     for swept in (False, True):
         rng = np.random.default_rng(SEED + 7)
@@ -292,6 +296,8 @@ def test_a_mode_a_sweep_reaches_mid_record_has_an_interval_that_covers_its_dampi
                                       fmax=400)
         lo, hi = ms.damping_interval()
         plain = ms.mode_list("damping_unwindowed")
+        ratio = ms.mode_list("onset_amplitude_ratio")
+        onset = ms.initial_displacement_px
         resolved = ms.damping_resolved()
         for f0, zeta in modes:
             i = int(np.argmin(np.abs(ms.frequencies_hz - f0)))
@@ -301,3 +307,7 @@ def test_a_mode_a_sweep_reaches_mid_record_has_an_interval_that_covers_its_dampi
                 assert ms.damping[i] > 1.5 * zeta  # the Hann fit alone is far off
             assert (lo[i] <= zeta <= hi[i]) or not resolved[i]
             assert resolved[i] or swept
+            if resolved[i]:
+                assert abs(onset[i] / 0.05 - 1) < 0.15
+            if not swept:
+                assert abs(ratio[i] - 1) < 0.05

@@ -337,7 +337,7 @@ def main_extract(argv: list[str] | None = None) -> int:
             + (f" [{zlo[i]:.3g}, {zhi[i]:.3g}]" if np.isfinite(zlo[i]) else "")
             + ("  ! close mode bias" if biased[i] else "")
             + f"  peak {peak[i]:.3g} px"
-            + (f" (at the start {start[i]:.3g} px)" if start[i] > 1.05 * peak[i] else "")
+            + (f" (at onset {start[i]:.3g} px)" if start[i] > 1.05 * peak[i] else "")
             + f"  prominence {row['prominences']:.2f}"
             + (f"  roughness {row['roughness']:.2f}" if row.get("roughness") is not None else "")
         )

@@ -216,7 +216,10 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         mean over the median of its chi-square law), ``frequency_std_hz`` (root-mean-square
         error: the jackknife variance plus the square of :func:`refine_bias_bins`),
         ``frequency_jackknife_std_hz``, ``frequency_bias_hz``, ``damping`` (the estimates
-        the intervals are centred on), ``damping_std``, ``damping_lo``, ``damping_hi``
+        the intervals are centred on), ``line_scale`` (the full fit's factor on the power of a
+        unit decay from the first frame, :func:`.damping.decay_spectrum`: the squared
+        amplitude at that frame, summed as the spectrum is; ``nan`` where the fit failed),
+        ``damping_std``, ``damping_lo``, ``damping_hi``
         (``(M,)``; an interval of ``[0, 0.3]``, which says nothing, where fewer than half the
         leave-one-out damping fits succeed; ``nan`` where the estimate itself is not finite)
         and ``t95`` (the quantile used).
@@ -232,6 +235,7 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
     full = [lorentzian_fit(f, total, int(b), window=window, n_frames=T) for b in k]
     z0 = (np.array([fit[0] for fit in full]) if damping is None
           else np.asarray(damping, np.float64))
+    scale = np.array([math.exp(fit[3][-2]) if fit[3] is not None else np.nan for fit in full])
     fj = np.empty((G, k.size))
     zj = np.empty((G, k.size))
     for g in range(G):
@@ -269,8 +273,8 @@ def jackknife_uncertainty(freqs: ArrayLike, group_power: ArrayLike, bins: ArrayL
         lo[i], hi[i] = z0[i] - q * sz[i], z0[i] + q * sz[i]
     return {"noise": noise, "frequency_std_hz": np.hypot(sf, bias),
             "frequency_jackknife_std_hz": sf,
-            "frequency_bias_hz": bias, "damping": z0, "damping_std": sz, "damping_lo": lo,
-            "damping_hi": hi,
+            "frequency_bias_hz": bias, "damping": z0, "line_scale": scale, "damping_std": sz,
+            "damping_lo": lo, "damping_hi": hi,
             "t95": np.full(k.size, t95)}
 
 
@@ -425,9 +429,11 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         ``frequency_std_hz``, ``damping_lo``, ``damping_hi``, ``shape_mac_expected``,
         ``close_mode_bias``, ``line_misfit`` (``None``: no line is fitted) and, with the
         Hann window, ``damping_unwindowed`` (the damping fitted to the spectrum without
-        window; ``damping_lo`` and ``damping_hi`` are then the hull of both fits' intervals),
-        one entry per peak, JSON-ready, plus ``uncertainty_method`` and
-        ``uncertainty_groups``.
+        window; ``damping_lo`` and ``damping_hi`` are then the hull of both fits' intervals)
+        and ``onset_amplitude_ratio`` (the amplitude of the decay the fit without window finds
+        over the Hann fit's amplitude at the first frame; see
+        :attr:`.ModeSet.initial_displacement_px`), one entry per peak, JSON-ready, plus
+        ``uncertainty_method`` and ``uncertainty_groups``.
     """
     store = _as_store(disp)
     k = np.atleast_1d(np.asarray(bins, np.int64))
@@ -435,7 +441,8 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     M = k.size
     empty = {"frequency_std_hz": [], "damping_lo": [], "damping_hi": [],
              "shape_mac_expected": [], "close_mode_bias": [], "line_misfit": [],
-             "damping_unwindowed": [], "uncertainty_method": METHOD}
+             "damping_unwindowed": [], "onset_amplitude_ratio": [],
+             "uncertainty_method": METHOD}
     if M == 0:
         return {**empty, "uncertainty_groups": None}
     labels, G, block = group_labels(store.frame_shape, n_groups)
@@ -444,7 +451,7 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
         return {**empty, "frequency_std_hz": none, "damping_lo": none, "damping_hi": none,
                 "shape_mac_expected": none, "close_mode_bias": [False] * M,
                 "line_misfit": none, "damping_unwindowed": none,
-                "uncertainty_groups": None}
+                "onset_amplitude_ratio": none, "uncertainty_groups": None}
     F = f.size
     inner = (k >= 1) & (k <= F - 2)
     hann = window == "hann"
@@ -460,10 +467,13 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                                damping=damping, band=in_band,
                                floor_half_width_bins=floor_half_width_bins)
     z_plain = np.full(M, np.nan)
+    onset = np.full(M, np.nan)
     if hann:
         jp = jackknife_uncertainty(f, plain[0], k, window="none", n_frames=store.n_frames,
                                    band=in_band, floor_half_width_bins=floor_half_width_bins)
         z_plain = jp["damping"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            onset = np.sqrt(jp["line_scale"] / ju["line_scale"])
         both = (np.isfinite(ju["damping_lo"]) & np.isfinite(ju["damping_hi"])
                 & np.isfinite(jp["damping_lo"]) & np.isfinite(jp["damping_hi"]))
         ju["damping_lo"] = np.where(both, np.fmin(ju["damping_lo"], jp["damping_lo"]),
@@ -490,6 +500,7 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
                             for g, r, m in zip(gap, reach, misfit, strict=True)],
         "line_misfit": clean(misfit),
         "damping_unwindowed": clean(z_plain),
+        "onset_amplitude_ratio": clean(onset),
         "uncertainty_method": METHOD,
         "uncertainty_groups": {"groups": int(G), "block_px": int(block),
                                "t95": float(ju["t95"][0])},

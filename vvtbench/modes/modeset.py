@@ -35,7 +35,8 @@ _PER_MODE = (
 # metadata lists with one entry per analysed peak (kept and rejected), in the order analysed
 CANDIDATE_LISTS = ("roughness", "roughness_shape", "reliable_fraction", "phase_rad",
                    "frequency_std_hz", "damping_lo", "damping_hi", "shape_mac_expected",
-                   "close_mode_bias", "line_misfit", "damping_unwindowed")
+                   "close_mode_bias", "line_misfit", "damping_unwindowed",
+                   "onset_amplitude_ratio")
 
 
 @dataclass
@@ -140,14 +141,20 @@ class ModeSet:
 
     @property
     def initial_displacement_px(self) -> NDArray[np.float64]:
-        """``(k,)`` peak displacement at the record's start (px).
+        """``(k,)`` peak displacement when the mode's free decay began (px): at the record's
+        start for a mode plucked before it, when the drive reached it otherwise (a sweep).
 
         ``amplitudes_px`` is the amplitude of the *undamped* sinusoid with the same windowed
         spectral line, so a mode that decays within the record shows far less than it first
         moved (ζ 0.03 at 41 Hz in 3 s: 0.3 % of it with the Hann window).  Where the damping
         is resolved (:meth:`damping_resolved`) this undoes it: ``peak_displacement_px`` times
         the window's response to an undamped line over its response to a line of that half
-        width (:func:`.lines.peak_gain`), exact for a free decay over the whole record.
+        width (:func:`.lines.peak_gain`), exact for a free decay from the first frame.  A
+        decay that began at frame ``t0`` has, without window, the spectrum of one from the
+        first frame with the amplitude it had at ``t0`` (the shift is a phase); with the
+        Hann window it does not.  Where the set carries the ratio of the two fits' amplitudes
+        (``onset_amplitude_ratio``, peak-picked modes, docs/modes.md) the result is scaled
+        by it: 1 within noise for a pluck, below 1 for a mode a sweep reached mid-record.
         Elsewhere it equals ``peak_displacement_px``.
         """
         from .lines import peak_gain
@@ -161,7 +168,9 @@ class ModeSet:
         h = np.where(resolved, self.damping * self.frequencies_hz * self.n_frames / self.fps,
                      0.0)
         gain = peak_gain(h, self.n_frames, window)
-        return peak * peak_gain(np.zeros(1), self.n_frames, window)[0] / gain
+        ratio = self.mode_list("onset_amplitude_ratio")
+        ratio = np.where(resolved & np.isfinite(ratio) & (ratio > 0), ratio, 1.0)
+        return peak * peak_gain(np.zeros(1), self.n_frames, window)[0] / gain * ratio
 
     def damping_resolved(self) -> NDArray[np.bool_]:
         """``(k,)`` whether the damping ratio was measured, not just fitted to noise.

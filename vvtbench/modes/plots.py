@@ -168,7 +168,7 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
         f"mode #{i}: {ms.frequencies_hz[i]:.3f}"
         + (f" +- {sf:.2g}" if np.isfinite(sf) else "")
         + f" Hz{zeta},\npeak displacement {peak:.3g} px"
-        + (f" ({start:.3g} px at the start)" if start > 1.05 * peak else "")
+        + (f" ({start:.3g} px at onset)" if start > 1.05 * peak else "")
         + " (unit-norm shape shown)"
         + ("  [camera shake]" if ms.camera_shake[i] else "")
     )
