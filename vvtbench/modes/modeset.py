@@ -327,7 +327,12 @@ class ModeSet:
           times the noise floor around it) or parameter correlation (over 0.8) says the two
           bias each other; its damping is then not resolved;
         - ``line_misfit`` (float64): residual power in the five bins around the line over the
-          noise floor there (about 1 for a clean fit).
+          noise floor there (about 1 for a clean fit);
+        - ``damping_unwindowed`` (float64, dimensionless; peak picker with the Hann window):
+          the damping ratio fitted to the spectrum without window;
+        - ``onset_amplitude_ratio`` (float64, dimensionless; the same): the amplitude that
+          fit finds over the one the Hann fit puts at the first frame (about 1 for a pluck;
+          :attr:`initial_displacement_px`).
 
         ``metadata["stability"]`` (with ``extract_modes(stability=True)``) holds
         ``fractions``, ``n_frames`` and ``peaks_hz`` of the peak search on leading parts of
