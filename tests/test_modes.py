@@ -793,6 +793,25 @@ def test_an_edited_modes_json_with_a_bad_rate_is_refused(tmp_path, key, value) -
     with pytest.raises(ValueError, match=f"modes.json: key '{key}' must be"):
         ModeSet.load(out)
 
+
+@pytest.mark.parametrize("key, value", [("onset_amplitude_ratio", ["0.5"]),
+                                        ("damping_lo", [[0.1]]), ("roughness", "0.2"),
+                                        ("damping_unwindowed", {"0": 0.01})])
+def test_an_edited_per_peak_list_in_modes_json_is_refused(tmp_path, key, value) -> None:
+    """A hand-edited per-peak list (:data:`CANDIDATE_LISTS`) is one error naming the file and
+    key, not a conversion error when a reading first needs it."""
+    out = modeset([5.0], np.ones((1, 4, 4, 2), np.float32)).save(tmp_path / "m")
+    path = tmp_path / "m" / "modes.json"
+    doc = json.loads(path.read_text())
+    doc["metadata"][key] = value
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=f"modes.json: key 'metadata.{key}' must be"):
+        ModeSet.load(out)
+    doc["metadata"][key] = [None]
+    path.write_text(json.dumps(doc))
+    assert len(ModeSet.load(out)) == 1
+
+
 def test_noisy_pixels_attenuated_in_the_shapes() -> None:
     """A strip of unreliable pixels (noise 0.02 px and the mode's motion read 5x too large
     there, as at a texture seam) dominates a 0.01 px mode's unit-norm shape; attenuating the

@@ -390,12 +390,17 @@ class ModeSet:
             raise ValueError(f"{jpath}: key 'n_frames' must be an integer >= 1, got "
                              f"{n_frames!r}")
         fps = float(fps)
-        return cls(
-            **arrays,
-            fps=fps,
-            n_frames=n_frames,
-            metadata=doc.get("metadata", {}),
-        )
+        metadata = doc.get("metadata", {})
+        if not isinstance(metadata, dict):
+            raise ValueError(f"{jpath}: key 'metadata' must be an object")
+        for name in CANDIDATE_LISTS:
+            values = metadata.get(name)
+            if values is not None and not (
+                    isinstance(values, list)
+                    and all(v is None or isinstance(v, int | float) for v in values)):
+                raise ValueError(f"{jpath}: key 'metadata.{name}' must be a list of numbers "
+                                 "or null, one per analysed peak")
+        return cls(**arrays, fps=fps, n_frames=n_frames, metadata=metadata)
 
 
 def _finite_or_none(v: Any) -> Any:
