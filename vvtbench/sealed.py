@@ -326,7 +326,9 @@ def remove_stale_scratch(folder: str | Path | None = None) -> list[Path]:
     ``owner.json`` are considered; anything else is left alone.
     """
     root = Path(folder) if folder is not None else Path(tempfile.gettempdir())
-    host = _owner()["host"]
+    import socket
+
+    host = socket.gethostname()
     removed = []
     for path in sorted(root.glob(PREFIX + "*")):
         try:
