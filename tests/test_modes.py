@@ -170,6 +170,30 @@ def test_damping_of_decaying_sinusoid(zeta: float) -> None:
     assert abs(damping_half_power(f, P, k) / zeta - 1) < 0.10
 
 
+@pytest.mark.parametrize("window", ["none", "hann"])
+@pytest.mark.parametrize("nu, gamma, image", [(50.3, 0.7, 0j), (2.4, 0.3, 0.3 - 0.4j),
+                                               (498.6, 0.05, -0.6 + 0.2j)])
+def test_decay_power_derivatives_match_central_differences(nu, gamma, image, window) -> None:
+    """The damping fit's analytic Jacobian against central differences of the model power,
+    near a peak, near DC (where the negative-frequency image matters) and near Nyquist."""
+    from vvtbench.modes.damping import _decay_power, _decay_power_grad
+
+    T = 1000
+    bins = np.arange(max(int(nu) - 8, 1), min(int(nu) + 9, T // 2 + 1)).astype(float)
+    power, grad = _decay_power_grad(nu, gamma, bins, T, window, image)
+    np.testing.assert_allclose(power, _decay_power(nu, gamma, bins, T, window, image),
+                               rtol=1e-12)
+    h = 1e-6
+    steps = [(h, 0, 0), (0, h, 0), (0, 0, h), (0, 0, 1j * h)]
+    for j, (a, b, c) in enumerate(steps):
+        up = _decay_power(nu + a, gamma + b, bins, T, window, image + c)
+        down = _decay_power(nu - a, gamma - b, bins, T, window, image - c)
+        numeric = (up - down) / (2 * h)
+        scale = np.abs(power).max()
+        np.testing.assert_allclose(grad[:, j], numeric, rtol=0, atol=1e-5 * scale,
+                                   err_msg=f"column {j}")
+
+
 @pytest.mark.parametrize("zeta", [0.005, 0.01, 0.02, 0.04])
 def test_damping_through_default_hann_path(zeta: float) -> None:
     """modes_from_displacements with its defaults (Hann window): a free decay half a bin

@@ -34,8 +34,9 @@ CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the
 #: (noise weights for the peaks, faint products rejected, no cap), products folded at Nyquist;
 #: 4: faint products measured against ``P_i P_j / P_max`` (``product_scaling``); 5: camera-shake
 #: peaks are parents of distortion products (a pure-shake video has no modes); 6: peak-picked
-#: dampings' intervals span the fit without window too
-EXTRACTION_REVISION = 6
+#: dampings' intervals span the fit without window too; 7: the damping fit's log-power polish
+#: with its analytic Jacobian, at most ``POLISH_EVALUATIONS`` evaluations
+EXTRACTION_REVISION = 7
 #: revision of the observation of extracted modes (observe keys of extracted tracks only; the
 #: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``); 3: the
 #: extraction scored with resolved modes matched one by one (a cluster of true modes closer

@@ -26,6 +26,9 @@ __all__ = [
 # a neighbouring peak rises above the valley by more than this factor (~0.5 decade, the
 # default prominence); smaller ripples of a noisy periodogram are no valley
 VALLEY_RISE = 3.0
+#: evaluations of the log-power polish at most: an undamped line's half width sits in a flat
+#: valley the noise cannot resolve, where more steps move nothing the interval reports
+POLISH_EVALUATIONS = 100
 
 
 def _valley(p: NDArray[np.float64], k: int, step: int, rise: float = VALLEY_RISE) -> int:
@@ -111,6 +114,58 @@ def decay_spectrum(
 
         out.append(D(ll) if window == "none" else 0.5 * D(ll) - 0.25 * (D(ll - 1) + D(ll + 1)))
     return out[0], out[1]
+
+
+def _decay_spectrum_grad(
+    nu: float, gamma: float, bins: NDArray, n_frames: int, window: Window
+) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128]]]:
+    """``(D, dD/dnu, dD/dgamma)`` for ``D+`` and ``D-`` of :func:`decay_spectrum`."""
+    ll = np.asarray(bins, dtype=np.float64)
+    T = float(n_frames)
+    two_pi = 2.0 * np.pi
+    out = []
+    for s in (1.0, -1.0):
+        e_num = np.exp(two_pi * complex(-gamma, s * nu))
+        num = 1.0 - e_num
+
+        def parts(m: NDArray[np.float64], s: float = s, e_num: complex = e_num,
+                  num: complex = num) -> tuple[NDArray, NDArray, NDArray]:
+            e_den = np.exp(two_pi * (-gamma + 1j * (s * nu - m)) / T)
+            den = 1.0 - e_den
+            d = num / den
+            ratio = two_pi * e_den / (T * den)
+            d_gamma = two_pi * e_num / den - d * ratio
+            d_nu = 1j * s * (d * ratio - two_pi * e_num / den)
+            return d, d_nu, d_gamma
+
+        if window == "none":
+            out.append(parts(ll))
+        else:
+            mid, lo, hi = parts(ll), parts(ll - 1), parts(ll + 1)
+            out.append(tuple(0.5 * a - 0.25 * (b + c) for a, b, c in zip(mid, lo, hi,
+                                                                         strict=True)))
+    return out
+
+
+def _decay_power_grad(
+    nu: float, gamma: float, bins: NDArray, n_frames: int, window: Window, image: complex = 0j
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_decay_power` and its derivatives ``(F, 4)`` in ``nu``, ``gamma`` and the real
+    and imaginary parts of ``image``."""
+    (dp, dp_nu, dp_g), (dn, dn_nu, dn_g) = _decay_spectrum_grad(nu, gamma, bins, n_frames,
+                                                                 window)
+    pw = dp.real**2 + dp.imag**2 + dn.real**2 + dn.imag**2
+    cross = dp * np.conj(dn)
+    grads = []
+    for a, b in ((dp_nu, dn_nu), (dp_g, dn_g)):
+        g = 2.0 * np.real(np.conj(dp) * a + np.conj(dn) * b)
+        if image:
+            g = g + 2.0 * np.real(image * (a * np.conj(dn) + dp * np.conj(b)))
+        grads.append(g)
+    if image:
+        pw = pw + 2.0 * np.real(image * cross)
+    grads += [2.0 * cross.real, -2.0 * cross.imag]
+    return pw, np.stack(grads, axis=1)
 
 
 def _decay_power(
@@ -304,6 +359,16 @@ def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: 
         m = math.exp(z[n]) * _decay_power(z[0], math.exp(z[1]), lb_, T, window, b)
         return np.log(np.maximum(m + math.exp(z[n + 1]), 1e-300)) - lp
 
+    def log_jac(z: NDArray[np.float64]) -> NDArray[np.float64]:
+        b = complex(z[2], z[3]) if image else 0j
+        gamma, scale, floor = math.exp(z[1]), math.exp(z[n]), math.exp(z[n + 1])
+        pw, grad = _decay_power_grad(z[0], gamma, lb_, T, window, b)
+        total = np.maximum(scale * pw + floor, 1e-300)
+        grad[:, 1] *= gamma
+        cols = [grad[:, :n] * (scale / total)[:, None], (scale * pw / total)[:, None],
+                (floor / total)[:, None]]
+        return np.hstack(cols)
+
     try:
         if start is not None and len(start) == n + 2 and np.all(np.isfinite(start)):
             z0 = np.asarray(start, np.float64).copy()
@@ -318,8 +383,8 @@ def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: 
             z0 = np.r_[res.x, a0, np.clip(math.log(max(coef[1], 1e-30)), c_lo, c_hi)]
         # polish in log power: unbiased under the multiplicative noise of a periodogram
         bounds = (lb + [a0 - 30.0, c_lo], ub + [a0 + 30.0, c_hi])
-        res = least_squares(log_resid, np.clip(z0, *bounds), bounds=bounds, max_nfev=400,
-                            xtol=1e-6, ftol=1e-6)
+        res = least_squares(log_resid, np.clip(z0, *bounds), jac=log_jac, bounds=bounds,
+                            max_nfev=POLISH_EVALUATIONS, xtol=1e-6, ftol=1e-6)
     except (ValueError, FloatingPointError, OverflowError, np.linalg.LinAlgError):
         return failed
     if not np.all(np.isfinite(res.x)):
