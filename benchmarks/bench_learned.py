@@ -222,8 +222,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plugin", type=int, default=5,
                    help="test instances solved again through load_solver (0: none)")
     p.add_argument("--n-val", type=int, default=50)
-    p.add_argument("--sizes", type=int, nargs="+",
-                   default=[25, 50, 100, 200, 400, 1000, 2000, 5000, 10000, 20000])
+    p.add_argument("--sizes", type=int, nargs="+", default=None,
+                   help="train-set sizes to fit (default: 25 to 20 000, those the data "
+                   "holds, and every instance it holds)")
+    p.add_argument("--score-weights", type=Path, nargs="*", default=[],
+                   help="with --store: weights files written by `vvtbench train` from the "
+                   "same store, each scored on the test split as one more row of the curve "
+                   "(its size, fit time and val score from its training record)")
     p.add_argument("--reference", type=Path, default=None)
     p.add_argument("--references", nargs="*", default=["homogeneous", "sensitivity"])
     p.add_argument("--features", type=Path, default=None)
@@ -281,9 +286,13 @@ def main(argv: list[str] | None = None) -> int:
             weights["val_nc_w"] = mean_nc(weights, val)
             return weights
 
-    sizes = [s for s in args.sizes if s <= n_train]
-    if n_train not in sizes:
-        sizes.append(n_train)
+    if args.sizes is None:
+        sizes = [s for s in (25, 50, 100, 200, 400, 1000, 2000, 5000, 10000, 20000)
+                 if s < n_train] + [n_train]
+    else:
+        sizes = [s for s in args.sizes if s <= n_train]
+        if len(sizes) < len(args.sizes):
+            print(f"sizes above the {n_train} train instances left out", flush=True)
     rows = []
     args.tmp.mkdir(parents=True, exist_ok=True)
     if args.previous is not None and val is not None:
@@ -295,9 +304,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"previous ({meta.get('model')} {meta.get('solver_version')}, "
                   f"{meta.get('n_instances')} train) {split} NC w {mean_ci(nc)}", flush=True)
         ref = {**ref, f"learned {meta.get('solver_version')}": {"nc_w": nc, "seconds": []}}
+    models = {}
     for size in sizes:
         t0 = time.perf_counter()
-        weights = fitted(size)
+        weights = models[size] = fitted(size)
         fit_s = time.perf_counter() - t0
         nc = [instance_nc(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
         rows.append({"n_train": size, "val_nc_w": weights["val_nc_w"], "nc_w": nc,
@@ -310,6 +320,25 @@ def main(argv: list[str] | None = None) -> int:
             from vvtbench.io import write_json
 
             write_json(args.rows, rows)
+    for path in args.score_weights:
+        if args.store is None:
+            p.error("--score-weights needs --store")
+        arrays, meta = load_weights(path)
+        weights = models[int(meta["n_instances"])] = {**arrays, "model": meta.get("model")}
+        if str(meta.get("train_store", {}).get("basis_sha256", "")) not in ("",
+                                                                             store.meta[
+                                                                                 "basis_sha256"]):
+            p.error(f"{path}: trained against another basis than {args.store}'s")
+        nc = [instance_nc(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
+        rows.append({"n_train": int(meta["n_instances"]), "val_nc_w": meta.get("val_nc_w"),
+                     "nc_w": nc, "test": mean_ci(nc), "fit_seconds": meta.get("fit_seconds"),
+                     "epochs": float(weights["epochs"]), "steps": int(weights["steps"]),
+                     "n_voxels": int(weights["n_voxels"]), "weights": str(path)})
+        print(f"n={rows[-1]['n_train']} ({path}): val {rows[-1]['val_nc_w']:+.3f} test "
+              f"{rows[-1]['test'][0]:+.3f}", flush=True)
+    rows.sort(key=lambda r: r["n_train"])
+    if not rows:
+        p.error("no size to fit and no weights to score")
     choices = []
     for max_steps in args.choose_steps:  # val only: the test split is not scored
         t0 = time.perf_counter()
@@ -321,8 +350,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"n={sizes[-1]} max_steps={max_steps}: {alt['epochs']} epochs, fit "
               f"{choices[-1]['fit_seconds']:.0f} s, val {alt['val_nc_w']:+.3f}", flush=True)
     # the largest model once more through the plug-in path: same scores, and the solve time
-    path = save_weights(args.tmp / "learned.npz", weights, {"family": "bench",
-                                                             "split": "train"})
+    if rows[-1].get("weights"):
+        path = Path(rows[-1]["weights"])
+    else:
+        path = save_weights(args.tmp / "learned.npz", models[rows[-1]["n_train"]],
+                            {"family": "bench", "split": "train"})
     solver = load_solver("learned")(LearnedConfig(weights=str(path)))
     secs, cpu = [], []
     for (problem, truth), expected in zip(_pairs(args.data, "test", args.plugin),
@@ -360,7 +392,8 @@ def report(rows: list[dict], ref: dict, curve: Path, label: str = "learned",
     for r in rows:
         m, lo, hi = r["test"]
         t = f"{r['cpu_seconds']:.3f} CPU" if r.get("cpu_seconds") is not None else ""
-        print(f"| {r['n_train']} | {r.get('epochs', '')} | {r['fit_seconds']:.0f} | "
+        fit = f"{r['fit_seconds']:.0f}" if r.get("fit_seconds") is not None else ""
+        print(f"| {r['n_train']} | {r.get('epochs', '')} | {fit} | "
               f"{r['val_nc_w']:+.3f} | {m:+.3f} [{lo:+.3f}, {hi:+.3f}] | {t} |")
     for name, d in ref.items():
         m, lo, hi = mean_ci(d["nc_w"])
