@@ -222,9 +222,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plugin", type=int, default=5,
                    help="test instances solved again through load_solver (0: none)")
     p.add_argument("--n-val", type=int, default=50)
-    p.add_argument("--sizes", type=int, nargs="+", default=None,
+    p.add_argument("--sizes", type=int, nargs="*", default=None,
                    help="train-set sizes to fit (default: 25 to 20 000, those the data "
-                   "holds, and every instance it holds)")
+                   "holds, and every instance it holds; none with --score-weights alone)")
     p.add_argument("--score-weights", type=Path, nargs="*", default=[],
                    help="with --store: weights files written by `vvtbench train` from the "
                    "same store, each scored on the test split as one more row of the curve "
@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
     if not rows:
         p.error("no size to fit and no weights to score")
     choices = []
-    for max_steps in args.choose_steps:  # val only: the test split is not scored
+    for max_steps in args.choose_steps if sizes else []:  # val only: test is not scored
         t0 = time.perf_counter()
         alt = fitted(sizes[-1], max_steps)
         choices.append({"n_train": sizes[-1], "max_steps": max_steps,
