@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.store is None:
             p.error("--score-weights needs --store")
         arrays, meta = load_weights(path)
-        weights = models[int(meta["n_instances"])] = {**arrays, "model": meta.get("model")}
+        weights = models[int(meta["n_instances"])] = {**meta, **arrays}
         if str(meta.get("train_store", {}).get("basis_sha256", "")) not in ("",
                                                                              store.meta[
                                                                                  "basis_sha256"]):
