@@ -57,6 +57,39 @@ def test_the_history_check_lists_file_and_line(tmp_path):
     assert history_lines([page], tmp_path) == ["docs/probe.md:2: measured in the ninth session"]
 
 
+LIST_ITEM = re.compile(r"^(?:[*+-]|\d+\.) ")
+
+
+def glued_lists(pages: list[Path], root: Path = ROOT) -> list[str]:
+    """`file:line: text` of every list that starts right under a paragraph line: the site's
+    Markdown (unlike GitHub's) reads it as more of that paragraph, asterisks and all."""
+    found = []
+    for page in pages:
+        previous, fenced = "", False
+        for number, line in enumerate(page.read_text().splitlines(), 1):
+            if line.lstrip().startswith("```"):
+                fenced = not fenced
+            elif (not fenced and LIST_ITEM.match(line) and previous.strip()
+                  and not LIST_ITEM.match(previous) and not previous.startswith((" ", "|", "#",
+                                                                                   ">"))):
+                found.append(f"{page.relative_to(root)}:{number}: {line.strip()}")
+            previous = "" if fenced else line
+    return found
+
+
+def test_every_list_on_the_site_is_set_apart_from_its_paragraph():
+    found = glued_lists(sorted((ROOT / "docs").rglob("*.md")))
+    assert not found, "\n".join(found)
+
+
+def test_the_list_check_can_fail(tmp_path):
+    page = tmp_path / "docs" / "probe.md"
+    page.parent.mkdir()
+    page.write_text("What it shows:\n* one\n* two\n\nApart:\n\n1. three\n  more\n"
+                    "```\ncode:\n- not a list\n```\n")
+    assert glued_lists([page], tmp_path) == ["docs/probe.md:2: * one"]
+
+
 def test_the_results_columns_of_provenance_are_documented():
     text = (ROOT / "docs" / "results.md").read_text()
     for column in ("`estimate_sha256`", "`observation_sha256`", "`sandbox`"):
