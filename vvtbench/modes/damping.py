@@ -103,39 +103,35 @@ def decay_spectrum(
     """
     if window not in ("none", "hann"):
         raise ValueError(f"window must be 'hann' or 'none', got {window!r}")
-    ll = np.asarray(bins, dtype=np.float64)
-    T = float(n_frames)
-    out = []
-    for s in (1.0, -1.0):
-        num = -np.expm1(2.0 * np.pi * complex(-gamma, s * nu))
-
-        def D(m: NDArray[np.float64], num: complex = num, s: float = s) -> NDArray:
-            return num / -np.expm1(2.0 * np.pi * (-gamma + 1j * (s * nu - m)) / T)
-
-        out.append(D(ll) if window == "none" else 0.5 * D(ll) - 0.25 * (D(ll - 1) + D(ll + 1)))
-    return out[0], out[1]
+    (d_pos,), (d_neg,) = _decay_terms(nu, gamma, bins, n_frames, window)
+    return d_pos, d_neg
 
 
-def _decay_spectrum_grad(
-    nu: float, gamma: float, bins: NDArray, n_frames: int, window: Window
-) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128]]]:
-    """``(D, dD/dnu, dD/dgamma)`` for ``D+`` and ``D-`` of :func:`decay_spectrum`."""
+def _decay_terms(
+    nu: float, gamma: float, bins: ArrayLike, n_frames: int, window: Window,
+    derivatives: bool = False,
+) -> list[tuple[NDArray[np.complex128], ...]]:
+    """``(D,)``, or ``(D, dD/dnu, dD/dgamma)`` with ``derivatives``, for ``D+`` and ``D-`` of
+    :func:`decay_spectrum` (``D = (1 - exp(u)) / (1 - exp(v))``, ``u = 2 pi (-gamma + i s nu)``,
+    ``v = (u - 2 pi i m) / T``)."""
     ll = np.asarray(bins, dtype=np.float64)
     T = float(n_frames)
     two_pi = 2.0 * np.pi
     out = []
     for s in (1.0, -1.0):
-        e_num = np.exp(two_pi * complex(-gamma, s * nu))
-        num = 1.0 - e_num
+        u = two_pi * complex(-gamma, s * nu)
+        num = -np.expm1(u)
 
-        def parts(m: NDArray[np.float64], s: float = s, e_num: complex = e_num,
-                  num: complex = num) -> tuple[NDArray, NDArray, NDArray]:
-            e_den = np.exp(two_pi * (-gamma + 1j * (s * nu - m)) / T)
-            den = 1.0 - e_den
-            d = num / den
-            ratio = two_pi * e_den / (T * den)
-            d_gamma = two_pi * e_num / den - d * ratio
-            d_nu = 1j * s * (d * ratio - two_pi * e_num / den)
+        def parts(m: NDArray[np.float64], s: float = s, u: complex = u,
+                  num: complex = num) -> tuple[NDArray, ...]:
+            em1 = np.expm1(two_pi * (-gamma + 1j * (s * nu - m)) / T)
+            d = num / -em1
+            if not derivatives:
+                return (d,)
+            e_num = np.exp(u)
+            ratio = two_pi * (em1 + 1.0) / (T * -em1)
+            d_gamma = two_pi * e_num / -em1 - d * ratio
+            d_nu = 1j * s * (d * ratio - two_pi * e_num / -em1)
             return d, d_nu, d_gamma
 
         if window == "none":
@@ -147,14 +143,21 @@ def _decay_spectrum_grad(
     return out
 
 
+def _power(d_pos: NDArray[np.complex128], d_neg: NDArray[np.complex128],
+           image: complex) -> NDArray[np.float64]:
+    pw = d_pos.real**2 + d_pos.imag**2 + d_neg.real**2 + d_neg.imag**2
+    if image:
+        pw = pw + 2.0 * np.real(image * d_pos * np.conj(d_neg))
+    return pw
+
+
 def _decay_power_grad(
     nu: float, gamma: float, bins: NDArray, n_frames: int, window: Window, image: complex = 0j
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """:func:`_decay_power` and its derivatives ``(F, 4)`` in ``nu``, ``gamma`` and the real
     and imaginary parts of ``image``."""
-    (dp, dp_nu, dp_g), (dn, dn_nu, dn_g) = _decay_spectrum_grad(nu, gamma, bins, n_frames,
-                                                                 window)
-    pw = dp.real**2 + dp.imag**2 + dn.real**2 + dn.imag**2
+    (dp, dp_nu, dp_g), (dn, dn_nu, dn_g) = _decay_terms(nu, gamma, bins, n_frames, window,
+                                                        derivatives=True)
     cross = dp * np.conj(dn)
     grads = []
     for a, b in ((dp_nu, dn_nu), (dp_g, dn_g)):
@@ -162,10 +165,8 @@ def _decay_power_grad(
         if image:
             g = g + 2.0 * np.real(image * (a * np.conj(dn) + dp * np.conj(b)))
         grads.append(g)
-    if image:
-        pw = pw + 2.0 * np.real(image * cross)
     grads += [2.0 * cross.real, -2.0 * cross.imag]
-    return pw, np.stack(grads, axis=1)
+    return _power(dp, dn, image), np.stack(grads, axis=1)
 
 
 def _decay_power(
@@ -174,11 +175,7 @@ def _decay_power(
     """``|D+|**2 + |D-|**2 + 2 Re(image D+ conj(D-))``: the power of a real decaying mode up
     to a factor; ``image = a**2 / |a|**2`` (summed over pixels) couples the negative-frequency
     response near DC and Nyquist."""
-    dp, dn = decay_spectrum(nu, gamma, bins, n_frames, window)
-    pw = dp.real**2 + dp.imag**2 + dn.real**2 + dn.imag**2
-    if image:
-        pw = pw + 2.0 * np.real(image * dp * np.conj(dn))
-    return pw
+    return _power(*decay_spectrum(nu, gamma, bins, n_frames, window), image)
 
 
 def _n_frames_of(f: NDArray[np.float64], n_frames: int | None) -> int:
