@@ -244,6 +244,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--earlier", nargs=2, metavar=("ROWS", "LABEL"), default=None,
                    help="with --replot: another model's rows (JSON), drawn beside")
     args = p.parse_args(argv)
+    if args.score_weights and args.store is None:
+        p.error("--score-weights needs --store")
+    try:
+        scored = {path: load_weights(path) for path in args.score_weights}
+    except (OSError, ValueError) as err:
+        p.error(str(err))
     if args.replot:
         ref = json.loads(args.reference.read_text())
         earlier = ((args.earlier[1], json.loads(Path(args.earlier[0]).read_text()))
@@ -320,14 +326,9 @@ def main(argv: list[str] | None = None) -> int:
             from vvtbench.io import write_json
 
             write_json(args.rows, rows)
-    for path in args.score_weights:
-        if args.store is None:
-            p.error("--score-weights needs --store")
-        arrays, meta = load_weights(path)
+    for path, (arrays, meta) in scored.items():
         weights = models[int(meta["n_instances"])] = {**meta, **arrays}
-        if str(meta.get("train_store", {}).get("basis_sha256", "")) not in ("",
-                                                                             store.meta[
-                                                                                 "basis_sha256"]):
+        if not np.array_equal(arrays.get("basis"), basis):
             p.error(f"{path}: trained against another basis than {args.store}'s")
         nc = [instance_nc(predict_w(weights, it["X"], 1.0), it["w"]) for it in test]
         rows.append({"n_train": int(meta["n_instances"]), "val_nc_w": meta.get("val_nc_w"),
