@@ -41,6 +41,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import stat
 import subprocess
 import sys
@@ -296,8 +297,6 @@ def _process_start(pid: int) -> str | None:
 
 
 def _owner() -> dict:
-    import socket
-
     return {"host": socket.gethostname(), "pid": os.getpid(),
             "start": _process_start(os.getpid())}
 
@@ -326,8 +325,6 @@ def remove_stale_scratch(folder: str | Path | None = None) -> list[Path]:
     ``owner.json`` are considered; anything else is left alone.
     """
     root = Path(folder) if folder is not None else Path(tempfile.gettempdir())
-    import socket
-
     host = socket.gethostname()
     removed = []
     for path in sorted(root.glob(PREFIX + "*")):
