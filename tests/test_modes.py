@@ -171,6 +171,16 @@ def test_damping_of_decaying_sinusoid(zeta: float) -> None:
 
 
 @pytest.mark.parametrize("window", ["none", "hann"])
+@pytest.mark.parametrize("fill", [0.0, np.inf, np.nan])
+def test_a_degenerate_spectrum_gives_no_damping_and_no_error(fill, window) -> None:
+    f = np.linspace(0.0, 100.0, 501)
+    with np.errstate(all="ignore"):
+        zeta, fd, _ = damping_lorentzian(f, np.full(501, fill), 200, window=window,
+                                         n_frames=1000)
+    assert math.isnan(zeta) and fd == 40.0
+
+
+@pytest.mark.parametrize("window", ["none", "hann"])
 @pytest.mark.parametrize("nu, gamma, image", [(50.3, 0.7, 0j), (2.4, 0.3, 0.3 - 0.4j),
                                                (498.6, 0.05, -0.6 + 0.2j)])
 def test_decay_power_derivatives_match_central_differences(nu, gamma, image, window) -> None:

@@ -318,7 +318,7 @@ def lorentzian_fit(freqs: ArrayLike, power: ArrayLike, k: int, half_width_bins: 
     df = f[1] - f[0]
     if half_width_bins is None:
         lo_e, hi_e = _half_power_edges(f, p, k)
-        sides = [abs(e - f[k]) / df for e in (lo_e, hi_e) if e is not None]
+        sides = [abs(e - f[k]) / df for e in (lo_e, hi_e) if e is not None and math.isfinite(e)]
         hw = max(sides) if sides else 1.0
         half_width_bins = int(max(6 if window == "hann" else 4, math.ceil(6 * hw)))
     first = 2 if window == "hann" else 1
