@@ -1,7 +1,7 @@
 """Build configuration that pyproject.toml cannot express: the shipped scenes and releases.
 
 The scene files live in the top-level ``scenes/`` folder of the source checkout; wheels carry
-them as ``vvtbench/scenes`` (see ``vvtbench.scene.SCENES_DIR``), with the shipped
+them as ``vvtbench/scenes`` (see ``vvtbench.scene.scene.SCENES_DIR``), with the shipped
 tetrahedralizations in ``scenes/meshes``. Everything else is in
 pyproject.toml.
 """

@@ -96,7 +96,7 @@ elif mode == "baseline":
     ms = extract_modes(frames, 2000.0)
     out["modes_hz"] = [round(float(f), 2) for f in ms.frequencies_hz]
 else:
-    from vvtbench.video import open_video
+    from vvtbench.video.files import open_video
     vs = open_video(path)
     n = 0
     for f in vs.frames:

@@ -1,6 +1,6 @@
 """Extractor efficiency against the Cramér-Rao bound, ``eta = sigma_CRB^2 / MSE``.
 
-For every registered extractor (``vvtbench.extractors``) and the ideal known-texture
+For every registered extractor (``vvtbench.extractors`` entry points) and the ideal known-texture
 Gauss-Newton estimator (:class:`vvtbench.scoring.efficiency.KnownTextureShift`, eta ~ 1 by
 construction: the check of the machinery), at every amplitude (0.0005 - 1 px, log-spaced),
 noise (0.5, 1, 2 % of full scale) and bit depth (8, 12, 16): speckle frames translated by a
@@ -25,8 +25,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 
-from vvtbench.extractors import list_extractors
-from vvtbench.io import write_bytes
+from vvtbench.io.files import write_bytes
 from vvtbench.scoring.efficiency import (
     EfficiencySetting,
     KnownTextureShift,
@@ -34,6 +33,7 @@ from vvtbench.scoring.efficiency import (
     extractor_efficiency,
     rest_image,
 )
+from vvtbench.solving.extractors import list_extractors
 
 AMPLITUDES = tuple(float(a) for a in np.geomspace(0.0005, 1.0, 8))
 NOISES = (0.005, 0.01, 0.02)

@@ -3,9 +3,9 @@
 For every generated sample with video in a run's cache whose scene name matches
 ``--scenes`` (default: the paper suite's undamped defect cubes and damped cubes), the
 detected modes are scored against the truth by
-:func:`vvtbench.extraction_scores.score_sample_extraction`: precision, the headline
+:func:`vvtbench.scoring.extraction.score_sample_extraction`: precision, the headline
 ``recall`` over the true-mode clusters whose spectral-line amplitude in the video
-(:func:`vvtbench.extraction_scores.true_mode_amplitudes`, ``line_px``) reaches the floor,
+(:func:`vvtbench.scoring.extraction.true_mode_amplitudes`, ``line_px``) reaches the floor,
 at each ``--floors`` value, and ``recall_all`` over every cluster in the band.
 
 The detections are those of the run's cached extract tasks, or, with ``--reextract``, a
@@ -38,9 +38,9 @@ import numpy as np
 
 from vvtbench.bench.graph import extract_options
 from vvtbench.bench.suite import SuiteError, load_suite
-from vvtbench.dataset import open_sample
-from vvtbench.extraction_scores import score_sample_extraction, true_mode_amplitudes
 from vvtbench.modes import ModeSet, extract_modes
+from vvtbench.samples.reader import open_sample
+from vvtbench.scoring.extraction import score_sample_extraction, true_mode_amplitudes
 
 DEFAULT_SCENES = ("jello_cube_defect_top", "jello_cube_defect_bottom", "jello_cube_damped")
 

@@ -4,7 +4,8 @@ Synthetic video: a seeded band-limited periodic speckle image (Gaussian spectrum
 1 px), translated by exact Fourier phase ramps along a diagonal direction by a sinusoid of
 amplitude A (0.001 to 1 px, 16 frames over one period), with white sensor noise of standard
 deviation ``noise`` times the image's intensity range added to every frame (reference
-included).  For each extractor (``vvtbench.extractors``) the displacement fields relative to
+included).  For each extractor (``vvtbench.extractors`` entry points) the displacement fields
+relative to
 the first frame are compared with the true ones over the interior (a 16 px border left out):
 
 * ``rmse/A``: RMS over frames, interior pixels and both components of (measured - true),
@@ -23,7 +24,7 @@ import time
 
 import numpy as np
 
-from vvtbench.extractors import list_extractors, make_extractor
+from vvtbench.solving.extractors import list_extractors, make_extractor
 
 AMPLITUDES = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0)
 NOISES = (0.0, 0.001, 0.01)

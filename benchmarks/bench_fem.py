@@ -48,8 +48,8 @@ def case_cube(n: int, k: int = 50, method: str = "auto") -> dict:
 
 
 def case_transient() -> dict:
-    from vvtbench.scene import load_scene
-    from vvtbench.simulate import simulate
+    from vvtbench.scene.scene import load_scene
+    from vvtbench.simulation.simulate import simulate
 
     scene = load_scene("jello_cube_damped_top_front")
     scene = scene.model_copy(update={"simulation": scene.simulation.model_copy(
@@ -66,8 +66,8 @@ def case_transient() -> dict:
 
 def case_bunny() -> dict:
     """The bunny scene with an empty tet-mesh cache, so pytetwild always runs."""
-    from vvtbench.scene import load_scene
-    from vvtbench.simulate import simulate
+    from vvtbench.scene.scene import load_scene
+    from vvtbench.simulation.simulate import simulate
 
     scene = load_scene("bunny_defect")
     with tempfile.TemporaryDirectory(prefix="vvtbench-bench-cache-") as cache:

@@ -35,8 +35,8 @@ from vvtbench.bench import run_suite
 from vvtbench.bench.graph import build_graph
 from vvtbench.bench.stages import file_hashes
 from vvtbench.bench.suite import SUITES_DIR, parse_suite
-from vvtbench.io import write_json
-from vvtbench.scene import load_scene
+from vvtbench.io.files import write_json
+from vvtbench.scene.scene import load_scene
 
 
 def field_suite(scene: str, formats: list[str], crfs: list[int], clicks: int, noise: float,

@@ -35,7 +35,7 @@ def _load() -> str:
 
 def _throughput(n: int, workers: int, video: bool, out: Path, seconds: float | None) -> float:
     from vvtbench.cli.generate import execute_jobs
-    from vvtbench.families import load_family
+    from vvtbench.scene.families import load_family
 
     fam = load_family("cube_defects")
     overrides = {"frames": None, "duration": seconds, "resolution": None}
@@ -85,9 +85,9 @@ GROUPS = {  # cProfile cumulative time of these functions (substring of file:fun
 def _profile(video: bool, out: Path, seconds: float | None, index: int) -> None:
     from threadpoolctl import threadpool_limits
 
-    from vvtbench.families import draw
-    from vvtbench.generate import generate
-    from vvtbench.scenes_resolve import with_overrides
+    from vvtbench.samples.generate import generate
+    from vvtbench.scene.families import draw
+    from vvtbench.scene.scene import with_overrides
 
     threadpool_limits(1)
     scene = with_overrides(draw("cube_defects", "val", index), duration=seconds)

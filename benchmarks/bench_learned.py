@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vvtbench.data import iter_instances
-from vvtbench.metrics import normalized_correlation
+from vvtbench.datasets.instances import iter_instances
+from vvtbench.scoring.metrics import normalized_correlation
 
 OBSERVE = {"n_modes": 10, "visibility": "depth"}
 
@@ -52,7 +52,7 @@ def _pairs(roots: list[Path], split: str, limit: int | None = None):
 
 def reference_scores(roots: list[Path], solvers: list[str], cache: Path | None) -> dict:
     """Per-instance NC w and solve time of each reference solver on the test split."""
-    from vvtbench.plugins import load_solver
+    from vvtbench.solving.plugins import load_solver
 
     done = json.loads(cache.read_text()) if cache is not None and cache.is_file() else {}
     for name in solvers:
@@ -68,7 +68,7 @@ def reference_scores(roots: list[Path], solvers: list[str], cache: Path | None) 
             print(f"{name}: {len(nc)} nc_w {nc[-1]} {secs[-1]:.2f} s", flush=True)
         done[name] = {"nc_w": nc, "seconds": secs}
         if cache is not None:
-            from vvtbench.io import write_json
+            from vvtbench.io.files import write_json
 
             write_json(cache, done)
     return done
@@ -76,15 +76,16 @@ def reference_scores(roots: list[Path], solvers: list[str], cache: Path | None) 
 
 def instance_nc(estimate, truth) -> float | None:
     """NC w of one instance; None for a uniform truth (NC undefined: never scored as 0)."""
-    from vvtbench.metrics import is_constant
+    from vvtbench.scoring.metrics import is_constant
 
     return None if is_constant(truth) else normalized_correlation(estimate, truth)
 
 
 def mean_ci(values) -> tuple[float, float, float]:
-    """Mean and its 95 % bootstrap interval (the leaderboard's, :mod:`vvtbench.stats`) of the
+    """Mean and its 95 % bootstrap interval (the leaderboard's, :mod:`vvtbench.scoring.stats`) of
+    the
     defined values (None left out)."""
-    from vvtbench.stats import bootstrap_ci
+    from vvtbench.scoring.stats import bootstrap_ci
 
     x = np.array([v for v in values if v is not None], dtype=float)
     return (float(x.mean()), *bootstrap_ci(x))
@@ -119,7 +120,7 @@ def cached_features(roots: list[Path], n_train: int, n_val: int, cache: Path | N
         print(f"features of {len(out[f'{split}_X'])} {split} instances: "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
     if cache is not None:
-        from vvtbench.io import write_npz
+        from vvtbench.io.files import write_npz
 
         write_npz(cache, out)
     return out
@@ -157,7 +158,7 @@ def store_features(store_dir: Path, roots: list[Path], n_val: int, cache: Path |
         print(f"features of {len(test['X'])} test instances: {time.perf_counter() - t0:.0f} s",
               flush=True)
         if cache is not None:
-            from vvtbench.io import write_npz
+            from vvtbench.io.files import write_npz
 
             write_npz(cache, {**test, "basis_sha256": np.array(basis_sha)})
     return store, store.entries("train"), store.select("val", 0, n_val), test
@@ -206,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         predict_w,
         save_weights,
     )
-    from vvtbench.plugins import load_solver
+    from vvtbench.solving.plugins import load_solver
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, nargs="+", required=True)
@@ -323,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"n={size}: fit {fit_s:.0f} s ({weights['epochs']} epochs) val "
               f"{weights['val_nc_w']:+.3f} test {rows[-1]['test'][0]:+.3f}", flush=True)
         if args.rows is not None:
-            from vvtbench.io import write_json
+            from vvtbench.io.files import write_json
 
             write_json(args.rows, rows)
     for path, (arrays, meta) in scored.items():
@@ -374,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
         row["seconds"] = float(np.median(secs)) if secs else None
         row["cpu_seconds"] = float(np.median(cpu)) if cpu else None
     if args.rows is not None:
-        from vvtbench.io import write_json
+        from vvtbench.io.files import write_json
 
         write_json(args.rows, rows)
         if choices:

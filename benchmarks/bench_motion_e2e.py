@@ -1,6 +1,6 @@
 """End-to-end check of mode identification on a rendered cube.
 
-Renders a sample with ``vvtbench.dataset.generate`` (or uses ``--sample DIR``), runs the
+Renders a sample with ``vvtbench.samples.reader.generate`` (or uses ``--sample DIR``), runs the
 streaming extraction (``vvtbench.modes.extract_modes``: phase-based motion, Hann-windowed
 spectrum, peak picking, distortion / camera-shake rejection) on its video, and compares the
 result with the sample's ground truth (``vvtbench.modes.validate.compare_to_truth``): every
@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vvtbench import dataset as ds
-from vvtbench import generate as gen
 from vvtbench.modes import extract_modes
 from vvtbench.modes.validate import compare_to_truth, format_table
-from vvtbench.scene import load_scene, parse_scene
+from vvtbench.samples import generate as gen
+from vvtbench.samples import reader as ds
+from vvtbench.scene.scene import load_scene, parse_scene
 
 TINY = {"cells": 6, "resolution": 128, "duration": 1.5, "fps": 200.0, "n_modes": 12}
 

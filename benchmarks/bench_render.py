@@ -29,9 +29,9 @@ SCENE = "jello_cube_homogeneous"
 
 _CHILD = r"""
 import json, resource, sys, time
-from vvtbench.generate import generate
-from vvtbench.scenes_resolve import with_overrides
-from vvtbench.scene import load_scene
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import with_overrides
+from vvtbench.scene.scene import load_scene
 scene = with_overrides(load_scene(sys.argv[1]), duration=float(sys.argv[2]))
 t0 = time.perf_counter()
 generate(scene, sys.argv[3], progress=False)
@@ -87,10 +87,9 @@ def breakdown(size: int, lighting: str, supersample: int, frames: int) -> dict[s
 
 
 def render_fps(size: int, frames: int, mesh: str) -> float:
-    from vvtbench.generate import scene_renderer, surface_geometry
-    from vvtbench.scene import load_scene
-    from vvtbench.scenes_resolve import with_overrides
-    from vvtbench.simulate import build_mesh
+    from vvtbench.samples.generate import scene_renderer, surface_geometry
+    from vvtbench.scene.scene import load_scene, with_overrides
+    from vvtbench.simulation.simulate import build_mesh
 
     scene = with_overrides(load_scene(SCENE), resolution=(size, size))
     if mesh == "scene":

@@ -28,10 +28,10 @@ import time
 
 import numpy as np
 
-from vvtbench.families import draw
-from vvtbench.metrics import interval_coverage, normalized_correlation
 from vvtbench.observe import observe
-from vvtbench.scene import load_scene
+from vvtbench.scene.families import draw
+from vvtbench.scene.scene import load_scene
+from vvtbench.scoring.metrics import interval_coverage, normalized_correlation
 
 VALIDATION = {
     "v_mid_soft": dict(center=(0.02, 0.03, 0.025), size=(0.015, 0.015, 0.015), E=9.0e4,
@@ -100,7 +100,7 @@ def main() -> None:
                     help="sensitivity option override (repeatable)")
     a = ap.parse_args()
     from solvers.sensitivity import SensitivityConfig
-    from vvtbench.plugins import parse_overrides
+    from vvtbench.solving.plugins import parse_overrides
     sens_cfg = parse_overrides(a.sens, SensitivityConfig)
     if a.scenes:
         names = a.scenes

@@ -76,8 +76,8 @@ def sparse_run(grid: int, n_modes: int, max_iter: int,
     from dataclasses import replace
 
     from solvers.vvt import VVTConfig, VVTSolver
-    from vvtbench.metrics import normalized_correlation as nc
-    from vvtbench.plugins import parse_overrides
+    from vvtbench.scoring.metrics import normalized_correlation as nc
+    from vvtbench.solving.plugins import parse_overrides
 
     t0 = time.perf_counter()
     problem, truth = _observed(grid, n_modes)

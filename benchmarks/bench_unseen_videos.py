@@ -11,11 +11,11 @@ sensor noise of 0, 0.03 or 0.1 % of the intensity range.  Half the videos are wr
 FFV1 ``.mkv`` at their frame rate and read back with no ``fps`` (the container's rate), the
 others passed as arrays.
 
-Scored with :func:`vvtbench.extraction_scores.score_extraction` against the true fields and
+Scored with :func:`vvtbench.scoring.extraction.score_extraction` against the true fields and
 frequencies (a detection matches when its frequency is within the resolution and its MAC with
 the true field >= 0.5), the detectable modes being those whose spectral line over the record
 (``line_px``: the amplitude of the undamped sinusoid with the same Fourier coefficient, as
-:func:`~vvtbench.extraction_scores.true_mode_amplitudes`) reaches 0.001 px.
+:func:`~vvtbench.scoring.extraction.true_mode_amplitudes`) reaches 0.001 px.
 
 Usage: ``python benchmarks/bench_unseen_videos.py [--n 40] [--start 0] [--set KEY=JSON ...]``
 (``--set`` passes ``extract_modes`` options, e.g. ``--set 'weighting="confidence"' --set
@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 from bench_extractors import speckle
 
-from vvtbench.extraction_scores import DEFAULT_FLOOR_PX, score_extraction
 from vvtbench.modes import extract_modes
+from vvtbench.scoring.extraction import DEFAULT_FLOOR_PX, score_extraction
 
 SPECKLE_SIZE = 256
 

@@ -29,11 +29,11 @@ import numpy as np
 
 def main(argv: list[str] | None = None) -> int:
     from vvtbench.cli import main as cli
-    from vvtbench.dataset import open_sample
-    from vvtbench.export import find_samples
-    from vvtbench.metrics import evaluate, invalid_reason
+    from vvtbench.datasets.export import find_samples
     from vvtbench.observe import observe
-    from vvtbench.sealed import solve_sealed
+    from vvtbench.samples.reader import open_sample
+    from vvtbench.scoring.metrics import evaluate, invalid_reason
+    from vvtbench.solving.sealed import solve_sealed
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--family", default="cube_defects")
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
 def rows_from_cache(cache: Path) -> list[dict]:
     """One row per cached solve of a views run: its NC w against its observation's truth."""
     from vvtbench.bench.stages import load_estimate_arrays, load_observation
-    from vvtbench.metrics import invalid_reason, is_constant, normalized_correlation
+    from vvtbench.scoring.metrics import invalid_reason, is_constant, normalized_correlation
 
     rows = []
     for task in sorted((cache / "solve").glob("*/task.json")):
@@ -119,7 +119,7 @@ def rows_from_cache(cache: Path) -> list[dict]:
 
 
 def table(rows: list[dict], args, title: str) -> None:
-    from vvtbench.stats import paired_comparison, summarize, win_rate_text
+    from vvtbench.scoring.stats import paired_comparison, summarize, win_rate_text
 
     print(f"\n{title}\n")
     cost = all("cost_s" in r for r in rows)

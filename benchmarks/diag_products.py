@@ -6,7 +6,7 @@ phase is a product's.
 For each generated sample (a folder with video and truth, e.g. a `standard_val` run's
 ``cache/generate/<key>/sample``): ``extract_modes(max_modes=30, fmax=200,
 reject_distortion=False)``, detections scored against the true modes
-(:func:`vvtbench.extraction_scores.score_sample_extraction`), and every detection tested as a
+(:func:`vvtbench.scoring.extraction.score_sample_extraction`), and every detection tested as a
 second-order product of stronger ones (:func:`vvtbench.modes.peaks.distortion_products`, power
 ratio 0.5, half a bin). Prints one JSON line per detection in the scored band (frequency,
 false or true, product kind and parents, power ratio, roughness, phase residual), then how
@@ -24,10 +24,10 @@ import json
 
 import numpy as np
 
-from vvtbench.dataset import open_sample
-from vvtbench.extraction_scores import score_sample_extraction
 from vvtbench.modes import extract_modes
 from vvtbench.modes.peaks import distortion_products, product_phase_residual
+from vvtbench.samples.reader import open_sample
+from vvtbench.scoring.extraction import score_sample_extraction
 
 THRESHOLDS = (0.15, 0.12, 0.10, 0.08, 0.05)
 PHASE_TOLERANCES = (0.1, 0.2, 0.4)

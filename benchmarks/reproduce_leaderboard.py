@@ -61,9 +61,9 @@ def main(argv: list[str] | None = None) -> int:
     import pandas as pd
 
     from vvtbench.bench import read_results
-    from vvtbench.dataset import open_sample
-    from vvtbench.metrics import normalized_correlation as nc
-    from vvtbench.problem import InverseProblem
+    from vvtbench.samples.reader import open_sample
+    from vvtbench.scoring.metrics import normalized_correlation as nc
+    from vvtbench.solving.problem import InverseProblem
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("old", help="the committed results table (CSV or Parquet)")

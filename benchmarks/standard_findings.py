@@ -24,7 +24,8 @@ Prints, per track (instances of the families' test split):
    modes within 1 % in frequency (``benchmarks/bench_damping_coverage.py``, from the run's
    cached samples and mode sets; the target is >= 90 % of the resolved ones).
 
-Every interval is :func:`vvtbench.stats.summarize` / :func:`vvtbench.stats.paired_comparison`
+Every interval is :func:`vvtbench.scoring.stats.summarize` /
+:func:`vvtbench.scoring.stats.paired_comparison`
 (percentile bootstrap over instances, 2000 resamples, seed 0), the leaderboard's statistics.
 """
 
@@ -37,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from vvtbench.bench import read_results
-from vvtbench.stats import paired_comparison, summarize, win_rate_text
+from vvtbench.scoring.stats import paired_comparison, summarize, win_rate_text
 
 
 def _ci(values) -> str:
@@ -134,7 +135,7 @@ def main() -> None:
 def _extractors(d) -> None:
     """Tracks with several extracted sources: the extractor ranking (the leaderboard's) and,
     per solver, the paired NC w of each source against the default one on the same videos."""
-    from vvtbench.leaderboard import extractor_ranking
+    from vvtbench.reporting.leaderboard import extractor_ranking
 
     ranked = extractor_ranking(d, d.track.iloc[0])
     if ranked is None:
@@ -277,7 +278,7 @@ def _views(d, run_dir: Path) -> None:
 def _dof_slope(ok, solver: str) -> None:
     """The within-instance slope of NC w on the fraction of DOFs observed (gain over one view
     against the gain in DOFs observed, pooled), with a bootstrap interval over instances."""
-    from vvtbench.stats import bootstrap_ci
+    from vvtbench.scoring.stats import bootstrap_ci
 
     one = ok[ok.views == 1].set_index("scene")
     more = ok[(ok.views > 1) & ok.scene.isin(one.index)]

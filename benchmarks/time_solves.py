@@ -24,7 +24,7 @@ from solvers.sensitivity import SensitivityConfig, SensitivitySolver
 from solvers.vvt import VVTConfig, VVTSolver
 from vvtbench.bench import read_results
 from vvtbench.bench.stages import load_observation
-from vvtbench.metrics import normalized_correlation
+from vvtbench.scoring.metrics import normalized_correlation
 
 
 def main() -> None:

@@ -7,6 +7,6 @@ Each module defines one solver class (see docs/solvers.md for the interface):
 * ``homogeneous`` -- the best uniform field (the floor);
 * ``sensitivity`` -- classical FE model updating (Gauss-Newton on eigenvalues and MAC).
 
-They are registered under the ``vvtbench.solvers`` entry-point group; ``vvtbench.plugins``
+They are registered under the ``vvtbench.solvers`` entry-point group; ``vvtbench.solving.plugins``
 also knows them by name when the package metadata is not (yet) installed.
 """

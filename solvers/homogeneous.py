@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from vvtbench.problem import Estimate, InverseProblem
+from vvtbench.api import Estimate, InverseProblem
 
 
 @dataclass
@@ -54,8 +54,7 @@ class HomogeneousSolver:
             Constant fields; ``extra["matched_model_modes"]`` pairs the observed modes with
             the homogeneous model's.
         """
-        from vvtbench.fem.modal import eigenmodes
-        from vvtbench.metrics import mac_matrix
+        from vvtbench.api import eigenmodes, mac_matrix
 
         t0 = time.perf_counter()
         cfg = self.config

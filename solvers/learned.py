@@ -49,8 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vvtbench.dataset import sha256_file
-from vvtbench.problem import Estimate, InverseProblem
+from vvtbench.api import Estimate, InverseProblem, sha256_file
 
 N_MODES = 10
 FORMAT = "vvtbench.learned-weights"
@@ -93,8 +92,7 @@ def features(problem: InverseProblem) -> tuple[np.ndarray, float]:
     """(n_params, n_features) features of every voxel, and the homogeneous density v_hom."""
     from scipy.optimize import linear_sum_assignment
 
-    from vvtbench.fem.modal import eigenmodes
-    from vvtbench.mac import mac_matrix
+    from vvtbench.api import eigenmodes, mac_matrix
 
     from .homogeneous import HomogeneousSolver
 
@@ -149,14 +147,14 @@ STORED_FEATURES = ("X", "w")  # what a feature store keeps of an instance_featur
 def reference_basis(problems) -> np.ndarray:
     """The modal basis of one mesh: the low homogeneous modes of a few train instances
     (:func:`vvtbench.learning.modal_features.reference_basis`)."""
-    from vvtbench.learning.modal_features import reference_basis as basis_of
+    from vvtbench.api import reference_basis as basis_of
 
     return basis_of(problems)
 
 
 def mesh_key(problem: InverseProblem) -> str:
     """The mesh a basis belongs to (:func:`vvtbench.learning.modal_features.mesh_key`)."""
-    from vvtbench.learning.modal_features import mesh_key as key_of
+    from vvtbench.api import mesh_key as key_of
 
     return key_of(problem.model)
 
@@ -220,7 +218,7 @@ def voxel_features(problem: InverseProblem, basis: np.ndarray, pairing: Pairing 
     (:func:`vvtbench.learning.modal_features.step_features`), and v_hom."""
     from threadpoolctl import threadpool_limits
 
-    from vvtbench.learning.modal_features import step_features
+    from vvtbench.api import step_features
 
     with threadpool_limits(limits=1, user_api="blas"):  # small dense algebra: threads only wait
         return step_features(problem, basis, pairing.n_slots, SMOOTH, N_MODES,
@@ -233,7 +231,7 @@ def ridge_voxel_features(problem: InverseProblem, basis: np.ndarray,
     """Per-voxel features of the 2.0 model ("modal-step-ridge", still read)."""
     from threadpoolctl import threadpool_limits
 
-    from vvtbench.learning.modal_features import linear_step
+    from vvtbench.api import linear_step
 
     with threadpool_limits(limits=1, user_api="blas"):
         steps, info = linear_step(problem, basis, pairing.n_slots, smooth=SMOOTH,
@@ -247,8 +245,8 @@ def ridge_voxel_features(problem: InverseProblem, basis: np.ndarray,
 
 def standardized(w: np.ndarray) -> np.ndarray | None:
     """(w - mean) / std of one instance's truth; None for a uniform field (no NC defined:
-    :func:`vvtbench.metrics.is_constant`, the leaderboard's test)."""
-    from vvtbench.metrics import is_constant
+    :func:`vvtbench.scoring.metrics.is_constant`, the leaderboard's test)."""
+    from vvtbench.api import is_constant
 
     w = np.asarray(w, dtype=float)
     if is_constant(w):
@@ -291,7 +289,7 @@ def fit_arrays(X: np.ndarray, y: np.ndarray, basis: np.ndarray | dict[str, np.nd
     targets ``y`` of ``n_used`` instances (of ``n_instances``; member i seeded with i),
     trained for :func:`bounded_steps` Adam steps. ``basis``: one basis, or the basis of
     each mesh (:func:`basis_entries`)."""
-    from vvtbench.learning.mlp import fit_mlp
+    from vvtbench.api import fit_mlp
 
     if members < 1 or epochs < 1 or max_steps < 1:
         raise ValueError("learned: members, epochs and max_steps must be >= 1, got "
@@ -368,7 +366,7 @@ def _record_val(weights: dict, held: list[dict]) -> None:
 
 
 def _has_contrast(item: dict) -> bool:
-    from vvtbench.metrics import is_constant
+    from vvtbench.api import is_constant
 
     return not is_constant(item["w"])
 
@@ -381,7 +379,7 @@ def _members(weights: dict) -> list[dict]:
 
 def predict_field(weights: dict, X: np.ndarray) -> np.ndarray:
     """The ensemble's mean prediction of the standardized w, per voxel."""
-    from vvtbench.learning.mlp import mlp_predict
+    from vvtbench.api import mlp_predict
 
     return np.mean([mlp_predict(params, X) for params in _members(weights)], axis=0)
 
@@ -408,7 +406,7 @@ def mean_nc(weights: dict, items: list[dict]) -> float | None:
     """Mean NC w of the weights on feature items (their ``X`` and truth ``w``) whose truth
     has a contrast: NC is undefined for a uniform truth, so those items are left out (None
     when every item's truth is uniform)."""
-    from vvtbench.metrics import normalized_correlation
+    from vvtbench.api import normalized_correlation
 
     scored = [it for it in items if _has_contrast(it)]
     if not scored:
@@ -467,7 +465,7 @@ def fit(pairs: Iterable, members: int = MEMBERS, epochs: int = EPOCHS,
 
 def save_weights(path: str | Path, weights: dict, meta: dict) -> Path:
     """The weights (.npz arrays) with their provenance (JSON in the same file)."""
-    from vvtbench.io import write_npz
+    from vvtbench.api import write_npz
 
     arrays = {k: np.asarray(v) for k, v in weights.items() if isinstance(v, np.ndarray)}
     info = {k: v for k, v in weights.items() if not isinstance(v, np.ndarray)}

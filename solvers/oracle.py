@@ -48,8 +48,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from vvtbench.observe import Truth
-from vvtbench.problem import Estimate, InverseProblem
+from vvtbench.api import Estimate, InverseProblem, Truth
 
 from .vvt import VVTConfig, VVTSolver, ZSystem
 
@@ -98,7 +97,7 @@ def full_field_problem(problem: InverseProblem, U: np.ndarray) -> InverseProblem
 def fit_score(full: InverseProblem, w: np.ndarray, v: np.ndarray) -> float:
     """(1 - mean MAC) + mean relative frequency error of the forward model against the true
     full-field modes (lower is better; inf when the forward solve fails)."""
-    from vvtbench.metrics import mode_match
+    from vvtbench.api import mode_match
 
     try:
         mm = mode_match(full, w, v)

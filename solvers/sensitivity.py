@@ -118,7 +118,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from vvtbench.problem import Estimate, InverseProblem
+from vvtbench.api import Estimate, InverseProblem
 
 from .vvt import grid_laplacian
 
@@ -377,7 +377,7 @@ class ShapeDerivatives:
 
     def __init__(self, model, P, w, v, lam, phi, series_terms=3, gap_rtol=1e-5,
                  factor=None, sigma=None, clusters=None) -> None:
-        from vvtbench.fem.modal import Factorization
+        from vvtbench.api import Factorization
 
         self.model, self.w, self.v = model, w, v
         self.lam, self.phi = lam, np.ascontiguousarray(phi)
@@ -569,7 +569,7 @@ class SensitivitySolver:
                   active: np.ndarray | None = None) -> _State:
         from scipy.optimize import linear_sum_assignment
 
-        from vvtbench.fem.modal import eigenmodes
+        from vvtbench.api import eigenmodes
 
         cfg = self.config
         theta = self._normalize(theta)
@@ -608,7 +608,7 @@ class SensitivitySolver:
         (G the observed shapes), phi_C <- phi_C R. For any orthogonal U, phi_C U gives the
         same phi_C R (up to signs), so the pairing no longer follows the eigensolver's
         rounding inside the repeated eigenvalue."""
-        from vvtbench.fem.modal import cluster_frequencies
+        from vvtbench.api import cluster_frequencies
 
         groups = [g for g in cluster_frequencies(lam, rtol=self.config.repeat_rtol)
                   if len(g) > 1]
@@ -657,7 +657,7 @@ class SensitivitySolver:
         """
         from scipy.optimize import linear_sum_assignment
 
-        from vvtbench.fem.modal import cluster_frequencies
+        from vvtbench.api import cluster_frequencies
 
         if label is None:
             label = np.empty(len(s.lam), dtype=int)

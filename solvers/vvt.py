@@ -36,8 +36,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from vvtbench.fem.modal import Factorization
-from vvtbench.problem import Estimate, InverseProblem
+from vvtbench.api import Estimate, Factorization, InverseProblem
 
 __all__ = ["VVTSolver", "VVTConfig", "grid_laplacian", "ZSystem"]
 

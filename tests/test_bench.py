@@ -77,7 +77,7 @@ from pathlib import Path
 import numpy as np
 
 from truth_search import leaves, truth_in
-from vvtbench.problem import Estimate
+from vvtbench.solving.problem import Estimate
 
 TARGETS = Path(__file__).with_name("peek_targets.npz")
 
@@ -315,7 +315,7 @@ def test_leaderboard(micro, tmp_path):
 def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch):
     import dataclasses
 
-    from vvtbench.bench import build_graph, graph
+    from vvtbench.bench import build_graph
 
     smoke = load_suite("smoke")
     fitted = dataclasses.replace(smoke, extract={**smoke.extract, "line_fit": True})
@@ -325,7 +325,9 @@ def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch
         return {(t.stage, t.label, t.key) for t in tasks.values()}
 
     before = keys(smoke), keys(fitted)
-    monkeypatch.setattr(graph, "LINE_FIT_REVISION", graph.LINE_FIT_REVISION + 1)
+    from vvtbench.modes import revision
+
+    monkeypatch.setattr(revision, "LINE_FIT_REVISION", revision.LINE_FIT_REVISION + 1)
     after = keys(smoke), keys(fitted)
     assert after[0] == before[0]  # suites without the line fit keep their cache
     changed = {s for s, _, _ in before[1] ^ after[1]}
@@ -335,7 +337,7 @@ def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch
 def test_extractors_are_ranked_on_the_same_videos(micro, tmp_path):
     """An ``extracted:NAME`` source runs another extractor on the cached videos; the default
     source keeps its cache; the leaderboard ranks the extractors."""
-    from vvtbench.leaderboard import build, extraction_table, extractor_ranking
+    from vvtbench.reporting.leaderboard import build, extraction_table, extractor_ranking
 
     suite_file, out, _ = micro
     two = tmp_path / "two.toml"

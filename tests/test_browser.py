@@ -18,7 +18,7 @@ import subprocess
 import pytest
 from test_leaderboard import make_run
 
-from vvtbench.leaderboard import build
+from vvtbench.reporting.leaderboard import build
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="needs chromium (.ci/setup installs "

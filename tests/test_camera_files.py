@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench.field.readers import open_camera_file, write_cine
-from vvtbench.video import VideoError, VideoWriter, open_video, probe_video
+from vvtbench.video.cameras import open_camera_file, write_cine
+from vvtbench.video.files import VideoError, VideoWriter, open_video, probe_video
 
 
 def _frames(t: int, h: int, w: int, top: int, seed: int = 0) -> np.ndarray:
@@ -361,7 +361,7 @@ def test_photron_cihx_header(tmp_path: Path) -> None:
 def test_lossy_description_of_intra_and_lossless_codecs(tmp_path: Path) -> None:
     import imageio_ffmpeg
 
-    from vvtbench.video import lossy_description
+    from vvtbench.video.files import lossy_description
 
     frames = _frames(12, 16, 16, 255)
     for name, codec, fmt in (("m.avi", "mjpeg", "yuvj420p"), ("l.avi", "ffv1", "gray")):

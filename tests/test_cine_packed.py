@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench.field.readers import (
+from vvtbench.video.cameras import (
     P10_TO_LINEAR,
     open_camera_file,
     unpack_msb_first,
     write_cine,
 )
-from vvtbench.video import VideoError, open_video
+from vvtbench.video.files import VideoError, open_video
 
 
 def _bit_stream(values: np.ndarray, bits: int) -> bytes:

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from vvtbench import cli
-from vvtbench import dataset as ds
-from vvtbench.generate import generate
-from vvtbench.scene import parse_scene
-from vvtbench.video import (
+from vvtbench.samples import reader as ds
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import parse_scene
+from vvtbench.video.files import (
     VideoWriter,
     concat_videos,
     count_frames,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.stats import ncx2
 
-from vvtbench.scoring import crb
-from vvtbench.sensor import sensor_dn
+from vvtbench.render import crb
+from vvtbench.render.sensor import sensor_dn
 
 
 def _texture(rng: np.random.Generator, n_waves: int = 6):
@@ -137,7 +137,7 @@ def test_block_crb_shapes_and_textureless_blocks():
 
 
 def test_sample_check_requires_the_ruler_arrays_only_when_reported(tmp_path):
-    from vvtbench.dataset import RULER_ARRAYS, check_sample
+    from vvtbench.samples.reader import RULER_ARRAYS, check_sample
 
     listed = {f"truth.zarr/{name}/zarr.json": {"sha256": "0" * 64} for name in RULER_ARRAYS}
     older = check_sample(tmp_path, {"files": {}}, {"video": {}})

@@ -1,4 +1,5 @@
-"""Croissant 1.1 of a stacked export (vvtbench.croissant): mlcroissant validates it and reads
+"""Croissant 1.1 of a stacked export (vvtbench.datasets.croissant): mlcroissant validates it and
+reads
 the instance records; every listed file's sha256 is the file's."""
 
 from __future__ import annotations

@@ -1,5 +1,6 @@
-"""Tests for the dataset generator (vvtbench.generate), loader (vvtbench.dataset) and video
-I/O (vvtbench.video).
+"""Tests for the dataset generator (vvtbench.samples.generate), loader (vvtbench.samples.reader)
+and video
+I/O (vvtbench.video.files).
 
 Rendering needs headless EGL (Mesa llvmpipe is fine); see tests/test_render.py.
 """
@@ -12,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench import dataset as ds
-from vvtbench import generate as gen
+from vvtbench.bench.resolve import resolve_scenes
 from vvtbench.cli import generate as cli_generate
 from vvtbench.render.camera import Camera
-from vvtbench.scene import SCENES_DIR, SceneError, load_scene, parse_scene
-from vvtbench.scenes_resolve import resolve_scenes, with_overrides
-from vvtbench.video import VideoWriter, concat_videos, probe_video, read_frames
+from vvtbench.samples import generate as gen
+from vvtbench.samples import reader as ds
+from vvtbench.scene.scene import SCENES_DIR, SceneError, load_scene, parse_scene, with_overrides
+from vvtbench.video.files import VideoWriter, concat_videos, probe_video, read_frames
 
 TINY = {
     "name": "tiny",
@@ -156,7 +157,7 @@ def test_lossless_roundtrip_is_bit_exact(tmp_path, codec):
 
 def test_video_frames_are_the_rendered_frames(sample):
     """Decoded DN == 16-bit quantization of a fresh render of the stored displacements."""
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     mesh = build_mesh(sample.scene)
     nodes, rest, tris = gen.surface_geometry(mesh)
@@ -265,7 +266,7 @@ def test_camera_noise_bit_depth_and_frame_average(noisy):
     # times are the exposure centres of the averaged sub-frame pairs
     np.testing.assert_allclose(s.times, (np.arange(100) + 0.25) / 2000.0)
     # the noise-free, quantized rest image differs from the video by sensor noise only
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     _, rest, tris = gen.surface_geometry(build_mesh(s.scene))
     disp = s["transient/displacements"]
@@ -290,7 +291,7 @@ def test_rerun_with_sensor_noise_is_byte_identical(noisy, tmp_path):
 
 def _requantized(sample, ks, bits: int) -> list[np.ndarray]:
     """Noise-free DN of fresh renders of the stored displacements of frames ``ks``."""
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     _, rest, tris = gen.surface_geometry(build_mesh(sample.scene))
     disp = sample.array("transient/displacements")
@@ -352,7 +353,7 @@ def test_motion_scale_scales_image_motion_linearly(tmp_path):
     assert 0.005 < b.info["peak_image_motion_px"] < 0.05
     rest = gen.sensor_dn(a["image/rest"][None], 16, 0.0, False, 1e4, None).astype(np.float64)
     from vvtbench.render.raster import rasterize
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     _, V, F = gen.surface_geometry(build_mesh(a.scene))
     inner = _smooth_pixels(rasterize(a.camera, V, F), V, F, 2)  # no edges: sub-samples flip
@@ -370,7 +371,7 @@ def test_preview_clip_magnifies_motion(tiny, sample):
     by the image-space motion magnified to gen.PREVIEW_PEAK_PX (8 px) peak; even size."""
     from vvtbench.render import Camera
     from vvtbench.render.raster import interpolate, rasterize
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     info = sample.info
     f1 = info["modes"]["frequencies_hz"][0]
@@ -496,7 +497,7 @@ def _shipped_views():
 def _rendered_surface(scene):
     """(vertices, triangles) ``generate`` renders: the simulation mesh's boundary (for meshes
     the tetrahedralization's, cached on disk after the first build)."""
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     return gen.surface_geometry(build_mesh(scene))[1:]
 
@@ -550,7 +551,7 @@ def test_rigid_subpixel_shift_with_shipped_scene_defaults(name):
 # --------------------------------------------------------------------------- format 2
 def test_sample_is_self_sufficient(sample):
     """Boundary, node sets and element name are in the truth: no simulation needed."""
-    from vvtbench.simulate import build_mesh, fixed_nodes
+    from vvtbench.simulation.simulate import build_mesh, fixed_nodes
 
     mesh = build_mesh(sample.scene)
     np.testing.assert_array_equal(sample.require("mesh/fixed_nodes"),
@@ -590,7 +591,7 @@ def test_require_names_file_and_array_of_old_samples(tiny, tmp_path):
 def test_modes_only_sample(tmp_path):
     import time
 
-    from vvtbench.scene import load_scene
+    from vvtbench.scene.scene import load_scene
 
     t0 = time.perf_counter()
     path = gen.generate(load_scene("jello_cube_defect_top"), tmp_path, video=False,
@@ -622,7 +623,7 @@ def test_frame_rate_is_read_exactly_from_the_container(rate, tmp_path):
     """ffmpeg prints 2000 FPS as "2k fps"; the rate comes back as an exact fraction."""
     from fractions import Fraction
 
-    from vvtbench.video import open_video
+    from vvtbench.video.files import open_video
 
     path = tmp_path / "v.mkv"
     with VideoWriter(path, 8, 8, playback_fps=Fraction(rate)) as w:
@@ -646,7 +647,7 @@ def test_a_bare_stream_has_no_frame_rate(tmp_path):
     the rate is unknown (extract then asks for --fps) rather than silently 25."""
     import subprocess
 
-    from vvtbench.video import ffmpeg_exe
+    from vvtbench.video.files import ffmpeg_exe
 
     mp4, raw = tmp_path / "v.mp4", tmp_path / "v.h264"
     for out in (mp4, raw):
@@ -662,7 +663,7 @@ def test_high_rate_frame_count_from_the_container_is_not_called_truncated(tmp_pa
     """At 2000 fps the container duration (printed to 10 ms) misses a frame or so: a paper
     sample (12,000 frames) read as 11,999 failed to open. The cheap check allows that slack;
     counting decodes exactly."""
-    from vvtbench.video import VideoWriter, count_frames, probe_video
+    from vvtbench.video.files import VideoWriter, count_frames, probe_video
 
     path = tmp_path / "v.mkv"
     w = VideoWriter(path, 8, 8, capture_fps=2000)

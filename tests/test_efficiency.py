@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vvtbench.scoring import crb
+from vvtbench.render import crb
 from vvtbench.scoring.efficiency import (
     EfficiencySetting,
     KnownTextureShift,

@@ -1,4 +1,5 @@
-"""Exported datasets (vvtbench.export, vvtbench.packed, `vvtbench export`): round trip, xarray,
+"""Exported datasets (vvtbench.datasets.export, vvtbench.datasets.packed, `vvtbench export`): round
+trip, xarray,
 Croissant, safety.
 
 Rendering needs headless EGL (Mesa llvmpipe is fine); see tests/test_render.py.
@@ -15,16 +16,16 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from vvtbench import dataset as ds
 from vvtbench.cli import main as cli_main
 from vvtbench.cli.export import main as export_main
-from vvtbench.croissant import CONTEXT
-from vvtbench.export import pack
-from vvtbench.generate import generate
+from vvtbench.datasets.croissant import CONTEXT
+from vvtbench.datasets.export import pack
+from vvtbench.datasets.packed import ExportError, open_dataset
 from vvtbench.modes import ModeSet
-from vvtbench.packed import ExportError, open_dataset
 from vvtbench.render.camera import Camera
-from vvtbench.scene import Scene, parse_scene
+from vvtbench.samples import reader as ds
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import Scene, parse_scene
 
 TINY = {
     "name": "tiny",
@@ -352,7 +353,7 @@ def test_no_writing_through_symbolic_links(tiny, tmp_path, capsys):
 
 
 def test_writing_is_atomic(tiny, tmp_path, monkeypatch):
-    import vvtbench.export as ex
+    import vvtbench.datasets.export as ex
 
     out = tmp_path / "ds.zarr"
     pack([tiny], out)
@@ -618,7 +619,7 @@ def test_stacked_refuses_bad_input_and_overwrites_only_its_own(stacked, family_s
 
 def test_stacked_streams_one_sample_at_a_time_with_the_same_result(stacked, family_samples,
                                                                      tmp_path, monkeypatch):
-    import vvtbench.export as export
+    import vvtbench.datasets.export as export
 
     monkeypatch.setattr(export, "WRITE_BUFFER_BYTES", 1)  # blocks of one sample in one shard
     out = export.pack_stacked(sorted((family_samples / "train").iterdir()), tmp_path / "one")

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from vvtbench import dataset as ds
 from vvtbench.cli import main as cli_main
 from vvtbench.cli.export import main as export_main
-from vvtbench.croissant import CONFORMS_TO, CONTEXT
-from vvtbench.generate import generate
-from vvtbench.packed import ExportError, open_dataset
+from vvtbench.datasets.croissant import CONFORMS_TO, CONTEXT
+from vvtbench.datasets.packed import ExportError, open_dataset
 from vvtbench.render.camera import Camera
-from vvtbench.scene import parse_scene
+from vvtbench.samples import reader as ds
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import parse_scene
 
 SCENE = {
     "seed": 7,

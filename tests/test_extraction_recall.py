@@ -15,13 +15,13 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 from test_modes import modeset, pattern  # noqa: E402
 
-from vvtbench.extraction_scores import (  # noqa: E402
+from vvtbench.modes import ModeSet  # noqa: E402
+from vvtbench.scoring.extraction import (  # noqa: E402
     DEFAULT_FLOOR_PX,
     score_extraction,
     score_sample_extraction,
     true_mode_amplitudes,
 )
-from vvtbench.modes import ModeSet  # noqa: E402
 
 N = 16
 
@@ -173,7 +173,7 @@ def test_score_sample_extraction_keys_and_detectable_set() -> None:
 
 def test_crb_snr_defines_detectability() -> None:
     """With the Cramér-Rao ruler the SNR, not the amplitude floor, decides what is expected."""
-    from vvtbench.scoring.crb import detection_snr_threshold
+    from vvtbench.render.crb import detection_snr_threshold
 
     truth = _truth()
     f, z = [5.0, 8.0, 12.0], [0.0, 0.0, 0.0]
@@ -199,7 +199,7 @@ def test_crb_snr_defines_detectability() -> None:
 
 
 def test_score_sample_extraction_uses_the_ruler_when_the_sample_has_it() -> None:
-    from vvtbench.scoring.crb import detection_snr_threshold
+    from vvtbench.render.crb import detection_snr_threshold
 
     s = _FakeSample(a=(1e-3, 1e-4), zeta=(0.0, 0.3))
     truth = _truth()
@@ -262,8 +262,8 @@ def test_flanks_and_sidelobes_are_no_modes(zeta: float) -> None:
 def test_doctests():
     import doctest
 
-    from vvtbench import extraction_scores
     from vvtbench.modes import peaks
+    from vvtbench.scoring import extraction as extraction_scores
 
     for module in (extraction_scores, peaks):
         result = doctest.testmod(module)

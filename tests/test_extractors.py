@@ -12,14 +12,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from vvtbench.extractors import (
+from vvtbench.modes import extract_modes
+from vvtbench.solving.extractors import (
     PluginError,
     describe_config,
     list_extractors,
     load_extractor,
     make_extractor,
 )
-from vvtbench.modes import extract_modes
 
 N = 64
 

@@ -1,4 +1,4 @@
-"""Scene families (vvtbench.families): format, deterministic draws, disjoint splits, and
+"""Scene families (vvtbench.scene.families): format, deterministic draws, disjoint splits, and
 ``vvtbench generate FAMILY`` (docs/families.md)."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench import families as fam
+from vvtbench.bench.resolve import resolve_scenes
 from vvtbench.cli import generate as cli_generate
-from vvtbench.scene import parse_scene
-from vvtbench.scenes_resolve import resolve_scenes
-from vvtbench.simulate import build_mesh, load_nodes, material_fields
+from vvtbench.scene import families as fam
+from vvtbench.scene.scene import parse_scene
+from vvtbench.simulation.simulate import build_mesh, load_nodes, material_fields
 
 SHIPPED = ("cube_defects", "bunny_defects", "drum_defects")
 N = 12  # instances per split in the disjointness tests
@@ -266,7 +266,7 @@ def test_generate_suite_applies_its_defaults():
 def test_generate_family_on_a_dask_cluster(tiny, tmp_path):
     """``--scheduler``: the same jobs on Dask (an in-process cluster here)."""
     distributed = pytest.importorskip("distributed")
-    from vvtbench.families import load_family
+    from vvtbench.scene.families import load_family
 
     f = load_family(tiny)
     jobs = [{"out": str(tmp_path), "family": f.source, "split": "val", "index": i,

@@ -123,7 +123,7 @@ def _frames(n: int, shape=(6, 8), seed: int = 0):
 def test_tiff_sequence_is_read_back_at_12_bits(tmp_path):
     import tifffile
 
-    from vvtbench.video import open_video
+    from vvtbench.video.files import open_video
 
     frames = _frames(5)
     path = encode_video(iter(frames), 500.0, tmp_path, FieldSettings(format="tiff"))
@@ -142,7 +142,7 @@ def test_tiff_sequence_is_read_back_at_12_bits(tmp_path):
 def test_mraw_is_read_back_like_pymraw(tmp_path):
     import pyMRAW
 
-    from vvtbench.video import open_video
+    from vvtbench.video.files import open_video
 
     frames = _frames(4, (6, 8), seed=1)
     cih = encode_video(iter(frames), 20000.0, tmp_path, FieldSettings(format="mraw"))
@@ -155,7 +155,7 @@ def test_mraw_is_read_back_like_pymraw(tmp_path):
 
 
 def test_h264_is_lossy_but_close(tmp_path):
-    from vvtbench.video import open_video
+    from vvtbench.video.files import open_video
 
     yy, xx = np.mgrid[0:32, 0:32]
     frames = [(0.5 + 0.3 * np.sin(xx / 4 + k / 3) * np.cos(yy / 5)).astype(np.float32)
@@ -169,7 +169,7 @@ def test_h264_is_lossy_but_close(tmp_path):
 
 def test_h264_at_a_bit_rate_holds_that_many_bits_per_second_of_recording(tmp_path):
     """Noise frames (incompressible): the file holds about bitrate x recorded seconds."""
-    from vvtbench.video import open_video
+    from vvtbench.video.files import open_video
 
     frames = _frames(120, (64, 64), seed=3)  # 0.5 s at 240 fps
     sizes = {}
@@ -232,7 +232,7 @@ def test_an_stl_block_is_meshed_as_the_box(tmp_path):
     from vvtbench.field.objects import resolve_object
     from vvtbench.field.track import write_object_surface
     from vvtbench.observe import ObserveError
-    from vvtbench.scene import load_scene
+    from vvtbench.scene.scene import load_scene
 
     stl = write_object_surface(load_scene("jello_cube_defect_top"), tmp_path / "cube.stl")
     box = resolve_object("box:0.05x0.05x0.05", inference_shape=(4, 4, 4))
@@ -325,9 +325,9 @@ def test_sample_truth_is_the_truth_observe_gives(tmp_path):
     """On the problem ``observe`` builds from a sample, the truth ``sample_truth`` computes
     without the scene's inference settings is observe's own: same voxel material, each mode
     paired with itself (MAC 1, same sign and eigenvalue)."""
-    from vvtbench.generate import generate
     from vvtbench.observe import ObserveError, observe, sample_truth
-    from vvtbench.scene import parse_scene
+    from vvtbench.samples.generate import generate
+    from vvtbench.scene.scene import parse_scene
 
     scene = parse_scene({
         "name": "tiny_truth", "seed": 5, "geometry": {"kind": "box", "cells": [3, 3, 3]},

@@ -179,9 +179,9 @@ def _build(root: Path) -> dict[str, str]:
     """The fixture tree: a sample, its damaged copies, odd files; placeholders -> paths."""
     import numpy as np
 
-    from vvtbench.generate import generate
-    from vvtbench.scene import parse_scene
-    from vvtbench.video import ffmpeg_exe
+    from vvtbench.samples.generate import generate
+    from vvtbench.scene.scene import parse_scene
+    from vvtbench.video.files import ffmpeg_exe
 
     ok = generate(parse_scene(json.loads(json.dumps(TINY)), "tiny_fuzz"), root / "samples",
                   progress=False)
@@ -201,7 +201,7 @@ def _build(root: Path) -> dict[str, str]:
                     "-c", "copy", "-frames:v", "86", str(root / "cut86.mkv")], check=True)
     shutil.move(root / "cut86.mkv", cut)
     resized = copy("resized") / "video.mkv"
-    from vvtbench.video import VideoWriter
+    from vvtbench.video.files import VideoWriter
 
     with VideoWriter(resized, 40, 40, capture_fps=400) as w:
         for _ in range(200):

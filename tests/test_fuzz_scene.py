@@ -19,8 +19,8 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from vvtbench.scene import SceneError, load_scene, parse_scene  # noqa: E402
-from vvtbench.simulate import build_mesh, load_nodes, material_fields  # noqa: E402
+from vvtbench.scene.scene import SceneError, load_scene, parse_scene  # noqa: E402
+from vvtbench.simulation.simulate import build_mesh, load_nodes, material_fields  # noqa: E402
 
 SOURCE = "fuzz/scene.toml"
 SCENES = ["jello_cube_defect_top", "jello_cube_damped_top_front", "drum_gel_bar",
@@ -182,7 +182,7 @@ def test_values_anywhere_in_their_ranges_simulate_to_finite_numbers_or_a_clear_e
     E, rho, side, alpha, beta, kind
 ):
     """The ranges are wide; their extremes together must not give NaN silently."""
-    from vvtbench.simulate import simulate
+    from vvtbench.simulation.simulate import simulate
 
     data = {"name": "fuzz", "geometry": {"kind": "box", "cells": [2, 2, 2],
                                          "size": [side, side, side]},

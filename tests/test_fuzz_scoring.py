@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vvtbench.extraction_scores import score_extraction, subspace_mac
+from vvtbench.scoring.extraction import score_extraction, subspace_mac
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import given, settings  # noqa: E402

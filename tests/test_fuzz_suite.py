@@ -20,7 +20,7 @@ def _descriptions_kept_across_cases():
     """Each case expands a graph, which describes every solver in a sealed child. A description
     is keyed by the plug-in, its config and the mtimes of the files it names, so keeping them
     across cases changes no outcome; it spares hundreds of identical children."""
-    import vvtbench.sealed as sealed
+    import vvtbench.solving.sealed as sealed
 
     forget = sealed.forget_descriptions
     sealed.forget_descriptions = lambda: None

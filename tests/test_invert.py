@@ -93,7 +93,7 @@ def test_invalid_estimate_is_never_a_result(clip, capsys):
     solver.write_text(textwrap.dedent('''
         from dataclasses import dataclass
         import numpy as np
-        from vvtbench.problem import Estimate
+        from vvtbench.solving.problem import Estimate
 
         class Negative:
             name = "negative"

@@ -14,9 +14,9 @@ import pytest
 
 from vvtbench.bench.results import METRIC_COLUMNS
 from vvtbench.cli.leaderboard import main_leaderboard
-from vvtbench.io import write_npz
-from vvtbench.leaderboard import KEPT, LeaderboardError, build, ranking, summary
-from vvtbench.plots import (  # noqa: I001  (scale rules)
+from vvtbench.io.files import write_npz
+from vvtbench.reporting.leaderboard import KEPT, LeaderboardError, build, ranking, summary
+from vvtbench.reporting.plots import (  # noqa: I001  (scale rules)
     Styles,
     _ratio_limit,
     _value_norm,
@@ -225,7 +225,7 @@ def _board(path, out):
 
 
 def test_ci_cell_is_the_bootstrap_interval_over_instances(tmp_path):
-    from vvtbench.stats import N_BOOT, SEED, bootstrap_ci
+    from vvtbench.scoring.stats import N_BOOT, SEED, bootstrap_ci
 
     src = _instances_table(tmp_path)
     md, page, manifest = _board(src, tmp_path / "lb")
@@ -333,12 +333,12 @@ def test_build_writes_every_figure_kind_and_a_summary(board):
 
 
 def test_field_figure_has_a_row_per_solver_and_source(table, tmp_path):
-    from vvtbench.leaderboard import field_figures
+    from vvtbench.reporting.leaderboard import field_figures
 
     df = pd.read_csv(table / "results.csv")
     seen = {}
 
-    import vvtbench.plots as plots
+    import vvtbench.reporting.plots as plots
 
     real = plots.plot_field_grids
 
@@ -405,7 +405,7 @@ def test_output_never_writes_through_symlinks_or_over_its_input(table, tmp_path)
 
 
 def test_track_order_comes_from_the_run_not_the_table(tmp_path):
-    from vvtbench.leaderboard import suite_track_order
+    from vvtbench.reporting.leaderboard import suite_track_order
 
     (tmp_path / "run.json").write_text('{"tracks": ["b", "a", "gone"]}')
     assert suite_track_order(tmp_path / "results.parquet", ["a", "c", "b"]) == ["b", "a", "c"]
@@ -419,7 +419,7 @@ def test_sweep_curve_has_a_gap_where_a_run_is_not_valid(tmp_path, monkeypatch):
     """A swept value whose run was invalid is a gap in the curve, not a line drawn across it."""
     import matplotlib.axes
 
-    from vvtbench.plots import plot_sweep
+    from vvtbench.reporting.plots import plot_sweep
 
     rows = [{"scene": "s", "solver": "vvt", "observation": "true", "status": st,
              "variation_options": json.dumps({"n_modes": n}), "nc_w": w, "nc_v": w}
@@ -519,7 +519,7 @@ def test_a_table_without_cache_says_first_that_scores_were_not_recomputed(tmp_pa
 
 
 def test_cells_are_escaped_in_markdown_and_html(tmp_path):
-    from vvtbench.leaderboard import md_cell
+    from vvtbench.reporting.leaderboard import md_cell
 
     evil = "base | <b>bold</b> | fake"
 
@@ -541,7 +541,7 @@ def test_cells_are_escaped_in_markdown_and_html(tmp_path):
 # ------------------------------------------------------------------ figures a person reads
 def _saved_figures(monkeypatch):
     """Figures handed to save_figure, inspected before they are written and closed."""
-    import vvtbench.plots as plots
+    import vvtbench.reporting.plots as plots
 
     seen = []
     save = plots.save_figure
@@ -579,7 +579,7 @@ def test_solve_figure_is_titled_with_scene_observation_solver_and_score(tmp_path
 
 
 def test_count_axes_have_integer_ticks(tmp_path, monkeypatch):
-    from vvtbench.plots import plot_sweep
+    from vvtbench.reporting.plots import plot_sweep
 
     seen = _saved_figures(monkeypatch)
     rows = [{"scene": "s", "solver": "vvt", "observation": "true", "status": "ok",
@@ -592,7 +592,7 @@ def test_count_axes_have_integer_ticks(tmp_path, monkeypatch):
 
 
 def test_contrast_view_first_when_the_truth_dwarfs_the_estimates():
-    from vvtbench.plots import contrast_first
+    from vvtbench.reporting.plots import contrast_first
 
     wt, _ = _truth()  # 9000 to 5e6: a x556 contrast
     flat = 9000.0 * (1 + 0.1 * np.random.default_rng(1).random(wt.shape))
@@ -649,7 +649,7 @@ def test_a_views_sweep_is_drawn_pooled_over_instances_and_against_dofs(tmp_path,
 
     path = _instances_table(tmp_path, edit)
     seen = []
-    import vvtbench.plots as plots
+    import vvtbench.reporting.plots as plots
 
     save = plots.save_figure
 
@@ -661,7 +661,7 @@ def test_a_views_sweep_is_drawn_pooled_over_instances_and_against_dofs(tmp_path,
 
     monkeypatch.setattr(plots, "save_figure", spy)
     from vvtbench.bench.results import read_results
-    from vvtbench.leaderboard import curve_figures
+    from vvtbench.reporting.leaderboard import curve_figures
 
     table = read_results(path)
     figs = curve_figures(table, "views_track", tmp_path, tmp_path, "figures",

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench.data import instances, iter_instances
-from vvtbench.generate import generate
-from vvtbench.metrics import normalized_correlation
-from vvtbench.scene import parse_scene
+from vvtbench.datasets.instances import instances, iter_instances
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import parse_scene
+from vvtbench.scoring.metrics import normalized_correlation
 
 
 def _scene(name: str, rng) -> dict:
@@ -42,9 +42,9 @@ def data(tmp_path_factory):
 
 
 def test_instances_by_split_and_no_simulation(data, monkeypatch):
-    import vvtbench.simulate
+    import vvtbench.simulation.simulate
 
-    monkeypatch.setattr(vvtbench.simulate, "simulate", lambda *a, **k: 1 / 0)
+    monkeypatch.setattr(vvtbench.simulation.simulate, "simulate", lambda *a, **k: 1 / 0)
     names = [n for n, _ in instances(data, "train")]
     assert names == [f"tinyfam-train-{i:05d}" for i in range(6)]
     assert [n for n, _ in instances(data, "test")] == [f"tinyfam-test-{i:05d}" for i in range(2)]
@@ -204,7 +204,7 @@ def test_shipped_weights_saw_only_their_familys_train_split(family):
     import hashlib
 
     from solvers.learned import load_weights, weights_path
-    from vvtbench.families import load_family
+    from vvtbench.scene.families import load_family
 
     _, meta = load_weights(weights_path(family))
     fam = load_family(family)
@@ -336,7 +336,7 @@ TRAIN_OPTS = ["--n", "6", "--val", "2", "--modes", "8", "--grid", "4", "4", "4",
 
 def _tiny_cube_family(folder: Path) -> Path:
     """The shipped cube family, made small: 5^3 cells, 12 modes, 96^2 px."""
-    from vvtbench.scene import SCENES_DIR
+    from vvtbench.scene.scene import SCENES_DIR
 
     text = (SCENES_DIR / "families" / "cube_defects.toml").read_text()
     text = text.replace('name = "cube_defects"', 'name = "tinycube"')
@@ -454,7 +454,7 @@ def test_a_store_of_other_options_or_basis_is_refused_in_one_line(trained, tmp_p
     import shutil
 
     from vvtbench.cli import main
-    from vvtbench.io import write_npz
+    from vvtbench.io.files import write_npz
 
     store = tmp_path / "store"
     shutil.copytree(trained["store"], store)

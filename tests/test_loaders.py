@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from vvtbench.cli import main
-from vvtbench.dataset import DatasetError, check_sample, open_sample
-from vvtbench.loaders import FEATURES, InstanceDataset
-from vvtbench.scene import SCENES_DIR
+from vvtbench.datasets.loaders import FEATURES, InstanceDataset
+from vvtbench.samples.reader import DatasetError, check_sample, open_sample
+from vvtbench.scene.scene import SCENES_DIR
 
 N_TRAIN, N_MODES = 3, 12
 
@@ -186,7 +186,7 @@ def test_forked_workers_read_the_same_items(data, source):
 
 def test_extracted_modes_are_computed_once(data, monkeypatch):
     import vvtbench.modes
-    from vvtbench.data import iter_instances
+    from vvtbench.datasets.instances import iter_instances
 
     calls = []
     real = vvtbench.modes.extract_modes

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vvtbench.metrics import (
+from vvtbench.scoring.metrics import (
     gaussian_blur,
     intrinsic_resolution,
     mac_matrix,
@@ -65,7 +65,7 @@ def test_mac():
 def test_constant_truth_is_scored_by_false_contrast_not_nc():
     from types import SimpleNamespace
 
-    from vvtbench.metrics import evaluate, false_contrast, is_constant
+    from vvtbench.scoring.metrics import evaluate, false_contrast, is_constant
 
     flat = np.full(27, 9000.0) + np.random.default_rng(0).normal(0, 5e-12, 27)
     assert is_constant(flat) and not is_constant(flat * np.linspace(1, 1.01, 27))
@@ -82,7 +82,7 @@ def test_stated_uncertainty_is_saved_with_the_estimate_and_scored_by_coverage(tm
     from types import SimpleNamespace
 
     from vvtbench.bench.stages import write_evaluation
-    from vvtbench.problem import Estimate
+    from vvtbench.solving.problem import Estimate
 
     rng = np.random.default_rng(1)
     grid = lambda x: np.asarray(x, dtype=float).reshape(3, 3, 3)  # noqa: E731
@@ -106,7 +106,7 @@ def test_stated_uncertainty_is_saved_with_the_estimate_and_scored_by_coverage(tm
         assert np.array_equal(z["w_std"].ravel(), w_std)
     with pytest.raises(ValueError, match="w_std"):
         Estimate(w=w, v=w, extra={"w_std": w_std[:3]}).save(tmp_path / "bad", problem)
-    from vvtbench.plots import plot_uncertainty
+    from vvtbench.reporting.plots import plot_uncertainty
 
     png = plot_uncertainty(tmp_path / "u.png", problem, (est.w, est.v), (w_std, None), truth)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

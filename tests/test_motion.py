@@ -444,7 +444,7 @@ def test_midpoint_frequency_lowers_the_harmonic_of_a_vibration(speckle: Speckle)
 
 
 def test_midpoint_without_motion_and_in_the_extractor_config(speckle: Speckle) -> None:
-    from vvtbench.extractors import make_extractor
+    from vvtbench.solving.extractors import make_extractor
 
     pm = PhaseMotion(speckle.ref, frequency="midpoint")
     assert np.abs(pm.displacement(speckle.ref[None])).max() < 1e-4

@@ -10,14 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench import dataset as ds
-from vvtbench import generate as gen
 from vvtbench.modes import modes_from_displacements
 from vvtbench.modes.joint import joint_modes, modal_phasors
 from vvtbench.observe import observe
 from vvtbench.render import Camera
-from vvtbench.scene import SceneError, parse_scene
-from vvtbench.scenes_resolve import with_overrides
+from vvtbench.samples import generate as gen
+from vvtbench.samples import reader as ds
+from vvtbench.scene.scene import SceneError, parse_scene, with_overrides
 
 SMALL = {  # a box without symmetry (no repeated frequencies), 300 frames of 64x64 px
     "name": "small",
@@ -48,7 +47,7 @@ def _tree(path: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def samples(tmp_path_factory, monkeypatch_module):
-    import vvtbench.simulate as simulate_module
+    import vvtbench.simulation.simulate as simulate_module
 
     calls = []
     real = simulate_module.simulate
@@ -170,7 +169,7 @@ def test_a_modes_only_sample_holds_every_view_without_video(tmp_path):
 
 
 def test_a_single_view_sample_of_the_frozen_release_regenerates_byte_for_byte(tmp_path):
-    from vvtbench.generate_jobs import generate_instance
+    from vvtbench.samples.jobs import generate_instance
 
     listed = Path(__file__).resolve().parents[1] / "releases" / "vvtbench-v1.sha256"
     rel = "cube_defects-modes/val/cube_defects-val-00000/manifest.json"
@@ -326,8 +325,8 @@ def test_mode_sets_extracted_per_view_elsewhere_give_the_same_problem(samples):
 
 @pytest.mark.parametrize("solver", ["sensitivity", "vvt"])
 def test_solvers_take_the_two_view_extracted_problem_unchanged(samples, solver):
-    from vvtbench.metrics import invalid_reason
-    from vvtbench.sealed import solve_sealed
+    from vvtbench.scoring.metrics import invalid_reason
+    from vvtbench.solving.sealed import solve_sealed
 
     _, two = samples
     problem, _ = observe(two, observation="extracted", views=2, **OBSERVE)

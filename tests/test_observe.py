@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from truth_search import leaves, truth_in  # noqa: E402  (tests/truth_search.py)
 
-from vvtbench import dataset as ds
-from vvtbench.generate import generate
 from vvtbench.observe import ObserveError, ObserveOptions, RealVideo, Truth, observe
-from vvtbench.problem import InverseProblem
-from vvtbench.scene import parse_scene
+from vvtbench.samples import reader as ds
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import parse_scene
+from vvtbench.solving.problem import InverseProblem
 
 SCENE = {
     "name": "tiny_observe",
@@ -48,12 +48,12 @@ def sample(scene, tmp_path_factory) -> Path:
 
 @pytest.fixture
 def no_simulator(monkeypatch):
-    import vvtbench.simulate
+    import vvtbench.simulation.simulate
 
     def refuse(*args, **kwargs):
         raise AssertionError("the simulator ran")
 
-    monkeypatch.setattr(vvtbench.simulate, "simulate", refuse)
+    monkeypatch.setattr(vvtbench.simulation.simulate, "simulate", refuse)
 
 
 def _same_problem(a: InverseProblem, b: InverseProblem) -> None:
@@ -122,7 +122,7 @@ def test_extracted_modes_are_paired_with_true_ones(sample):
     assert len(set(truth.matched.tolist())) == problem.n_modes
     # modes closer than the resolution (1 / 0.5 s) cannot be told apart: a detection is any
     # combination of its cluster, scored against the cluster's span (as the extraction score)
-    from vvtbench.extraction_scores import clusters_by_resolution, subspace_mac
+    from vvtbench.scoring.extraction import clusters_by_resolution, subspace_mac
 
     f_all = np.sqrt(truth.true_eigenvalues) / (2 * np.pi)
     cluster_of = {j: c for c in clusters_by_resolution(f_all, 1 / 0.5) for j in c}
@@ -137,8 +137,8 @@ def test_extracted_modes_carry_the_snr_their_peaks_were_tested_with(sample):
     """Each extracted mode's ``mode_snr`` is its peak's power over the noise floor, the
     number the extraction's significance test compared with its threshold; true modes carry
     none (noise-free); selecting modes keeps them paired."""
-    from vvtbench.dataset import open_sample
     from vvtbench.modes import extract_modes
+    from vvtbench.samples.reader import open_sample
 
     s = open_sample(sample)
     ms = extract_modes(s.read_frames(), s.fps)
@@ -220,14 +220,14 @@ def test_voxel_truth_on_a_grid_finer_than_the_mesh(sample):
 
 @pytest.mark.parametrize("fmt", ["zarr", "hdf5"])
 def test_exported_dataset_entry_is_observed_like_its_sample(sample, tmp_path, fmt, monkeypatch):
-    from vvtbench.export import pack
-    from vvtbench.packed import open_dataset
+    from vvtbench.datasets.export import pack
+    from vvtbench.datasets.packed import open_dataset
 
     out = pack([sample], tmp_path / ("d.zarr" if fmt == "zarr" else "d.h5"), fmt)
     ref, tref = observe(sample, **OPTS)
-    import vvtbench.simulate
+    import vvtbench.simulation.simulate
 
-    monkeypatch.setattr(vvtbench.simulate, "simulate", lambda *a, **k: 1 / 0)
+    monkeypatch.setattr(vvtbench.simulation.simulate, "simulate", lambda *a, **k: 1 / 0)
     with open_dataset(out) as ds_:
         entry = ds_[ds_.names[0]]
         problem, truth = observe(entry, **OPTS)
@@ -254,7 +254,7 @@ def test_modes_only_sample(modes_only, sample, no_simulator):
 
 
 def test_a_free_bodys_rigid_body_modes_are_left_out_and_said_so():
-    from vvtbench.scene import load_scene, parse_scene
+    from vvtbench.scene.scene import load_scene, parse_scene
 
     data = load_scene("jello_cube_homogeneous").to_toml_dict()
     data.setdefault("boundary", {})["fixed"] = ["none"]

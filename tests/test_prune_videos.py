@@ -27,7 +27,7 @@ from vvtbench.bench.prune import (  # noqa: E402
 )
 from vvtbench.bench.stages import execute_task, verify_cached  # noqa: E402
 from vvtbench.cli.run import main_check_results, main_run  # noqa: E402
-from vvtbench.dataset import sha256_file  # noqa: E402
+from vvtbench.samples.reader import sha256_file  # noqa: E402
 
 # one cube seen by a rig of two cameras; one row from view 0 alone, one from both views
 SUITE = """

@@ -9,7 +9,7 @@ import shutil
 import pytest
 
 from vvtbench.cli import main
-from vvtbench.release import load_release, read_sums
+from vvtbench.datasets.release import load_release, read_sums
 
 TINY = """
 name = "tiny-release"

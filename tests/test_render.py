@@ -13,7 +13,7 @@ import pytest
 
 from vvtbench.render.camera import Camera
 from vvtbench.render.texture import speckle_texture, triplanar_mapping
-from vvtbench.scene import SCENES_DIR, load_scene
+from vvtbench.scene.scene import SCENES_DIR, load_scene
 
 # --------------------------------------------------------------------------- helpers
 
@@ -155,7 +155,7 @@ def test_scaled_camera_uses_pixel_centre_convention():
 
 
 def _camera_scene(**camera):
-    from vvtbench.scene import parse_scene
+    from vvtbench.scene.scene import parse_scene
 
     cam = {"resolution": [48, 64], "position": [0.16, -0.13, 0.13],
            "look_at": [0.025, 0.025, 0.022], **camera}
@@ -176,7 +176,7 @@ def test_camera_spec_focal_lengths_and_principal_point():
     np.testing.assert_allclose(cam.project([0.025, 0.025, 0.022]), [36.5, 20.5], atol=1e-9)
     fov = Camera.from_spec(_camera_scene(fov_y_deg=30.0, cx=10.0).camera)
     assert fov.cx == 10.0 and fov.cy == 23.5 and fov.fx == fov.fy
-    from vvtbench.scene import SceneError
+    from vvtbench.scene.scene import SceneError
 
     with pytest.raises(SceneError, match=r"(?s)cam.toml.*key 'camera': fy \(px\) needs fx"):
         _camera_scene(fy=90.0)
@@ -186,8 +186,8 @@ def test_camera_spec_focal_lengths_and_principal_point():
 
 def test_shifted_principal_point_shifts_the_rendered_rest_pose(gl):
     """cx + 5, cy - 3 (px) moves the rest-pose render by 5 columns right and 3 rows up."""
-    from vvtbench import generate as gen
-    from vvtbench.simulate import build_mesh
+    from vvtbench.samples import generate as gen
+    from vvtbench.simulation.simulate import build_mesh
 
     imgs = []
     for pp in ({}, {"cx": 36.5, "cy": 20.5}):

@@ -19,7 +19,7 @@ from test_runner_safety import TINY as RUNNER_TINY  # noqa: E402
 from vvtbench.bench import check_results, run_suite  # noqa: E402
 from vvtbench.bench.rescore import rescore  # noqa: E402
 from vvtbench.cli.run import main_check_results  # noqa: E402
-from vvtbench.plugins import REFERENCE_BUILTINS, SOLVERS, name_problem  # noqa: E402
+from vvtbench.solving.plugins import REFERENCE_BUILTINS, SOLVERS, name_problem  # noqa: E402
 
 # the runner-safety suite, with the oracle (a reference) beside the floor
 TINY = RUNNER_TINY.replace('solvers = ["homogeneous"]', 'solvers = ["homogeneous", "oracle"]') \

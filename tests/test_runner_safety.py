@@ -21,8 +21,8 @@ pd = pytest.importorskip("pandas")
 pytest.importorskip("pyarrow")
 
 from vvtbench.bench import check_results, read_results, run_suite  # noqa: E402
-from vvtbench.bench.lock import RunLock, RunLocked  # noqa: E402
 from vvtbench.cli.run import main_check_results, main_run  # noqa: E402
+from vvtbench.io.lock import RunLock, RunLocked  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vvtbench.problem import Estimate
+from vvtbench.solving.problem import Estimate
 
 
 @dataclass
@@ -184,7 +184,7 @@ def test_hostile_plugins_become_their_rows(tiny, tmp_path, workers):
     each become their own row (timeout, crashed, out of memory, invalid, error); the innocent
     homogeneous row is untouched, inline and with --workers 2; nothing half-written stays;
     invalid rows are never ranked."""
-    from vvtbench.leaderboard import ranking
+    from vvtbench.reporting.leaderboard import ranking
 
     suite, plugin, base, df0 = tiny
     out = _copy_cache(base, tmp_path / "run")
@@ -408,7 +408,7 @@ def _wait_for_plugin(plugin: Path, cls: str, timeout: float = 240.0) -> int:
                 argv = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
             except OSError:
                 continue
-            if argv[1:3] != [b"-m", b"vvtbench.sealed"]:
+            if argv[1:3] != [b"-m", b"vvtbench.solving.sealed"]:
                 continue
             try:
                 spec = json.loads(Path(argv[3].decode()).read_text())

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from vvtbench.cli import main
-from vvtbench.families import draw
-from vvtbench.scene import SCENES_DIR, Defect, SceneError, load_scene, parse_scene
-from vvtbench.simulate import (
+from vvtbench.scene.families import draw
+from vvtbench.scene.scene import SCENES_DIR, Defect, SceneError, load_scene, parse_scene
+from vvtbench.simulation.simulate import (
     build_mesh,
     build_model,
     fixed_nodes,
@@ -329,7 +329,7 @@ def test_shipped_bunny_mesh_is_used_on_every_machine(tmp_path, monkeypatch, scen
     import pytetwild
 
     from vvtbench.fem.mesh import shipped_mesh_dir
-    from vvtbench.simulate import build_mesh
+    from vvtbench.simulation.simulate import build_mesh
 
     monkeypatch.setenv("VVTBENCH_CACHE", str(tmp_path / "cache"))
 
@@ -507,7 +507,7 @@ def test_a_node_set_box_holding_no_node_is_an_error(tmp_path):
 def test_too_large_problems_are_rejected_before_meshing(tmp_path, monkeypatch):
     import time
 
-    from vvtbench import simulate as sim
+    from vvtbench.simulation import simulate as sim
 
     monkeypatch.setattr(sim, "available_memory", lambda: 24 * 2.0**30)
     scene = load_scene(_write(tmp_path, _BOX.replace("[3, 3, 3]", "[100, 100, 100]")))
@@ -536,7 +536,7 @@ def test_too_large_problems_are_rejected_before_meshing(tmp_path, monkeypatch):
 
 
 def test_memory_estimate_of_shipped_scenes_is_modest_and_unknown_memory_skips_the_check():
-    from vvtbench.simulate import GIB, check_problem_size
+    from vvtbench.simulation.simulate import GIB, check_problem_size
 
     for path in SHIPPED:
         scene = load_scene(path)
@@ -551,8 +551,8 @@ def test_memory_estimate_of_shipped_scenes_is_modest_and_unknown_memory_skips_th
 def test_values_at_the_ends_of_their_ranges_cannot_overflow_and_a_guard_remains(
     tmp_path, monkeypatch
 ):
-    from vvtbench import simulate as sim
     from vvtbench.fem.modal import Modes
+    from vvtbench.simulation import simulate as sim
 
     path = _write(tmp_path, _BOX + "[material]\nE = 1e13\nrho = 1e-300\n")
     with pytest.raises(SceneError, match=r"key 'material.rho': got 1e-300; allowed: .*>= 0.01"):

@@ -11,10 +11,10 @@ import pytest
 
 from vvtbench.bench.submission import score_submission, write_challenge, write_submission
 from vvtbench.cli import main
-from vvtbench.metrics import evaluate
 from vvtbench.observe import observe
-from vvtbench.problem import Estimate
-from vvtbench.scene import load_scene
+from vvtbench.scene.scene import load_scene
+from vvtbench.scoring.metrics import evaluate
+from vvtbench.solving.problem import Estimate
 
 pytest.importorskip("pyarrow")
 

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from vvtbench.observe import observe
-from vvtbench.scene import load_scene
-from vvtbench.sealed import SealedError, extract_sealed, sandbox_kind, solve_sealed
+from vvtbench.scene.scene import load_scene
+from vvtbench.solving.sealed import SealedError, extract_sealed, sandbox_kind, solve_sealed
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux" or sandbox_kind() != "bwrap",
                                 reason="bubblewrap cannot create a sandbox here (.ci/setup "
@@ -25,7 +25,7 @@ pytestmark = pytest.mark.skipif(sys.platform != "linux" or sandbox_kind() != "bw
 HOSTILE = '''
 import dataclasses, gc, inspect, os, socket, subprocess, sys, time
 import numpy as np
-from vvtbench.problem import Estimate
+from vvtbench.solving.problem import Estimate
 
 SECRET = {secret!r}
 TRUTH_FILE = {truth!r}
@@ -298,7 +298,7 @@ def test_a_plugin_that_hangs_at_import_is_an_error_row_within_the_limit(tmp_path
 NEGATIVE = '''
 import dataclasses
 import numpy as np
-from vvtbench.problem import Estimate
+from vvtbench.solving.problem import Estimate
 
 
 @dataclasses.dataclass
@@ -342,13 +342,13 @@ def test_solve_states_an_invalid_estimate_first_and_draws_nothing(tmp_path, caps
 def test_solve_leaves_nothing_half_written_on_a_full_disk(tmp_path, monkeypatch, capsys):
     import errno
 
-    import vvtbench.plots
+    import vvtbench.reporting.plots
     from vvtbench.cli import main
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(vvtbench.plots, "plot_fields", full)
+    monkeypatch.setattr(vvtbench.reporting.plots, "plot_fields", full)
     out = tmp_path / "out"
     assert main(["solve", "homogeneous", "jello_cube_defect_top", "--grid", "3", "3", "3",
                  "--modes", "4", "-o", str(out)]) == 2
@@ -360,8 +360,8 @@ def test_solve_leaves_nothing_half_written_on_a_full_disk(tmp_path, monkeypatch,
 def test_a_file_the_config_names_is_shown_to_the_child_where_it_names_it(tmp_path,
                                                                         monkeypatch):
     from solvers.learned import weights_path
-    from vvtbench.dataset import sha256_file
-    from vvtbench.sealed import describe_sealed
+    from vvtbench.samples.reader import sha256_file
+    from vvtbench.solving.sealed import describe_sealed
 
     shutil.copy(weights_path("cube_defects"), tmp_path / "w.npz")
     monkeypatch.chdir(tmp_path)
@@ -377,7 +377,7 @@ def test_working_folders_of_a_killed_process_are_removed_and_no_other(tmp_path):
     links alone."""
     import subprocess
 
-    from vvtbench.sealed import OWNER, PREFIX, _owner, remove_stale_scratch
+    from vvtbench.solving.sealed import OWNER, PREFIX, _owner, remove_stale_scratch
 
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
@@ -417,7 +417,7 @@ def test_the_first_sealed_call_sweeps_stale_folders_and_leaves_none_of_its_own(t
     import subprocess
     import tempfile
 
-    from vvtbench import sealed
+    from vvtbench.solving import sealed
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     monkeypatch.setattr(sealed, "_SWEPT", set())

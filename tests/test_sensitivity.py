@@ -20,8 +20,8 @@ from vvtbench.fem.assembly import ParametricModel
 from vvtbench.fem.mesh import box_mesh, drum_mesh
 from vvtbench.fem.modal import eigenmodes
 from vvtbench.fem.voxels import VoxelGrid, VoxelMap
-from vvtbench.metrics import interval_coverage, normalized_correlation
-from vvtbench.problem import InverseProblem
+from vvtbench.scoring.metrics import interval_coverage, normalized_correlation
+from vvtbench.solving.problem import InverseProblem
 
 
 def _hex8():
@@ -132,7 +132,7 @@ def _own_defect_cube():
     not among benchmarks/bench_sensitivity.py's validation cubes): true image-space modes,
     12 modes, inferred on a 4^3 grid (keeps both solves to seconds)."""
     from vvtbench.observe import observe
-    from vvtbench.scene import load_scene
+    from vvtbench.scene.scene import load_scene
 
     base = load_scene("jello_cube_defect_top")
     defect = base.material.defects[0].model_copy(update=dict(

@@ -17,14 +17,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from test_modes import Speckle, modeset, pattern, video  # noqa: E402
 
-from vvtbench.extraction_scores import (  # noqa: E402
+from vvtbench.modes import ModeSet, extract_modes, modes_from_displacements  # noqa: E402
+from vvtbench.modes.peaks import pick_peaks  # noqa: E402
+from vvtbench.modes.significance import noise_floor  # noqa: E402
+from vvtbench.scoring.extraction import (  # noqa: E402
     clusters_by_resolution,
     score_extraction,
     subspace_mac,
 )
-from vvtbench.modes import ModeSet, extract_modes, modes_from_displacements  # noqa: E402
-from vvtbench.modes.peaks import pick_peaks  # noqa: E402
-from vvtbench.modes.significance import noise_floor  # noqa: E402
 
 
 # --------------------------------------------------------------------------- noise floor
@@ -203,8 +203,8 @@ def test_score_extraction_on_rendered_cube(tmp_path_factory) -> None:
     scored against the sample's truth."""
     from bench_motion_e2e import make_scene
 
-    from vvtbench import dataset as ds
-    from vvtbench import generate as gen
+    from vvtbench.samples import generate as gen
+    from vvtbench.samples import reader as ds
 
     scene = make_scene("jello_cube_defect_top", duration=1.5, fps=200.0, resolution=256,
                        cells=6, n_modes=12)

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench import dataset as ds
-from vvtbench import generate as gen
 from vvtbench.cli.solve import main_solve
-from vvtbench.scene import parse_scene
+from vvtbench.samples import generate as gen
+from vvtbench.samples import reader as ds
+from vvtbench.scene.scene import parse_scene
 
 SAMPLE = {
     "name": "tiny_solve",

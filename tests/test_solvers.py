@@ -14,17 +14,17 @@ import pytest
 from vvtbench.cli.solve import main_solve
 from vvtbench.fem.interpolate import interpolate_nodal
 from vvtbench.fem.mesh import box_mesh
-from vvtbench.metrics import mode_match, normalized_correlation
 from vvtbench.observe import observe
-from vvtbench.plugins import (
+from vvtbench.scene.scene import load_scene
+from vvtbench.scoring.metrics import mode_match, normalized_correlation
+from vvtbench.simulation.simulate import simulate
+from vvtbench.solving.plugins import (
     PluginError,
     list_solvers,
     load_solver,
     parse_overrides,
 )
-from vvtbench.problem import Estimate
-from vvtbench.scene import load_scene
-from vvtbench.simulate import simulate
+from vvtbench.solving.problem import Estimate
 
 
 def _scene(name: str, cells, n_modes: int = 30):
@@ -325,7 +325,7 @@ def test_mode_match_does_not_depend_on_the_basis_of_a_repeated_mode(problem6):
     from dataclasses import replace
 
     from vvtbench.fem.modal import Modes, cluster_frequencies, eigenmodes
-    from vvtbench.metrics import REPEATED_RTOL
+    from vvtbench.scoring.metrics import REPEATED_RTOL
 
     w, v = np.ones(problem6.n_params), np.ones(problem6.n_params)  # a cube: repeated pairs
     model = problem6.model
@@ -350,8 +350,8 @@ def test_mode_match_does_not_depend_on_the_basis_of_a_repeated_mode(problem6):
 
 
 def test_every_scored_row_states_the_dofs_its_observation_sees(problem6, truth6):
-    from vvtbench.metrics import evaluate
     from vvtbench.observe import observed_dof_fraction
+    from vvtbench.scoring.metrics import evaluate
 
     dof = evaluate(problem6, truth6, truth6.w, truth6.v, modes=False)["metrics"][
         "observed_dof_fraction"]
@@ -364,7 +364,7 @@ def test_every_scored_row_states_the_dofs_its_observation_sees(problem6, truth6)
 PLUGIN = textwrap.dedent('''
     from dataclasses import dataclass, field
     import numpy as np
-    from vvtbench.problem import Estimate
+    from vvtbench.solving.problem import Estimate
 
     @dataclass
     class Config:

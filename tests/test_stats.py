@@ -1,11 +1,11 @@
-"""Bootstrap intervals and paired comparisons (vvtbench.stats)."""
+"""Bootstrap intervals and paired comparisons (vvtbench.scoring.stats)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 
-from vvtbench.stats import (
+from vvtbench.scoring.stats import (
     bootstrap_ci,
     paired_comparison,
     paired_table,
@@ -42,7 +42,7 @@ def test_paired_comparison_uses_only_shared_instances():
 
 
 def test_a_win_rate_of_ties_alone_is_shown_as_ties_not_as_a_rate():
-    from vvtbench.stats import win_rate_text
+    from vvtbench.scoring.stats import win_rate_text
 
     same = paired_comparison([0.0] * 4, [0.0] * 4)
     assert same["win_rate"] == 0.5 and same["ties"] == 4

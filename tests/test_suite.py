@@ -130,7 +130,7 @@ def test_shipped_suites_validate():
 
 def test_family_tracks_draw_their_instances(tmp_path):
     from vvtbench.bench import build_graph
-    from vvtbench.families import draw
+    from vvtbench.scene.families import draw
 
     suite = load_suite("standard")
     track = next(t for t in suite.tracks if t.name == "cube_true")

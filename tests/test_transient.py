@@ -13,8 +13,8 @@ from vvtbench.fem.transient import (
     modal_response,
     newmark_response,
 )
-from vvtbench.scene import Damping, parse_scene, rayleigh_from_pairs, rayleigh_zeta
-from vvtbench.simulate import simulate
+from vvtbench.scene.scene import Damping, parse_scene, rayleigh_from_pairs, rayleigh_zeta
+from vvtbench.simulation.simulate import simulate
 
 
 def _ode_reference(t, omega, c, q0, qd0, force=None):

@@ -8,14 +8,14 @@ import pytest
 
 from vvtbench.observe import ObserveError, observe, observed_dof_fraction, turned_camera
 from vvtbench.render import Camera
-from vvtbench.scene import load_scene
+from vvtbench.scene.scene import load_scene
 
 SMALL = dict(n_modes=6, inference_shape=(3, 3, 3))
 
 
 @pytest.fixture(scope="module")
 def cube():
-    from vvtbench.simulate import simulate
+    from vvtbench.simulation.simulate import simulate
 
     return simulate(load_scene("jello_cube_defect_top"), transient=False)
 
@@ -65,8 +65,8 @@ def test_the_dof_fraction_is_the_rank_of_the_operator(cube):
 
 @pytest.mark.parametrize("solver", ["sensitivity", "vvt"])
 def test_the_solvers_take_the_stacked_problem_unchanged(cube, solver):
-    from vvtbench.metrics import invalid_reason
-    from vvtbench.sealed import solve_sealed
+    from vvtbench.scoring.metrics import invalid_reason
+    from vvtbench.solving.sealed import solve_sealed
 
     problem, truth = observe(cube, **SMALL, views=2)
     config = {"max_iter": 3} if solver == "vvt" else {}

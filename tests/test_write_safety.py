@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from vvtbench.cli import main
-from vvtbench.generate import generate
-from vvtbench.scene import parse_scene
+from vvtbench.samples.generate import generate
+from vvtbench.scene.scene import parse_scene
 
 TINY = {
     "name": "tiny",
@@ -49,7 +49,7 @@ def _disk_with(monkeypatch, free: int) -> None:
 @pytest.mark.parametrize("fmt,name", [("zarr", "ds.zarr"), ("hdf5", "ds.h5")])
 def test_export_refuses_up_front_a_disk_without_room(tiny, tmp_path, monkeypatch, capsys,
                                                      fmt, name):
-    from vvtbench.export import estimate_bytes
+    from vvtbench.datasets.export import estimate_bytes
 
     need = estimate_bytes([tiny], {}, fmt)
     _disk_with(monkeypatch, need - 1)
@@ -64,7 +64,7 @@ def test_export_refuses_up_front_a_disk_without_room(tiny, tmp_path, monkeypatch
 
 @pytest.mark.parametrize("fmt,name", [("zarr", "ds.zarr"), ("hdf5", "ds.h5")])
 def test_the_export_estimate_bounds_what_is_written(tiny, tmp_path, fmt, name):
-    from vvtbench.export import estimate_bytes, pack
+    from vvtbench.datasets.export import estimate_bytes, pack
 
     pack([tiny], tmp_path / name, fmt)
     written = sum(p.stat().st_size for p in tmp_path.rglob("*") if p.is_file())
@@ -74,7 +74,7 @@ def test_the_export_estimate_bounds_what_is_written(tiny, tmp_path, fmt, name):
 @pytest.mark.parametrize("fmt,name", [("zarr", "ds.zarr"), ("hdf5", "ds.h5")])
 def test_a_disk_full_mid_export_is_one_line_and_leaves_nothing(tiny, tmp_path, monkeypatch,
                                                                capsys, fmt, name):
-    import vvtbench.export as ex
+    import vvtbench.datasets.export as ex
 
     writer = ex._ZarrWriter if fmt == "zarr" else ex._H5Writer
     real = writer.array
@@ -108,7 +108,7 @@ def _scene_file(tmp_path: Path) -> Path:
 
 def test_generate_refuses_up_front_a_disk_without_room(tmp_path, monkeypatch, capsys):
     from vvtbench.cli.generate import disk_bytes
-    from vvtbench.scene import load_scene
+    from vvtbench.scene.scene import load_scene
 
     scene = _scene_file(tmp_path)
     need = disk_bytes(load_scene(scene), True, None)
@@ -124,7 +124,7 @@ def test_generate_refuses_up_front_a_disk_without_room(tmp_path, monkeypatch, ca
 def test_generate_asks_room_for_finished_samples_and_the_segments_in_flight(
         tmp_path, monkeypatch, capsys, workers):
     from vvtbench.cli.generate import disk_bytes, raw_video_bytes
-    from vvtbench.families import draw
+    from vvtbench.scene.families import draw
 
     scene = draw("cube_defects", "val", 0)
     peak, raw = disk_bytes(scene, True, None), raw_video_bytes(scene, True, None)
@@ -144,7 +144,7 @@ def test_generate_sizes_the_rest_by_the_samples_it_has_finished(tmp_path, monkey
     """The bound counts the image modes dense; once modes-only samples of the run are
     finished, the rest are sized by the largest of them (a video run is not)."""
     from vvtbench.cli.generate import disk_bytes
-    from vvtbench.families import draw
+    from vvtbench.scene.families import draw
 
     out = tmp_path / "out"
     assert main(["generate", "cube_defects", "--split", "val", "--n", "1", "--no-video",
@@ -167,7 +167,7 @@ def test_generate_sizes_the_rest_by_the_samples_it_has_finished(tmp_path, monkey
 
 def test_the_generate_estimate_bounds_what_is_written(tiny):
     from vvtbench.cli.generate import disk_bytes
-    from vvtbench.scene import parse_scene
+    from vvtbench.scene.scene import parse_scene
 
     scene = parse_scene(json.loads(json.dumps(TINY)), "tiny")
     written = sum(p.stat().st_size for p in tiny.rglob("*") if p.is_file())
@@ -178,7 +178,7 @@ def test_the_generate_estimate_bounds_what_is_written(tiny):
 
 def test_a_disk_full_mid_generate_is_one_line_and_leaves_nothing(tmp_path, monkeypatch,
                                                                  capsys):
-    import vvtbench.generate as gen
+    import vvtbench.samples.generate as gen
 
     real = gen._write_json_sorted
 
@@ -329,7 +329,7 @@ def _sealed_sleeper(run_pid: int, timeout: float = 120.0) -> int:
         for entry in os.listdir("/proc"):
             try:
                 argv = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
-                if argv[1:3] != [b"-m", b"vvtbench.sealed"]:
+                if argv[1:3] != [b"-m", b"vvtbench.solving.sealed"]:
                     continue
                 spec = json.loads(Path(argv[3].decode()).read_text())
                 if spec.get("job") == "solve" and spec.get("target", "").endswith(":Sleep") \
@@ -477,7 +477,7 @@ def test_a_figure_saved_through_atomic_file_replaces_a_planted_link(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vvtbench.io import atomic_file
+    from vvtbench.io.files import atomic_file
 
     victim = tmp_path / "victim.png"
     victim.write_bytes(b"mine")
@@ -496,7 +496,7 @@ def test_a_figure_saved_through_atomic_file_replaces_a_planted_link(tmp_path):
 def test_a_full_disk_inside_atomic_file_leaves_the_old_file(tmp_path):
     import pandas as pd
 
-    from vvtbench.io import atomic_file
+    from vvtbench.io.files import atomic_file
 
     out = tmp_path / "results.parquet"
     with atomic_file(out) as f:

@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 
-from vvtbench.bench.lock import RunLock, RunLocked
 from vvtbench.cli import main
-from vvtbench.io import write_json, write_npz, write_text
+from vvtbench.io.files import write_json, write_npz, write_text
+from vvtbench.io.lock import RunLock, RunLocked
 
 
 @pytest.mark.parametrize("writer", ["text", "json", "npz"])
@@ -54,7 +54,7 @@ def test_a_suite_name_that_is_no_folder_name_is_refused(tmp_path, capsys, name):
 
 @pytest.mark.parametrize("name", [".", "..", ".hidden"])
 def test_a_scene_name_that_would_hide_or_climb_is_refused(tmp_path, capsys, name):
-    from vvtbench.scene import SceneError, load_scene, parse_scene
+    from vvtbench.scene.scene import SceneError, load_scene, parse_scene
 
     data = load_scene("jello_cube_defect_top").to_toml_dict()
     data["name"] = name
@@ -64,14 +64,14 @@ def test_a_scene_name_that_would_hide_or_climb_is_refused(tmp_path, capsys, name
 
 @pytest.fixture(scope="module")
 def sample(tmp_path_factory):
-    from vvtbench.generate import generate
-    from vvtbench.scene import load_scene
+    from vvtbench.samples.generate import generate
+    from vvtbench.scene.scene import load_scene
 
     scene = load_scene("jello_cube_defect_top")
     data = scene.to_toml_dict()
     data["geometry"]["cells"] = [5, 5, 5]
     data["simulation"]["n_modes"] = 4
-    from vvtbench.scene import parse_scene
+    from vvtbench.scene.scene import parse_scene
 
     return generate(parse_scene(data, "tiny"), tmp_path_factory.mktemp("s"), progress=False,
                     video=False)
@@ -85,7 +85,7 @@ def _problems(path):
 
 @pytest.mark.parametrize("damage", ["flip", "delete", "attribute", "extra"])
 def test_verify_checks_every_file_of_a_zarr_dataset(sample, tmp_path, damage):
-    from vvtbench.export import pack
+    from vvtbench.datasets.export import pack
 
     out = pack([sample], tmp_path / "ds.zarr")
     assert _problems(out) == []
@@ -108,7 +108,7 @@ def test_verify_checks_every_file_of_a_zarr_dataset(sample, tmp_path, damage):
 
 
 def test_verify_checks_an_hdf5_dataset_against_its_croissant_sha256(sample, tmp_path):
-    from vvtbench.export import pack
+    from vvtbench.datasets.export import pack
 
     out = pack([sample], tmp_path / "ds.h5", "hdf5")
     assert _problems(out) == []
@@ -119,7 +119,7 @@ def test_verify_checks_an_hdf5_dataset_against_its_croissant_sha256(sample, tmp_
 
 
 def test_overwrite_never_deletes_a_file_it_did_not_write(sample, tmp_path, capsys):
-    from vvtbench.export import pack
+    from vvtbench.datasets.export import pack
 
     out = pack([sample], tmp_path / "ds.zarr")
     mine = out / "samples" / "my-notes.txt"
@@ -131,7 +131,7 @@ def test_overwrite_never_deletes_a_file_it_did_not_write(sample, tmp_path, capsy
 
 
 def test_two_exports_to_one_target_one_is_refused(sample, tmp_path, capsys):
-    from vvtbench.bench.lock import RunLock
+    from vvtbench.io.lock import RunLock
 
     out = tmp_path / "ds.zarr"
     held = RunLock(tmp_path, name=".ds.zarr.lock", remove=True).acquire()  # a first export
@@ -146,8 +146,8 @@ def test_two_exports_to_one_target_one_is_refused(sample, tmp_path, capsys):
 
 
 def test_generate_refuses_a_link_where_it_keeps_its_unfinished_sample(tmp_path):
-    from vvtbench.dataset import DatasetError
-    from vvtbench.generate import generate
+    from vvtbench.samples.generate import generate
+    from vvtbench.samples.reader import DatasetError
 
     victim = tmp_path / "victim"
     victim.mkdir()
@@ -159,7 +159,7 @@ def test_generate_refuses_a_link_where_it_keeps_its_unfinished_sample(tmp_path):
 
 
 def test_generate_takes_the_folder_lock_run_takes(tmp_path, capsys):
-    from vvtbench.bench.lock import RunLock
+    from vvtbench.io.lock import RunLock
 
     held = RunLock(tmp_path).acquire()  # a run (or another generate) writing the folder
     try:

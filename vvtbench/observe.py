@@ -1,14 +1,15 @@
 """The observe stage: data -> the inverse problem a solver gets, and the truth kept apart.
 
-:func:`observe` is the one bridge from data to an :class:`~vvtbench.problem.InverseProblem`:
+:func:`observe` is the one bridge from data to an :class:`~vvtbench.solving.problem.InverseProblem`:
 
 * a **sample folder** written by ``vvtbench generate`` (or an opened
-  :class:`~vvtbench.dataset.Sample`), or an **entry of an exported dataset**
+  :class:`~vvtbench.samples.reader.Sample`), or an **entry of an exported dataset**
   (:func:`vvtbench.open_dataset`): everything is read from the sample (mesh, modes, free DOFs,
   per-element material, camera, rest depth buffer); the simulator is never run;
-* a **scene** (:class:`~vvtbench.scene.Scene`, a scene file or a shipped scene name): simulated
+* a **scene** (:class:`~vvtbench.scene.scene.Scene`, a scene file or a shipped scene name):
+simulated
   on the fly (modes only) -- the only source that simulates -- or a simulation already run
-  (:class:`~vvtbench.simulate.SimulationResult`); the rest depth buffer is rasterized;
+  (:class:`~vvtbench.simulation.simulate.SimulationResult`); the rest depth buffer is rasterized;
 * a **real video** (:class:`RealVideo`): modes extracted from it, the object's mesh, and a
   camera or clicked reference points; there is no truth.
 
@@ -31,9 +32,9 @@ import numpy as np
 from .fem.assembly import ParametricModel
 from .fem.interpolate import interpolate_nodal
 from .fem.mesh import Mesh, box_mesh
-from .fem.voxels import VoxelMap
-from .problem import InverseProblem
-from .truth import Truth
+from .fem.voxels import VoxelMap, default_voxel_shape
+from .solving.problem import InverseProblem
+from .solving.truth import Truth
 
 __all__ = ["ObserveError", "ObserveOptions", "RealVideo", "Truth", "observe", "sample_truth"]
 
@@ -290,7 +291,7 @@ def _read(sample: Any, name: str) -> np.ndarray:
     try:
         return np.asarray(sample[name])
     except KeyError:
-        from .dataset import DatasetError
+        from .samples.reader import DatasetError
 
         where = getattr(sample, "path", getattr(sample, "name", "sample"))
         raise DatasetError(f"{where}: truth.zarr has no array '{name}'; regenerate the sample "
@@ -333,7 +334,7 @@ def _record_from_sample(sample: Any) -> _Record:
 
 
 def _view_record(rec: _Record, view: Any) -> _Record:
-    """View ``view`` (a :meth:`~vvtbench.dataset.Sample.view`) of the sample of ``rec``."""
+    """View ``view`` (a :meth:`~vvtbench.samples.reader.Sample.view`) of the sample of ``rec``."""
     video = None
     if view.has_video:
         path = getattr(view, "video_path", None)
@@ -345,7 +346,8 @@ def _view_record(rec: _Record, view: Any) -> _Record:
 
 
 def _record_from_result(result: Any) -> _Record:
-    """From a :class:`~vvtbench.simulate.SimulationResult` (its rest depth rasterized)."""
+    """From a :class:`~vvtbench.simulation.simulate.SimulationResult` (its rest depth
+    rasterized)."""
     from .render import Camera
     from .render.raster import rasterize
 
@@ -365,8 +367,8 @@ def _record_from_result(result: Any) -> _Record:
 
 
 def _as_record(source: Any) -> _Record:
-    from .scene import Scene, load_scene
-    from .simulate import simulate
+    from .scene.scene import Scene, load_scene
+    from .simulation.simulate import simulate
 
     if isinstance(source, _Record):
         return source
@@ -377,7 +379,7 @@ def _as_record(source: Any) -> _Record:
     if isinstance(source, (str, Path)):
         path = Path(source)
         if path.is_dir():
-            from .dataset import open_sample
+            from .samples.reader import open_sample
 
             return _record_from_sample(open_sample(path))
         return _record_from_result(simulate(load_scene(source), transient=False))
@@ -396,8 +398,8 @@ def observe(source: Any, options: ObserveOptions | Mapping[str, Any] | None = No
 
     Parameters
     ----------
-    source : a sample folder or :class:`~vvtbench.dataset.Sample`; an entry of an exported
-        dataset; a :class:`~vvtbench.scene.Scene`, scene file or shipped scene name
+    source : a sample folder or :class:`~vvtbench.samples.reader.Sample`; an entry of an exported
+        dataset; a :class:`~vvtbench.scene.scene.Scene`, scene file or shipped scene name
         (simulated now); or a :class:`RealVideo`.
     options : :class:`ObserveOptions` (or a mapping of its fields).
     **overrides : fields of :class:`ObserveOptions` replacing those of ``options``.
@@ -428,16 +430,9 @@ def _scale_vector(geometry_scale: float | tuple[float, ...]) -> np.ndarray:
     return scale
 
 
-def default_voxel_shape(scene_or_kind: Any) -> tuple[int, ...]:
-    """The paper's inference grids: 8x8x8 for solids, 20x20 for drums (a Scene or its
-    geometry kind)."""
-    kind = getattr(getattr(scene_or_kind, "geometry", None), "kind", scene_or_kind)
-    return (20, 20) if kind == "drum" else (8, 8, 8)
-
-
 def _inference_model(rec: _Record, opts: ObserveOptions, scale: np.ndarray
                      ) -> ParametricModel:
-    from .simulate import fixed_nodes as scene_fixed_nodes
+    from .simulation.simulate import fixed_nodes as scene_fixed_nodes
 
     scene = rec.scene
     geom = scene.geometry
@@ -724,7 +719,7 @@ def _matched(problem: InverseProblem, truth: Truth, gamma: np.ndarray, freqs: np
     MAC (the truth's 3-D modes signed and ordered to match)."""
     from scipy.optimize import linear_sum_assignment
 
-    from .metrics import mac_matrix
+    from .modes.mac import mac_matrix
 
     mac = mac_matrix(gamma, truth.image_modes)
     rows, cols = linear_sum_assignment(-mac)
@@ -857,9 +852,9 @@ def sample_truth(sample: Any, problem: InverseProblem) -> tuple[InverseProblem, 
 
     Parameters
     ----------
-    sample : a sample folder or :class:`~vvtbench.dataset.Sample`, or an entry of an
+    sample : a sample folder or :class:`~vvtbench.samples.reader.Sample`, or an entry of an
         exported dataset.
-    problem : an :class:`~vvtbench.problem.InverseProblem` whose inference mesh lies in the
+    problem : an :class:`~vvtbench.solving.problem.InverseProblem` whose inference mesh lies in the
         sample's coordinates (metres, no geometry scale) and whose ``gamma`` rows are unit
         image-space modes.
 
@@ -880,7 +875,7 @@ def sample_truth(sample: Any, problem: InverseProblem) -> tuple[InverseProblem, 
         When ``sample`` cannot be read as a sample.
     """
     if isinstance(sample, (str, Path)) and Path(sample).is_dir():
-        from .dataset import open_sample
+        from .samples.reader import open_sample
 
         sample = open_sample(Path(sample))
     if not (hasattr(sample, "scene") and hasattr(sample, "info")):

@@ -5,7 +5,8 @@ track x scene x variation x seed x observation source x solver. Each run is a ch
 tasks; tasks shared between runs (the same video, the same extracted modes, the same inverse
 problem) are computed once:
 
-    generate(scene)            -> sample folder (video.mkv + truth), vvtbench.dataset.generate
+    generate(scene)            -> sample folder (video.mkv + truth),
+    vvtbench.samples.reader.generate
     extract(generate)          -> modes.npz/json, vvtbench.modes.extract_modes
     observe(scene, options, [extract...]) -> problem.npz/json + truth.npz/json (no pickle)
     solve(observe, solver, config)         -> estimate.npz/json
@@ -33,9 +34,10 @@ Dask), :mod:`.prune` (videos deleted once read, ``run --prune-videos``), :mod:`.
 results table and its check), :mod:`.runner` (:func:`run_suite`).
 """
 
-from ..io import jsonable, write_json
+from ..io.files import jsonable, write_json
+from ..solving.plugins import solver_setup
 from .executors import execute_graph, make_executor
-from .graph import CACHE_FORMAT, STAGES, Run, Task, build_graph, content_hash, solver_setup
+from .graph import CACHE_FORMAT, STAGES, Run, Task, build_graph, content_hash
 from .results import (
     COLUMNS,
     METRIC_COLUMNS,

@@ -1,4 +1,4 @@
-"""Limits of the sealed children that run plug-ins (:mod:`vvtbench.sealed`) in a suite run.
+"""Limits of the sealed children that run plug-ins (:mod:`vvtbench.solving.sealed`) in a suite run.
 
 Every extract and solve task runs its plug-in in a sealed child with a time limit
 (:data:`DEFAULT_TIMEOUT` seconds unless ``--timeout`` or the suite's ``timeout`` says
@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import os
 
-from ..sealed import DEFAULT_TIMEOUT, SealedError
-from ..sealed import kill_running as _kill_sealed
+from ..solving.sealed import DEFAULT_TIMEOUT, SealedError
+from ..solving.sealed import kill_running as _kill_sealed
 
 __all__ = ["DEFAULT_TIMEOUT", "SealedError", "default_memory_bytes", "kill_running"]
 

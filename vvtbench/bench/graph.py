@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import itertools
 import json
@@ -12,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
+from ..modes.revision import extraction_revision
 from .suite import (
     Suite,
     SuiteError,
@@ -28,24 +28,11 @@ STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 DESCRIBE_FLOOR = 30.0
 # Bump when a stage's output format or meaning changes (part of every task key).
 CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the contract, no pickle
-#: revision of the mode extraction and of its scoring (part of the extract and observe keys
-#: of extracted tracks only: true-mode tracks keep their cache). 2: shoulder modes, recall
-#: over the modes detectable in the video; 3: library defaults chosen on validation videos
-#: (noise weights for the peaks, faint products rejected, no cap), products folded at Nyquist;
-#: 4: faint products measured against ``P_i P_j / P_max`` (``product_scaling``); 5: camera-shake
-#: peaks are parents of distortion products (a pure-shake video has no modes); 6: peak-picked
-#: dampings' intervals span the fit without window too; 7: the damping fit's log-power polish
-#: with its analytic Jacobian, at most ``POLISH_EVALUATIONS`` evaluations
-EXTRACTION_REVISION = 7
 #: revision of the observation of extracted modes (observe keys of extracted tracks only; the
 #: extraction is reused). 2: each mode's spectral SNR (``InverseProblem.mode_snr``); 3: the
 #: extraction scored with resolved modes matched one by one (a cluster of true modes closer
 #: than the resolution holds as many detections as it has modes; docs/modes.md, "Matching")
 OBSERVE_REVISION = 3
-#: revision of the opt-in line fit (``[extract] line_fit = true``; only its keys change).
-#: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
-#: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)
-LINE_FIT_REVISION = 3
 #: revision of the scoring of an estimate (evaluate keys only; solves are reused).
 #: 2: an observed mode is matched to the span of a repeated model mode, not to one basis vector;
 #: 3: every scored row states the fraction of DOFs its observation sees
@@ -55,13 +42,6 @@ FIELD_REVISION = 1
 #: inference options the field path cannot honour (a real video has one camera, its object's
 #: own geometry and the reader's mesh)
 FIELD_UNSUPPORTED = {"views": 1, "geometry_scale": 1.0, "inference_order": 1}
-
-
-def extraction_revision(extract_opts: dict) -> int | list[int]:
-    """The revision part of the extract and observe keys of extracted tracks."""
-    if extract_opts.get("line_fit"):
-        return [EXTRACTION_REVISION, LINE_FIT_REVISION]
-    return EXTRACTION_REVISION
 
 
 def extract_options(suite: Suite, observation: str,
@@ -163,10 +143,10 @@ class Run:
 
 
 def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
-    from ..scene import load_scene, parse_scene
+    from ..scene.scene import load_scene, parse_scene
 
     if ref.startswith("family:"):  # instance INDEX of a family's SPLIT: family:NAME:SPLIT:INDEX
-        from ..families import draw
+        from ..scene.families import draw
 
         _, family, split, index = ref.split(":")
         scene = draw(family, split, int(index))
@@ -184,50 +164,6 @@ def _resolve_scene(ref: str, source: str, overrides: dict, seed: int) -> dict:
     return parsed.to_toml_dict()
 
 
-def solver_setup(spec: str, overrides: dict | None):
-    """(class, config dict) for a solver spec with suite/CLI overrides."""
-    from ..plugins import config_from_mapping, load_solver
-
-    cls = load_solver(spec)
-    config = config_from_mapping(cls.Config, overrides)
-    _check_types(cls, config, overrides or {})
-    return cls, dataclasses.asdict(config)
-
-
-def _check_types(cls, config, overrides: dict) -> None:
-    """A suite's solver config value has its field's type (a table is not an int; true is not
-    a number); numbers are finite."""
-    import math
-    import types
-    import typing
-
-    from ..plugins import PluginError
-
-    hints = typing.get_type_hints(cls.Config)
-    for key in overrides:
-        value = getattr(config, key)
-        tp = hints.get(key)
-        if tp is None:
-            continue
-        args = typing.get_args(tp) if typing.get_origin(tp) in (typing.Union,
-                                                                types.UnionType) else (tp,)
-        plain = [a for a in args if a in (int, float, str, bool, type(None))]
-        if not plain or len(plain) != len(args):
-            continue  # a list, a dict or a custom type: the solver checks it
-        if value is None and type(None) in plain:
-            continue
-        ok = any(isinstance(value, a) and not (isinstance(value, bool) and a is not bool)
-                 for a in plain if a is not type(None))
-        if isinstance(value, int) and not isinstance(value, bool) and float in plain:
-            ok = True
-        names = " or ".join(a.__name__ if a is not type(None) else "none" for a in plain)
-        if not ok:
-            raise PluginError(f"{cls.name} config {key!r}: {value!r} is not allowed (allowed: "
-                              f"{names})")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise PluginError(f"{cls.name} config {key!r}: {value!r} is not a finite number")
-
-
 def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = None,
                 until: str = "evaluate", timeout: float | None = None
                 ) -> tuple[dict[str, Task], list[Run]]:
@@ -239,7 +175,7 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
     for k, v in (solver_config or {}).items():
         cfgs[k] = {**cfgs.get(k, {}), **v}
     solver_info: dict = {}
-    from ..sealed import forget_descriptions
+    from ..solving.sealed import forget_descriptions
 
     forget_descriptions()
     # a plug-in whose import hangs becomes an error row within the suite's time limit
@@ -250,7 +186,7 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
         ck = (spec, json.dumps(_canon(extra or {}), sort_keys=True))
         if ck not in solver_info:
             try:  # the plug-in is imported in a sealed child, never here
-                from ..sealed import describe_sealed
+                from ..solving.sealed import describe_sealed
 
                 name = describe_sealed("solver", spec, timeout=describe_timeout)["name"]
                 over = {**(cfgs.get(spec) or cfgs.get(name) or {}), **(extra or {})}
@@ -348,15 +284,6 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                         run.solve_key, run.evaluate_key = sk, ek
                     runs.append(run)
     return tasks, runs
-
-
-
-def solver_inputs(cls, config: dict) -> dict:
-    """Content hashes of the files a solver's config names (its ``cache_inputs(config)``, e.g.
-    the learned baseline's weights): they join the solve task's key, so that a replaced file
-    is never served from the cache under the same name."""
-    hook = getattr(cls, "cache_inputs", None)
-    return dict(hook(config)) if callable(hook) else {}
 
 
 def _track_solvers(track: Track, solvers: list[str], info):

@@ -26,35 +26,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..io import write_json
+from ..io.files import write_json
 from .graph import Task
+from .pruned import PRUNED, excused, pruned_files
 
 __all__ = ["PRUNED", "VideoPlan", "dependants", "excused", "prune_sample", "pruned_absent",
            "pruned_files", "sample_videos", "video_readers"]
-
-#: the ``task.json`` key of a generate task whose videos were pruned
-PRUNED = "pruned"
-
-
-def pruned_files(info: dict) -> dict[str, dict]:
-    """``{name: {"bytes", "sha256"}}`` of the files a task's ``task.json`` records as pruned
-    (names relative to the task folder, as in its ``files``)."""
-    record = info.get(PRUNED) if isinstance(info, dict) else None
-    entries = record.get("files") if isinstance(record, dict) else None
-    out = {}
-    for e in entries if isinstance(entries, list) else []:
-        if isinstance(e, dict) and isinstance(e.get("name"), str) and isinstance(
-                e.get("sha256"), str):
-            out[e["name"]] = {"bytes": e.get("bytes"), "sha256": e["sha256"]}
-    return out
-
-
-def excused(info: dict) -> set[str]:
-    """Names of the files a task's ``task.json`` records as pruned with the very sha256 its
-    ``files`` table lists: the files a check of its folder may find absent."""
-    files = info.get("files") if isinstance(info, dict) else None
-    files = files if isinstance(files, dict) else {}
-    return {n for n, e in pruned_files(info).items() if files.get(n) == e["sha256"]}
 
 
 def pruned_absent(task_dir: Path) -> set[str]:
@@ -126,7 +103,7 @@ def prune_sample(cache: Path, gen_key: str) -> dict:
     """Delete the video files of a generate task's sample and record them in its
     ``task.json`` (written atomically before any file goes): ``{"files": n, "bytes": n}``
     deleted now (zero when there were none left)."""
-    from ..dataset import sha256_file
+    from ..samples.reader import sha256_file
 
     folder = Path(cache) / gen_key
     info = json.loads((folder / "task.json").read_text())

@@ -36,7 +36,7 @@ def rescore(run_dir: str | Path, df=None,
     """Problems found recomputing every scored row (status ok or invalid) of ``df`` (default:
     the run folder's ``results.parquet``) from the run's cache; empty when every score stands.
     """
-    from ..metrics import evaluate, invalid_reason
+    from ..scoring.metrics import evaluate, invalid_reason
     from .results import read_results
     from .stages import load_estimate_arrays, load_observation, scored_inputs, verify_cached
 

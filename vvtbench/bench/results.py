@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
-from ..io import jsonable
+from ..io.files import jsonable
 from .graph import Run
 from .suite import OBSERVATION_PATTERN, OBSERVATIONS
 
@@ -108,7 +108,7 @@ def _coerce(df):
 
 def write_results(df, out_dir: Path) -> tuple[Path, Path]:
     """results.parquet and results.csv in ``out_dir`` (atomic writes)."""
-    from ..io import atomic_file
+    from ..io.files import atomic_file
 
     out_dir = Path(out_dir)
     pq = out_dir / "results.parquet"
@@ -237,7 +237,7 @@ def _check_cells(df, err) -> None:
     that are not scored (error, invalid); a shipped reference solver not marked as one."""
     import pandas as pd
 
-    from ..plugins import REFERENCE_BUILTINS, name_problem
+    from ..solving.plugins import REFERENCE_BUILTINS, name_problem
 
     for c in _NAMES:
         if c not in df.columns:

@@ -9,11 +9,11 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from ..io import write_json
+from ..io.files import write_json
+from ..io.lock import RunLock
 from .child import DEFAULT_TIMEOUT, default_memory_bytes
 from .executors import execute_graph, make_executor
 from .graph import STAGES, build_graph
-from .lock import RunLock
 from .prune import VideoPlan
 from .results import results_table, write_results
 from .suite import Suite, SuiteError, load_suite
@@ -59,11 +59,11 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
     ``[solver.NAME]`` tables; ``workers`` local processes; ``scheduler``: a Dask scheduler
     address (or a ``distributed.Client``) to run on instead; ``until``: last stage to run.
 
-    Every solve runs in a sealed child process (:mod:`vvtbench.sealed`) limited to
+    Every solve runs in a sealed child process (:mod:`vvtbench.solving.sealed`) limited to
     ``timeout`` seconds (default: the suite's ``timeout``, else 3600) and ``memory_gb`` of
     address space (default: the suite's ``memory_gb``, else 75 % of the machine's memory /
     workers). The run folder is
-    locked for the run: a second run on it raises :class:`~vvtbench.bench.lock.RunLocked`
+    locked for the run: a second run on it raises :class:`~vvtbench.io.lock.RunLocked`
     (or waits, ``wait=True``). Ctrl-C raises :class:`~vvtbench.bench.executors.Interrupted`.
 
     ``df.attrs["stats"]`` holds, per stage, the number of tasks computed, found in the cache,

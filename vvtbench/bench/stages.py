@@ -14,16 +14,16 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
-from ..dataset import sha256_file
-from ..io import jsonable, write_json, write_npz, write_text
-from ..sealed import SealedError
+from ..io.files import jsonable, write_json, write_npz, write_text
+from ..samples.reader import sha256_file
+from ..solving.sealed import SealedError
 from .graph import Task
 from .suite import observation_kind
 
 
 def _stage_generate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
-    from ..generate import generate
-    from ..scene import parse_scene
+    from ..samples.generate import generate
+    from ..scene.scene import parse_scene
 
     scene = parse_scene(task.payload["scene"], task.payload["scene"]["name"])
     video = bool(task.payload.get("video", True))
@@ -41,8 +41,8 @@ def sample_path(cache: Path, gen_key: str) -> Path:
 
 
 def _stage_extract(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
-    from ..dataset import open_sample
-    from ..sealed import extract_sealed
+    from ..samples.reader import open_sample
+    from ..solving.sealed import extract_sealed
 
     sample = open_sample(sample_path(cache, task.deps[0]))
     opts = {k: v for k, v in task.payload["options"].items() if not k.startswith("merge_")}
@@ -75,7 +75,7 @@ def _field_video(sample, field: dict, dest: Path) -> tuple[Path, dict]:
     writes it: (the path to open, what was written: format, bytes, sha256, frames)."""
     from ..field.invert import source_sha256
     from ..field.track import FieldSettings, encode_video
-    from ..video import open_video
+    from ..video.files import open_video
 
     settings = FieldSettings.from_mapping(field)
     stream = open_video(sample.video_path)
@@ -112,7 +112,7 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
     sample, *extracted = task.deps
     if kind == "extracted":
         opts = opts.replace(modes=tuple(str(cache / k) for k in extracted))
-    from ..dataset import open_sample
+    from ..samples.reader import open_sample
 
     opened = open_sample(sample_path(cache, sample))  # verified once, read twice
     problem, truth = observe(opened, opts)
@@ -130,7 +130,6 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
     """The observe stage of a field track: the object from its surface file (``object.stl``)
     or scene, the camera from simulated clicks (``clicks.csv``, ``calibration.json``), the
     problem from these alone (:func:`vvtbench.field.track.field_observe`)."""
-    from ..dataset import open_sample
     from ..field.calibrate import calibrate_from_file
     from ..field.objects import resolve_object
     from ..field.track import (
@@ -143,6 +142,7 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
     )
     from ..modes import ModeSet
     from ..observe import _read
+    from ..samples.reader import open_sample
 
     p = task.payload
     settings = FieldSettings.from_mapping(p["field"])
@@ -198,10 +198,10 @@ EXTRACTION_KEYS = ("precision", "recall", "recall_all", "n_detectable", "mean_re
 
 def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:
     """The extraction's detected modes scored against the true ones of the opened sample
-    ``s``, pooled over the views: :func:`vvtbench.extraction_scores.score_sample_extraction`
+    ``s``, pooled over the views: :func:`vvtbench.scoring.extraction.score_sample_extraction`
     (recall over the true modes detectable in the video, ``recall_all`` over all in band)."""
-    from ..extraction_scores import score_sample_extraction
     from ..modes import ModeSet
+    from ..scoring.extraction import score_sample_extraction
 
     sc = score_sample_extraction(s, [ModeSet.load(m) for m in modes],
                                  float(fmax) if fmax else None)
@@ -211,14 +211,14 @@ def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:
 def load_observation(cache: Path, observe_key: str, truth: bool = False):
     """The problem an observe task wrote (and its truth with ``truth=True``)."""
     from ..observe import Truth
-    from ..problem import InverseProblem
+    from ..solving.problem import InverseProblem
 
     problem = InverseProblem.load(cache / observe_key)
     return (problem, Truth.load(cache / observe_key)) if truth else problem
 
 
 def _stage_solve(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
-    from ..sealed import describe_sealed, solve_sealed
+    from ..solving.sealed import describe_sealed, solve_sealed
 
     spec, config = task.payload["solver"], task.payload["config"]
     limits = ctx.get("limits") or {}
@@ -277,7 +277,7 @@ def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True,
     ``w_true``, ``v_true``, and ``w_std``, ``v_std`` when the solver stated them) into
     ``out``; an invalid estimate (non-finite, not positive, wrong shape) is not scored:
     ``{"invalid": reason}``. The evaluator of ``run`` and ``solve``."""
-    from ..metrics import evaluate, invalid_reason
+    from ..scoring.metrics import evaluate, invalid_reason
 
     out = Path(out)
     reason = invalid_reason(w, v, problem.n_params)
@@ -317,7 +317,7 @@ def verify_cached(folder: Path, info: dict) -> str | None:
     ``task.json`` recorded its sha256; no hashes recorded), or None when it is intact. A file
     the ``task.json`` records as pruned with the same sha256 (a video deleted by
     ``--prune-videos``, :mod:`.prune`) may be absent; present, it must still match."""
-    from .prune import excused
+    from .pruned import excused
 
     files = info.get("files")
     if not isinstance(files, dict) or not files:
@@ -377,7 +377,7 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
     "seconds", "result"|"error"}``; ``"recomputed"``: why a cached output was not reused.
 
     ``limits``: ``{"timeout": s, "memory_bytes": n}`` for the extract and solve tasks, which
-    run their plug-ins in a sealed child (:mod:`vvtbench.sealed`). ``force``: why an intact
+    run their plug-ins in a sealed child (:mod:`vvtbench.solving.sealed`). ``force``: why an intact
     cached output is computed again anyway (a pruned video needed again, an input that
     changed; :mod:`.prune`); it is replaced only once the new one is complete, and the status
     dict says ``"forced"``."""

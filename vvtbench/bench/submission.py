@@ -4,7 +4,8 @@ A *challenge* is two folders written by :func:`write_challenge`:
 
 * the public one, ``problems/``: ``manifest.json`` (``{"format": "vvtbench-problems", "name",
   "instances": {ID: {"problem_sha256": ...}}}``) and one folder per instance with
-  ``problem.npz`` + ``problem.json`` (:meth:`vvtbench.problem.InverseProblem.save`) -- what a
+  ``problem.npz`` + ``problem.json`` (:meth:`vvtbench.solving.problem.InverseProblem.save`) -- what
+  a
   solver author gets;
 * the private one, ``truth/``: ``manifest.json`` (``"format": "vvtbench-truth"``, the same
   instances with the sha256 of their problem and truth) and per instance the problem again and
@@ -19,7 +20,7 @@ and the estimates (``estimate.npz`` with ``w_params``, ``v_params`` per active v
 :func:`score_submission` scores every instance of the truth's manifest: an instance the
 submission lacks, one answered for another problem (its ``problem_sha256`` differs) or an
 unreadable estimate is an error row, an invalid estimate an invalid row; the scores come only
-from :func:`vvtbench.metrics.evaluate` on the arrays, never from the submission.
+from :func:`vvtbench.scoring.metrics.evaluate` on the arrays, never from the submission.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from ..dataset import sha256_file
-from ..io import write_json
+from ..io.files import write_json
+from ..samples.reader import sha256_file
 
 __all__ = ["SubmissionError", "read_manifest", "score_submission", "write_challenge",
            "write_submission"]
@@ -57,7 +58,7 @@ def _problem_sha(folder: Path) -> str:
 
 
 def _safe_id(instance: str) -> str:
-    from ..plugins import name_problem
+    from ..solving.plugins import name_problem
 
     problem = name_problem(instance, max_len=120)
     if problem or instance in (".", "..") or "/" in instance or "\\" in instance:
@@ -109,7 +110,7 @@ def read_manifest(folder: Path, kind: str) -> dict:
 def write_submission(estimates: dict[str, Any], problems: Path, out: Path, solver: str,
                      version: str) -> None:
     """Write ``{id: Estimate}`` answering the problems folder ``problems`` into ``out``."""
-    from ..plugins import name_problem
+    from ..solving.plugins import name_problem
 
     for label, value in (("solver", solver), ("solver_version", version)):
         if name_problem(value):
@@ -125,7 +126,7 @@ def write_submission(estimates: dict[str, Any], problems: Path, out: Path, solve
             std = est.std(n)
             if std is not None:
                 arrays[f"{n}_params"] = std
-        from ..io import write_npz
+        from ..io.files import write_npz
 
         (Path(out) / instance).mkdir(parents=True, exist_ok=True)
         write_npz(Path(out) / instance / "estimate.npz", arrays)
@@ -170,10 +171,10 @@ def score_submission(submission: Path, truth_dir: Path):
     :data:`vvtbench.bench.results.COLUMNS`) of ``submission`` scored against ``truth_dir``."""
     import pandas as pd
 
-    from ..metrics import evaluate, invalid_reason
-    from ..plugins import name_problem
-    from ..problem import InverseProblem
-    from ..truth import Truth
+    from ..scoring.metrics import evaluate, invalid_reason
+    from ..solving.plugins import name_problem
+    from ..solving.problem import InverseProblem
+    from ..solving.truth import Truth
     from .results import COLUMNS, METRIC_COLUMNS, _coerce
 
     submission, truth_dir = Path(submission), Path(truth_dir)

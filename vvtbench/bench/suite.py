@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from ..scene import SCENES_DIR
+from ..scene.scene import SCENES_DIR
 
 SUITES_DIR = SCENES_DIR / "suites"
 OBSERVATIONS = ("true", "extracted")
@@ -524,7 +524,7 @@ def load_suite(name_or_path: str | Path) -> Suite:
 def parse_suite(data: dict, source: str = "<suite>") -> Suite:
     """Validate a suite dict (the parsed TOML) and expand it; errors are :class:`SuiteError`
     one-liners naming ``source``, the key path and what is allowed."""
-    from ..scene import SceneError, find_scene
+    from ..scene.scene import SceneError, find_scene
 
     _check_finite(data, source, "")
     try:
@@ -560,7 +560,7 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
                 raise SuiteError(f"{source}: key '{_join(path, 'family')}': a family track "
                                  "gives 'count' (and optionally 'split', 'start') instead of "
                                  "'scenes'")
-            from ..families import FamilyError, load_family
+            from ..scene.families import FamilyError, load_family
 
             try:
                 load_family(t["family"])
@@ -660,8 +660,8 @@ def observation_extractor(observation: str) -> str | None:
 def _check_extractor(name: str, table: dict, source: str, key: str) -> dict:
     """``{"spec", "name", "version", "config"}`` of the extractor ``name`` with the overrides
     ``table`` (validated now: a missing extractor or a bad option is a one-line error)."""
-    from ..plugins import PluginError
-    from ..sealed import describe_sealed
+    from ..solving.plugins import PluginError
+    from ..solving.sealed import describe_sealed
 
     file, _, cls_name = name.rpartition(":")
     spec = f"{scene_ref(file, source)}:{cls_name}" if file.endswith(".py") else name

@@ -17,119 +17,26 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import difflib
-import math
 import os
-import re
 import sys
 import traceback
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterator
 
-# The option types below are defined before the command modules are imported: they import
-# them from this package.
-
-
-def _number(kind: type, text: str) -> float:
-    try:
-        value = kind(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
-    return value
-
-
-def bounded(kind: type = float, *, gt: float | None = None, ge: float | None = None,
-            le: float | None = None, also: tuple = ()) -> Callable[[str], float]:
-    """An argparse ``type`` reading an int or a finite float within bounds, saying what is
-    allowed when not (``also``: extra allowed values, e.g. ``-1`` for "all CPUs")."""
-    parts = [f"> {gt:g}" if gt is not None else "", f">= {ge:g}" if ge is not None else "",
-             f"<= {le:g}" if le is not None else ""]
-    allowed = " and ".join(p for p in parts if p) or "finite"
-    allowed = ("an integer " if kind is int else "a number ") + allowed + "".join(
-        f" (or {a})" for a in also)
-
-    def parse(text: str) -> float:
-        value = _number(kind, text)
-        if value in also:
-            return value
-        if (gt is not None and not value > gt) or (ge is not None and not value >= ge) \
-                or (le is not None and not value <= le):
-            raise argparse.ArgumentTypeError(f"{text!r}: must be {allowed}")
-        return value
-
-    parse.__name__ = kind.__name__  # argparse names the type in its messages
-    return parse
-
-
-positive_int = bounded(int, ge=1)
-#: family instances one command may ask for
-MAX_INSTANCES = 1_000_000
-instance_count = bounded(int, ge=1, le=MAX_INSTANCES)
-nonnegative_int = bounded(int, ge=0)
-positive_float = bounded(float, gt=0)
-nonnegative_float = bounded(float, ge=0)
-finite_float = bounded(float)
-
-
-def suggest(word: str, known: Iterable[str]) -> str:
-    """``"; did you mean 'x'?"`` for the close matches of ``word`` among ``known``, else
-    ``""``."""
-    matches = difflib.get_close_matches(str(word), sorted(set(known)), n=3, cutoff=0.6)
-    if not matches:
-        return ""
-    return "; did you mean " + " or ".join(repr(m) for m in matches) + "?"
-
-
-def _scene_names() -> list[str]:
-    from ..scene import SCENES_DIR
-
-    return sorted(p.stem for p in SCENES_DIR.glob("*.toml")) if SCENES_DIR.is_dir() else []
-
-
-def _suite_names() -> list[str]:
-    from ..bench import SUITES_DIR
-
-    return sorted(p.stem for p in SUITES_DIR.glob("*.toml")) if SUITES_DIR.is_dir() else []
-
-
-def _solver_names() -> list[str]:
-    from ..plugins import SOLVERS
-
-    return sorted(SOLVERS.registry())  # names only: plug-ins are imported in sealed children
-
-
-_UNKNOWN = (  # message pattern -> the names the unknown one is compared with
-    (re.compile(r"^(?P<name>[^:\n]+): no such scene file"), _scene_names),
-    (re.compile(r"^(?P<name>[^:\n]+): no such suite file"), _suite_names),
-    (re.compile(r"unknown solver '(?P<name>[^']+)'"), _solver_names),
+from .._version import __version__
+from .args import (
+    MAX_INSTANCES,
+    bounded,
+    explain,
+    finite_float,
+    instance_count,
+    nonnegative_float,
+    nonnegative_int,
+    one_line,
+    positive_float,
+    positive_int,
+    suggest,
 )
-
-
-def one_line(message: str) -> str:
-    """A message on one line (line breaks become ``"; "``)."""
-    return "; ".join(part.strip() for part in str(message).splitlines() if part.strip())
-
-
-def explain(error: BaseException | str) -> str:
-    """The one-line message of ``error``, with a "did you mean" for a misspelt scene, suite
-    or solver name, and the path for an OS error that has one."""
-    if isinstance(error, OSError) and error.filename is not None and error.strerror:
-        text = f"{error.filename}: {error.strerror}"
-    else:
-        text = str(error) or type(error).__name__
-    text = one_line(text)
-    for pattern, names in _UNKNOWN:
-        m = pattern.search(text)
-        if m and "did you mean" not in text:
-            try:
-                hint = suggest(m.group("name").strip(), names())
-            except Exception:  # noqa: BLE001 -- a hint must never hide the error
-                hint = ""
-            text += hint
-            break
-    return text
+from .simulate import DEFAULT_SCENE, build_simulate_parser, run_scenes, run_simulate
 
 
 @contextlib.contextmanager
@@ -147,11 +54,10 @@ def _one_line_usage() -> Iterator[None]:
         argparse.ArgumentParser.error = original  # type: ignore[method-assign]
 
 
-from .._version import __version__  # noqa: E402
-from .simulate import DEFAULT_SCENE, build_simulate_parser, run_scenes, run_simulate  # noqa: E402
 
-__all__ = ["DEFAULT_SCENE", "DELEGATED", "bounded", "build_parser", "explain", "main",
-           "suggest"]
+__all__ = ["DEFAULT_SCENE", "DELEGATED", "MAX_INSTANCES", "bounded", "build_parser", "explain",
+           "finite_float", "instance_count", "main", "nonnegative_float", "nonnegative_int",
+           "one_line", "positive_float", "positive_int", "suggest"]
 
 
 # Commands that parse their own arguments, each imported only when it runs.
@@ -236,7 +142,7 @@ def _score(argv: list[str]) -> int:
 def _release(argv: list[str]) -> int:
     from .release import main_release
 
-    return main_release(argv)
+    return main_release(argv, run=main)
 
 
 def _challenge(argv: list[str]) -> int:
@@ -299,12 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Errors a user can fix: exit 2 with their one-line message."""
     from ..bench.suite import SuiteError
-    from ..dataset import DatasetError
+    from ..datasets.packed import ExportError
     from ..observe import ObserveError
-    from ..packed import ExportError
-    from ..plugins import PluginError
-    from ..scene import SceneError
-    from ..video import VideoError
+    from ..samples.reader import DatasetError
+    from ..scene.scene import SceneError
+    from ..solving.plugins import PluginError
+    from ..video.files import VideoError
 
     return (SceneError, SuiteError, DatasetError, ObserveError, PluginError, ExportError,
             VideoError, ValueError, FileNotFoundError, PermissionError, IsADirectoryError,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import nonnegative_float
+from .args import nonnegative_float
 
 __all__ = ["build_parser", "main_calibrate"]
 
@@ -44,7 +44,7 @@ def build_parser(prog: str = "vvtbench calibrate") -> argparse.ArgumentParser:
 
 
 def _first_frame(video: Path) -> np.ndarray:
-    from ..video import VideoError, open_video
+    from ..video.files import VideoError, open_video
 
     stream = open_video(video, max_frames=1)
     frame = next(iter(stream.frames), None)
@@ -67,7 +67,7 @@ def main_calibrate(argv: list[str] | None = None) -> int:
         parse_intrinsics,
     )
     from ..field.objects import resolve_object
-    from ..io import write_json, write_text
+    from ..io.files import write_json, write_text
     from ..render.camera import Camera
 
     args = build_parser().parse_args(argv)

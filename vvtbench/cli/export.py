@@ -8,9 +8,15 @@ import json
 import sys
 from pathlib import Path
 
-from vvtbench.dataset import DatasetError
-from vvtbench.export import DEFAULT_SHARD_BYTES, check_output, find_samples, pack, pack_stacked
-from vvtbench.packed import ExportError
+from vvtbench.datasets.export import (
+    DEFAULT_SHARD_BYTES,
+    check_output,
+    find_samples,
+    pack,
+    pack_stacked,
+)
+from vvtbench.datasets.packed import ExportError
+from vvtbench.samples.reader import DatasetError
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -30,7 +36,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         "(never another file or folder)")
     p.add_argument("--layout", choices=("samples", "stacked"), default="samples",
                    help="samples: one group per sample with video and extracted modes (read by "
-                        "vvtbench.packed); stacked: one Zarr store per family and split with a "
+                        "vvtbench.datasets.packed); stacked: one Zarr store per family and "
+                        "split with a "
                         "'sample' dimension (xarray.open_zarr), a Parquet index and Croissant "
                         "1.1 (truth arrays only)")
     p.add_argument("--shard-size", default=str(DEFAULT_SHARD_BYTES), metavar="BYTES",
@@ -106,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             out = pack(samples, args.output, fmt, str(args.source), overwrite=args.overwrite,
                        inputs=inputs)
     except (ValueError, OSError, DatasetError) as error:  # Export/Suite/SceneError: ValueError
-        from . import explain
+        from .args import explain
 
         print(f"error: {explain(error)}", file=sys.stderr)
         return 2
@@ -117,8 +124,3 @@ def main(argv: list[str] | None = None) -> int:
               "in --layout samples only", file=sys.stderr)
     return 0
 
-
-if __name__ == "__main__":
-    from vvtbench.cli import main as vvtbench_main
-
-    sys.exit(vvtbench_main(["export", *sys.argv[1:]]))

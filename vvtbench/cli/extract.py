@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ..modes.modeset import ModeSet
-from ..video import VIDEO_SUFFIXES, open_video
-from . import bounded, nonnegative_float, positive_float, positive_int
+from ..video.files import VIDEO_SUFFIXES, open_video
+from .args import bounded, nonnegative_float, positive_float, positive_int
 
 
 def _parse_roi(s: str) -> tuple[int, int, int, int]:
@@ -64,9 +64,9 @@ def _sample_of(path: Path) -> Path | None:
 
 def _resolve_source(path: Path) -> Path:
     """The video file to read; a sample (folder or its video) is verified first
-    (:func:`vvtbench.dataset.open_sample`: truth and video against the manifest)."""
-    from ..dataset import DatasetError, open_sample
-    from ..field.readers import IMAGE_SUFFIXES, is_camera_source
+    (:func:`vvtbench.samples.reader.open_sample`: truth and video against the manifest)."""
+    from ..samples.reader import DatasetError, open_sample
+    from ..video.cameras import IMAGE_SUFFIXES, is_camera_source
 
     if not path.exists():
         if is_camera_source(path):  # a glob or printf pattern of an image sequence
@@ -242,9 +242,9 @@ _USER_ERRORS = ("ValueError", "VideoError", "FileNotFoundError", "DatasetError",
 
 def _extract_sealed(args, src: Path, fps, options: dict) -> int:
     """The one extraction of ``extract``: :func:`vvtbench.modes.extract_modes` in a sealed
-    child (:func:`vvtbench.sealed.extract_sealed`) that sees the video (or the camera's
+    child (:func:`vvtbench.solving.sealed.extract_sealed`) that sees the video (or the camera's
     folder) and the output only; 0, or the exit status after one line."""
-    from ..sealed import SealedError, extract_sealed
+    from ..solving.sealed import SealedError, extract_sealed
 
     sample = _sample_of(Path(args.video))
     secrets = [args.out, *([sample] if sample is not None else [])]
@@ -254,7 +254,7 @@ def _extract_sealed(args, src: Path, fps, options: dict) -> int:
         extract_sealed(src, fps, options, args.out, secrets=secrets,
                        folder=sample is None, timeout=args.timeout, scratch=args.tmpdir)
     except SealedError as error:
-        from . import explain
+        from .args import explain
 
         text = str(error)
         kind = text.partition(":")[0]
@@ -276,8 +276,8 @@ def main_extract(argv: list[str] | None = None) -> int:
         y0, y1, x0, x1 = args.roi
         if not (0 <= y0 < y1 and 0 <= x0 < x1):
             raise ValueError(f"--roi {y0},{y1},{x0},{x1}: need 0 <= y0 < y1 and 0 <= x0 < x1")
-    from ..extractors import load_extractor
-    from ..plugins import parse_overrides
+    from ..solving.extractors import load_extractor
+    from ..solving.plugins import parse_overrides
 
     # checked before any frame is read; passed on as overrides, so that for phase --scales,
     # --sigma ... still apply where --set is silent
@@ -313,7 +313,7 @@ def main_extract(argv: list[str] | None = None) -> int:
         return code
     ms = ModeSet.load(args.out)
     if ms.lossy is not None:
-        from ..video import describe_lossy
+        from ..video.files import describe_lossy
 
         print(f"warning: {describe_lossy(ms.lossy, ms.metadata.get('fps_input'))}",
               file=sys.stderr)
@@ -358,8 +358,3 @@ def main_extract(argv: list[str] | None = None) -> int:
         print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} ({why})")
     return 0
 
-
-if __name__ == "__main__":  # pragma: no cover
-    from . import main
-
-    raise SystemExit(main(["extract", *sys.argv[1:]]))

@@ -1,5 +1,5 @@
 """``vvtbench generate``: render scenes, suites or scene-family instances into sample folders
-(argparse front end of :func:`vvtbench.generate.generate`)."""
+(argparse front end of :func:`vvtbench.samples.generate.generate`)."""
 
 from __future__ import annotations
 
@@ -82,7 +82,7 @@ def finished_bytes(out: Path, finished: list[str], video: bool, limit: int = 20)
     compresses (a modes-only drum takes 12-13 MB of its 137 MB bound)."""
     import json
 
-    from ..io import tree_bytes
+    from ..io.files import tree_bytes
 
     sizes = []
     for name in finished[:limit]:
@@ -111,12 +111,11 @@ def _physical_memory() -> int:
 
 
 def _job_scene(job: dict):
-    from ..scene import parse_scene
-    from ..scenes_resolve import with_overrides
+    from ..scene.scene import parse_scene, with_overrides
 
     if "scene" in job:
         return parse_scene(job["scene"], job.get("source", job["scene"]["name"]))
-    from ..families import draw
+    from ..scene.families import draw
 
     scene = draw(job["family"], job["split"], int(job["index"]))
     return with_overrides(scene, **(job.get("overrides") or {}))
@@ -127,8 +126,8 @@ def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
     the memory each worker may use, and a total size larger than the output's free space.
     A family's instances are sized by the first one drawn; where samples of this run are
     already finished in the output, by the largest of them (:func:`finished_bytes`)."""
-    from ..io import check_free_space
-    from ..scene import SceneError
+    from ..io.files import check_free_space
+    from ..scene.scene import SceneError
 
     if not jobs:
         return
@@ -169,8 +168,8 @@ def _check_resources(jobs: list[dict], args: argparse.Namespace) -> None:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """The ``generate`` parser (fills ``parser`` if given, e.g. a sub-command's)."""
-    from ..families import MAX_INDEX
-    from . import bounded, instance_count
+    from ..scene.families import MAX_INDEX
+    from .args import bounded, instance_count
 
     p = parser or argparse.ArgumentParser(
         prog="vvtbench generate", description="Render scenes into sample folders "
@@ -205,9 +204,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def _jobs(args: argparse.Namespace) -> list[dict]:
-    from ..families import check_index_range, is_family, load_family
-    from ..scene import SceneError
-    from ..scenes_resolve import resolve_scenes, with_overrides
+    from ..bench.resolve import resolve_scenes
+    from ..scene.families import check_index_range, is_family, load_family
+    from ..scene.scene import SceneError, with_overrides
 
     overrides = {"frames": args.frames, "duration": args.duration,
                  "resolution": args.resolution}
@@ -231,7 +230,7 @@ def _jobs(args: argparse.Namespace) -> list[dict]:
     for scene in resolve_scenes(args.scene):
         scene = with_overrides(scene, **overrides)
         if (args.out / scene.name).exists() and not args.overwrite:
-            from ..dataset import DatasetError
+            from ..samples.reader import DatasetError
 
             raise DatasetError(f"{args.out / scene.name} already exists; pass --overwrite to "
                                "replace it")
@@ -242,9 +241,9 @@ def _jobs(args: argparse.Namespace) -> list[dict]:
 
 def run(args: argparse.Namespace) -> int:
     """Run parsed arguments; returns the exit code (0 ok, 1 a sample failed, 2 bad input)."""
-    from ..dataset import DatasetError
-    from ..io import NoSpaceError
-    from ..scene import SceneError
+    from ..io.files import NoSpaceError
+    from ..samples.reader import DatasetError
+    from ..scene.scene import SceneError
 
     try:
         jobs = _jobs(args)
@@ -252,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
     except (SceneError, DatasetError, NoSpaceError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    from ..bench.lock import RunLock, RunLocked
+    from ..io.lock import RunLock, RunLocked
 
     try:  # one writer per output folder, the lock `run` takes
         Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -314,7 +313,7 @@ def _removed_partial(out: Path, name: str | None) -> str:
 
 def execute_jobs(jobs: list[dict], workers: int, scheduler: str | None):
     """Yield each job's result as it finishes (in process, a local pool, or Dask)."""
-    from ..generate_jobs import generate_instance
+    from ..samples.jobs import generate_instance
 
     if scheduler is None and workers == 1:
         for job in jobs:

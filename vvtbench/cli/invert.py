@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from . import nonnegative_float, positive_float, positive_int
+from .args import nonnegative_float, positive_float, positive_int
 
 __all__ = ["build_parser", "main_invert"]
 
@@ -59,7 +59,7 @@ def main_invert(argv: list[str] | None = None) -> int:
     """``vvtbench invert VIDEO --object OBJ --clicks CSV -o OUT``; the exit status."""
     from ..field.calibrate import parse_intrinsics
     from ..field.invert import InvertOptions, invert
-    from ..plugins import load_solver, parse_overrides
+    from ..solving.plugins import load_solver, parse_overrides
 
     args = build_parser().parse_args(argv)
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
@@ -75,7 +75,7 @@ def main_invert(argv: list[str] | None = None) -> int:
                          fps=args.fps, intrinsics=parse_intrinsics(args.intrinsics),
                          max_error=args.max_error, fmin=args.fmin, fmax=args.fmax,
                          nu=args.nu, w0=args.w0, v0=args.v0, timeout=args.timeout)
-    from ..sealed import SealedError
+    from ..solving.sealed import SealedError
 
     try:
         result = invert(args.video, args.object, args.clicks, args.out, opts)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..leaderboard import build
+from ..reporting.leaderboard import build
 
 
 def main_leaderboard(argv: list[str] | None = None) -> int:

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from . import explain, positive_int
+from .args import explain, positive_int
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -39,9 +39,15 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def main_release(argv: list[str] | None = None) -> int:
+def main_release(argv: list[str] | None = None, run=None) -> int:
+    """``vvtbench release ...``; ``run`` is the ``vvtbench`` command itself (``build`` runs
+    ``generate`` through it, with its one-line errors)."""
     args = _parser().parse_args(argv)
-    return {"build": _build, "verify": _verify, "freeze": _freeze}[args.action](args)
+    if args.action == "build":
+        if run is None:
+            raise TypeError("release build runs generate through the vvtbench command: pass run")
+        return _build(args, run)
+    return {"verify": _verify, "freeze": _freeze}[args.action](args)
 
 
 def _fail(message) -> int:
@@ -49,11 +55,9 @@ def _fail(message) -> int:
     return 2
 
 
-def _build(args) -> int:
-    from ..io import write_text
-    from ..release import SUMS, ReleaseError, file_sums, load_release, write_sums
-    from . import main
-
+def _build(args, main) -> int:
+    from ..datasets.release import SUMS, ReleaseError, file_sums, load_release, write_sums
+    from ..io.files import write_text
     try:
         rel = load_release(args.release)
         parts = [rel.part(n) for n in args.part] if args.part else list(rel.parts)
@@ -89,7 +93,7 @@ def _build(args) -> int:
 
 
 def _verify(args) -> int:
-    from ..release import ReleaseError, list_digest, load_release, read_sums, verify_copy
+    from ..datasets.release import ReleaseError, list_digest, load_release, read_sums, verify_copy
 
     folder = args.folder
     if not folder.is_dir():
@@ -136,8 +140,8 @@ def _verify(args) -> int:
 def _freeze(args) -> int:
     import tomllib
 
-    from ..io import write_text
-    from ..release import ReleaseError, list_digest, load_release, release_sums, write_sums
+    from ..datasets.release import ReleaseError, list_digest, load_release, release_sums, write_sums
+    from ..io.files import write_text
 
     try:
         rel = load_release(args.release or load_release(args.folder / "release.toml").name)

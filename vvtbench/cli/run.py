@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..bench import SuiteError, check_results, load_suite, read_results, run_suite
 from ..bench.rescore import has_cache, rescore
-from ..sealed import describe_sealed
+from ..solving.sealed import describe_sealed
 
 
 def main_check_results(argv: list[str] | None = None) -> int:
@@ -138,8 +138,8 @@ def main_run(argv: list[str] | None = None) -> int:
     Exit 0 when every row is ok; 1 when a row failed or is invalid, when there are no rows, or
     when the run folder is in use; 2 for bad input; 130 on Ctrl-C."""
     from ..bench.executors import Interrupted
-    from ..bench.lock import RunLocked
-    from ..plugins import PluginError
+    from ..io.lock import RunLocked
+    from ..solving.plugins import PluginError
 
     p = argparse.ArgumentParser(prog="vvtbench run", description=(
         "run a benchmark suite: generate -> extract -> solve -> evaluate, cached; every solve "

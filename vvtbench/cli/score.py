@@ -7,16 +7,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from . import explain, positive_int
+from .args import explain, positive_int
 
 
 def main_challenge(argv: list[str] | None = None) -> int:
     """``vvtbench challenge SAMPLES -o DIR``: observe every sample under SAMPLES and write
     ``DIR/problems`` (to hand out) and ``DIR/truth`` (to keep)."""
     from ..bench.submission import SubmissionError, write_challenge
-    from ..dataset import DatasetError, open_sample
-    from ..export import find_samples
+    from ..datasets.export import find_samples
     from ..observe import ObserveError, observe
+    from ..samples.reader import DatasetError, open_sample
 
     p = argparse.ArgumentParser(prog="vvtbench challenge",
                                 description="write a hidden-truth challenge from generated "

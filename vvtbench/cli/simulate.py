@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from .._version import __version__
-from . import positive_int
+from .args import positive_int
 
 DEFAULT_SCENE = "jello_cube_defect_top"
 
@@ -29,8 +29,8 @@ def run_simulate(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.table import Table
 
-    from ..scene import load_scene, parse_scene
-    from ..simulate import simulate
+    from ..scene.scene import load_scene, parse_scene
+    from ..simulation.simulate import simulate
 
     scene = load_scene(args.scene)
     if args.modes is not None:  # validated like the scene file's simulation.n_modes
@@ -86,7 +86,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_scenes(args: argparse.Namespace) -> int:
-    from ..scene import SCENES_DIR, load_scene
+    from ..scene.scene import SCENES_DIR, load_scene
 
     for path in sorted(SCENES_DIR.glob("*.toml")):
         scene = load_scene(path)

@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from ..plugins import PluginError
-from . import bounded, explain, one_line, positive_float, positive_int
+from ..solving.plugins import PluginError
+from .args import bounded, explain, one_line, positive_float, positive_int
 
 
 def main_solvers(argv: list[str] | None = None) -> int:
@@ -38,7 +38,7 @@ def main_extractors(argv: list[str] | None = None) -> int:
 def _list(kind: str, verbose: bool) -> int:
     """The registered plug-ins of ``kind``, each described by a sealed child (never imported
     here); one that cannot be imported is listed with its error."""
-    from ..sealed import list_sealed
+    from ..solving.sealed import list_sealed
 
     for name, d in list_sealed(kind).items():
         if "error" in d:
@@ -135,16 +135,16 @@ def _check_output(out: Path, target: Path) -> str | None:
 def main_solve(argv: list[str] | None = None) -> int:
     """``vvtbench solve SOLVER TARGET [--set k=v] [--modes K] -o DIR``: observe the target
     (:func:`vvtbench.observe.observe`), solve, score against the truth, write the outputs."""
-    from ..dataset import DatasetError, open_sample
     from ..observe import ObserveError, ObserveOptions, observe
-    from ..scene import SceneError, load_scene
+    from ..samples.reader import DatasetError, open_sample
+    from ..scene.scene import SceneError, load_scene
 
     args = build_solve_parser().parse_args(argv)
     if args.grid is not None and len(args.grid) not in (2, 3):
         return _fail(f"--grid: give 3 integers (boxes: nx ny nz) or 2 (drums), got "
                      f"{len(args.grid)}")
     from ..bench.child import DEFAULT_TIMEOUT, default_memory_bytes
-    from ..sealed import SealedError, describe_sealed, solve_sealed
+    from ..solving.sealed import SealedError, describe_sealed, solve_sealed
 
     timeout = args.timeout or DEFAULT_TIMEOUT
     try:  # imported and configured in a sealed child; an unknown name gets a "did you mean"
@@ -247,8 +247,8 @@ def main_solve(argv: list[str] | None = None) -> int:
 def _write_solve(stage: Path, args, estimate, wall, sinfo, problem, truth, info, observation,
                  t_setup, target) -> dict:
     from ..bench.stages import write_evaluation
-    from ..io import write_json
-    from ..plots import contrast_first, plot_fields, plot_uncertainty
+    from ..io.files import write_json
+    from ..reporting.plots import contrast_first, plot_fields, plot_uncertainty
 
     name = sinfo["name"]
     estimate.save(stage, problem, wall_s=wall)
@@ -308,8 +308,8 @@ def _solve_problems(args, desc: dict, overrides: dict, problems: Path, out: Path
     """Every problem of a challenge's problems folder, solved sealed, into a submission."""
     from ..bench.child import default_memory_bytes
     from ..bench.submission import SubmissionError, read_manifest, write_submission
-    from ..problem import InverseProblem
-    from ..sealed import SealedError, solve_sealed
+    from ..solving.problem import InverseProblem
+    from ..solving.sealed import SealedError, solve_sealed
 
     if desc["uses_truth"]:
         return _fail(f"{desc['name']} reads the truth (a reference); a challenge has none")
@@ -370,7 +370,7 @@ def _modes(sample, modes_file: str | None, out: Path) -> tuple[Path | None, str 
                       "--observation true")
     modes_dir = out / "modes"
     if not (modes_dir / "modes.json").is_file():
-        from ..sealed import SealedError, extract_sealed
+        from ..solving.sealed import SealedError, extract_sealed
 
         try:
             extract_sealed(sample.video_path, sample.fps, {}, modes_dir,

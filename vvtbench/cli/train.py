@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from .._version import __version__
-from . import MAX_INSTANCES, bounded, instance_count, positive_int
+from .args import MAX_INSTANCES, bounded, instance_count, positive_int
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(shipped: learned)")
     p.add_argument("family", help="a scene family (scenes/families/NAME.toml) or its file")
     p.add_argument("-o", "--output", required=True, type=Path, help="the weights file (.npz)")
-    from ..families import MAX_INDEX
+    from ..scene.families import MAX_INDEX
 
     p.add_argument("--n", type=instance_count, default=200, help="train instances (200)")
     p.add_argument("--start", type=bounded(int, ge=0, le=MAX_INDEX), default=0,
@@ -51,9 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main_train(argv: list[str] | None = None) -> int:
-    from ..data import iter_instances
-    from ..families import check_index_range, load_family
-    from ..plugins import load_solver, parse_overrides
+    from ..datasets.instances import iter_instances
+    from ..scene.families import check_index_range, load_family
+    from ..solving.plugins import load_solver, parse_overrides
     from .generate import main as generate_main
 
     args = build_parser().parse_args(argv)
@@ -166,7 +166,7 @@ def _train_from_store(args, cls, module, family, options: dict, kwargs: dict, me
 
 
 def _chosen(data: Path, family: str, split: str, start: int, n: int) -> list:
-    from ..data import instances
+    from ..datasets.instances import instances
 
     wanted = set(range(start, start + n))
     return [(name, src) for name, src in instances(data, split)

@@ -2,7 +2,7 @@
 
 * a sample folder (``manifest.json``): every file against the manifest's sha256 and size,
   files not listed, the video's frames counted and its frame size and pixel format against
-  ``truth.json`` (:meth:`vvtbench.dataset.Sample.verify`), the scene and camera readable;
+  ``truth.json`` (:meth:`vvtbench.samples.reader.Sample.verify`), the scene and camera readable;
 * a run folder (``cache/``): every generated sample (``cache/generate/*/sample``) as above,
   and every cached task whose ``task.json`` records the sha256 of its outputs (a ``files``,
   ``outputs`` or ``sha256`` table of relative path -> sha256 or ``{"sha256": ...}``);
@@ -68,8 +68,8 @@ def _kind(path: Path) -> str:
 
 def verify_sample(path: Path, *, full: bool = True) -> list[str]:
     """Problems of a sample folder, each ``FILE: problem`` with FILE under ``path``."""
-    from ..dataset import DatasetError, check_sample, read_json
-    from ..scene import SceneError, load_scene
+    from ..samples.reader import DatasetError, check_sample, read_json
+    from ..scene.scene import SceneError, load_scene
 
     try:
         manifest = read_json(path / "manifest.json")
@@ -104,7 +104,7 @@ def _task_hashes(doc: dict) -> dict[str, str] | None:
 def verify_run(path: Path, *, full: bool = True) -> Iterator[str]:
     """Problems of a run folder: its generated samples and its cached tasks' outputs."""
     from ..bench.prune import pruned_absent
-    from ..dataset import sha256_file
+    from ..samples.reader import sha256_file
 
     cache = path / "cache"
     samples = sorted(p for p in cache.glob("generate/*/sample") if p.is_dir())
@@ -146,9 +146,9 @@ def verify_dataset_files(path: Path) -> Iterator[str]:
     """Every file of an exported dataset against the sha256 recorded at export: a Zarr
     folder's ``SHA256SUMS`` (each chunk and attribute file; none missing, none extra), an HDF5
     file's sha256 in its Croissant file."""
-    from ..dataset import sha256_file
-    from ..export import SUMS
-    from ..release import ReleaseError, read_sums, verify_copy
+    from ..datasets.export import SUMS
+    from ..datasets.release import ReleaseError, read_sums, verify_copy
+    from ..samples.reader import sha256_file
 
     if path.is_dir():
         if not (path / SUMS).is_file():
@@ -177,7 +177,7 @@ def verify_dataset_files(path: Path) -> Iterator[str]:
 def verify_dataset(path: Path) -> Iterator[str]:
     """Problems of an exported dataset: every file's sha256, format, version, every sample
     readable."""
-    from ..packed import FORMAT_VERSION, ExportError, open_dataset
+    from ..datasets.packed import FORMAT_VERSION, ExportError, open_dataset
 
     yield from verify_dataset_files(path)
 
@@ -241,7 +241,7 @@ def verify_stacked(path: Path) -> Iterator[str]:
     """Problems of a stacked export (``--layout stacked``): every file's sha256, its marker's
     format and version, and every store it lists opened by xarray with every variable read
     (one shard at a time)."""
-    from ..export import STACKED_FORMAT, STACKED_MARKER, STACKED_VERSION
+    from ..datasets.export import STACKED_FORMAT, STACKED_MARKER, STACKED_VERSION
 
     yield from verify_dataset_files(path)
     try:

@@ -372,7 +372,7 @@ def tet_mesh(
         used, tets = np.unique(tets, return_inverse=True)
         tets = tets.reshape(-1, 4)
         pts = np.asarray(pts, dtype=float)[used]
-        from ..io import write_npz
+        from ..io.files import write_npz
 
         cache.parent.mkdir(parents=True, exist_ok=True)
         write_npz(cache, {"points": pts, "tets": tets}, compressed=False)
@@ -412,7 +412,7 @@ def _scratch_cwd():
 def shipped_mesh_dir() -> Path:
     """The tetrahedralizations vvtbench ships (``scenes/meshes``), keyed by surface and
     settings only; see :func:`tet_mesh`."""
-    from ..scene import SCENES_DIR
+    from ..scene.scene import SCENES_DIR
 
     return SCENES_DIR / "meshes"
 

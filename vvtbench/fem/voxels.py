@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -328,3 +329,10 @@ def voxel_average(overlap, values: np.ndarray) -> np.ndarray:
         out = num / vol[:, None]
     out[vol <= 0] = np.nan
     return out.reshape((overlap.shape[0],) + vals.shape[1:])
+
+
+def default_voxel_shape(scene_or_kind: Any) -> tuple[int, ...]:
+    """The paper's inference grids: 8x8x8 for solids, 20x20 for drums (a Scene or its
+    geometry kind)."""
+    kind = getattr(getattr(scene_or_kind, "geometry", None), "kind", scene_or_kind)
+    return (20, 20) if kind == "drum" else (8, 8, 8)

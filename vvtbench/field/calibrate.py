@@ -449,7 +449,7 @@ def draw_calibration(path: str | Path, frame: NDArray, camera: Camera, points: A
     green crosses and their reprojections as red circles."""
     import cv2
 
-    from ..io import write_bytes
+    from ..io.files import write_bytes
 
     pts = np.asarray(points, dtype=np.float64)
     tri = np.asarray(surface, dtype=np.int64)

@@ -9,16 +9,16 @@ input redoes that stage and the solve (whose key holds the keys of the first two
 2. ``extract`` -- image-space modes of the video (:func:`extract_step`, one call of
    :func:`vvtbench.modes.extract_modes`): ``extract/``;
 3. ``solve`` -- :func:`vvtbench.observe` of a :class:`~vvtbench.observe.RealVideo`, then the
-   solver in its sandbox (:func:`solve_step`, :func:`vvtbench.sealed.solve_sealed`):
+   solver in its sandbox (:func:`solve_step`, :func:`vvtbench.solving.sealed.solve_sealed`):
    ``solve/``;
 4. the report, rewritten every run: ``fields.npz`` (stiffness ``w`` and density ``v`` per
    voxel, ``w_std``/``v_std`` where the solver states them), ``fields.png``, ``modes.json``
    (the modes the solver used), ``report.md``.
 
-An estimate that :func:`vvtbench.metrics.invalid_reason` rejects is never presented as a
+An estimate that :func:`vvtbench.scoring.metrics.invalid_reason` rejects is never presented as a
 result: ``report.md`` opens with the reason, no ``fields.npz`` is written, and
 :func:`invert` returns it in :attr:`InvertResult.invalid`. One process writes a folder at a
-time (:class:`vvtbench.bench.lock.RunLock`); every file is written atomically and a stage's
+time (:class:`vvtbench.io.lock.RunLock`); every file is written atomically and a stage's
 folder appears whole or not at all.
 """
 
@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ..io import jsonable, write_json, write_npz, write_text
+from ..io.files import jsonable, write_json, write_npz, write_text
 
 __all__ = ["InvertOptions", "InvertResult", "extract_step", "invert", "solve_step",
            "source_sha256"]
@@ -162,12 +162,12 @@ def _replace_dir(tmp: Path, final: Path) -> None:
 def extract_step(video: str | Path, fps: float | None, dest: Path, *,
                  timeout: float | None = None, **options: Any):
     """The one extraction of ``invert``: :func:`vvtbench.modes.extract_modes` in a sealed child
-    (:func:`vvtbench.sealed.extract_sealed`: the extractor sees the camera's files and its
+    (:func:`vvtbench.solving.sealed.extract_sealed`: the extractor sees the camera's files and its
     output only); the modes of ``video`` saved into ``dest`` (written beside it, then moved
     into place)."""
     from ..modes import ModeSet
-    from ..sealed import SealedError, extract_sealed
-    from ..video import VideoError
+    from ..solving.sealed import SealedError, extract_sealed
+    from ..video.files import VideoError
 
     tmp = dest.with_name(dest.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -188,9 +188,9 @@ def extract_step(video: str | Path, fps: float | None, dest: Path, *,
 def solve_step(target: str, config: Mapping[str, Any], problem, dest: Path, *,
                timeout: float | None = None, memory_bytes: int | None = None):
     """The one solver call of ``invert``: the solver ``target`` in its sandbox
-    (:func:`vvtbench.sealed.solve_sealed`, no truth: a real video has none); the estimate is
+    (:func:`vvtbench.solving.sealed.solve_sealed`, no truth: a real video has none); the estimate is
     kept in ``dest``. Returns ``(estimate, wall seconds, info)``."""
-    from ..sealed import solve_sealed
+    from ..solving.sealed import solve_sealed
 
     tmp = dest.with_name(dest.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -203,7 +203,7 @@ def solve_step(target: str, config: Mapping[str, Any], problem, dest: Path, *,
 
 
 def _video_size(video: str | Path) -> tuple[int, int, float | None]:
-    from ..video import VideoError, open_video
+    from ..video.files import VideoError, open_video
 
     stream = open_video(video, max_frames=1)
     frame = next(iter(stream.frames), None)
@@ -223,7 +223,7 @@ def invert(video: str | Path, object_spec: str, clicks: str | Path, out: str | P
     ObserveError, CalibrationError, VideoError, PluginError, ValueError
         Bad input, one line (the CLI exits with status 2).
     """
-    from ..bench.lock import RunLock, RunLocked
+    from ..io.lock import RunLock, RunLocked
 
     opts = options or InvertOptions()
     out = Path(out)
@@ -240,12 +240,12 @@ def invert(video: str | Path, object_spec: str, clicks: str | Path, out: str | P
 
 
 def _invert(video, object_spec, clicks, out: Path, opts: InvertOptions, log) -> InvertResult:
-    from ..field.calibrate import calibrate_from_file
-    from ..field.objects import resolve_object
-    from ..metrics import invalid_reason
     from ..modes import ModeSet
     from ..observe import ObserveOptions, RealVideo, observe
-    from ..problem import Estimate
+    from ..scoring.metrics import invalid_reason
+    from ..solving.problem import Estimate
+    from .calibrate import calibrate_from_file
+    from .objects import resolve_object
 
     stages = _Stages(out)
     reused: list[str] = []
@@ -337,7 +337,7 @@ def _invert(video, object_spec, clicks, out: Path, opts: InvertOptions, log) -> 
             "active": np.asarray(problem.model.voxel_map.active), **std,
             **{f"{k}_grid": problem.to_grid(s) for k, s in std.items()
                if s.shape == (problem.n_params,)}})
-        from ..plots import plot_fields, plot_uncertainty
+        from ..reporting.plots import plot_fields, plot_uncertainty
 
         plot_fields(out / "fields.png", problem, {opts.solver: (estimate.w, estimate.v)},
                     title=f"{Path(str(video)).name}: {opts.solver}")

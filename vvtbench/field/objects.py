@@ -29,9 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from ..dataset import sha256_file as _sha256
 from ..fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
-from ..observe import ObserveError, default_voxel_shape
+from ..fem.voxels import default_voxel_shape
+from ..observe import ObserveError
+from ..samples.reader import sha256_file as _sha256
 
 __all__ = ["SURFACE_SUFFIXES", "FieldObject", "is_block", "resolve_object"]
 
@@ -226,8 +227,8 @@ def is_block(vertices: np.ndarray, faces: np.ndarray, rtol: float = 1e-6) -> boo
 
 def _from_scene(text: str, path: Path, inference_shape: tuple[int, ...] | None
                 ) -> FieldObject:
-    from ..scene import load_scene
-    from ..simulate import build_mesh, fixed_nodes
+    from ..scene.scene import load_scene
+    from ..simulation.simulate import build_mesh, fixed_nodes
 
     if not path.is_file():
         raise _bad(text, f"{path}: no such file")

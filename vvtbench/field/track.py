@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..io import write_text
+from ..io.files import write_text
 
 __all__ = ["FIELD_FORMATS", "FieldSettings", "encode_video", "field_observe",
            "reprojection_error", "simulate_clicks", "write_object_surface"]
@@ -196,9 +196,9 @@ def encode_video(frames: Iterable[ArrayLike], fps: float, dest: str | Path,
 
 def _h264_writer(path: Path, shape: tuple[int, int], fps: float, settings: FieldSettings):
     """An 8-bit H.264 writer at ``settings.crf``, or at ``settings.bitrate_mbps`` of
-    recording: the container plays at :data:`vvtbench.video.PLAYBACK_FPS`, so the encoder's
+    recording: the container plays at :data:`vvtbench.video.files.PLAYBACK_FPS`, so the encoder's
     rate is scaled to give each frame the bits it has at the capture rate ``fps``."""
-    from ..video import PLAYBACK_FPS, VideoWriter
+    from ..video.files import PLAYBACK_FPS, VideoWriter
 
     if settings.bitrate_mbps is None:
         return VideoWriter(path, shape[0], shape[1], capture_fps=fps, pix_fmt="gray",
@@ -212,7 +212,7 @@ class _RateWriter:
     def __init__(self, path: Path, shape: tuple[int, int], fps: float, bits_per_s: float):
         import imageio_ffmpeg
 
-        from ..video import BITEXACT, PLAYBACK_FPS, rate_fraction
+        from ..video.files import BITEXACT, PLAYBACK_FPS, rate_fraction
 
         self.path, self.shape = Path(path), shape
         self._pad = (shape[0] % 2, shape[1] % 2)

@@ -260,7 +260,7 @@ def _basis(path: str, sha256: str) -> np.ndarray:
 
 
 def _generate(job: dict) -> dict:
-    from ..generate_jobs import generate_instance
+    from ..samples.jobs import generate_instance
 
     return generate_instance(job)
 
@@ -269,7 +269,7 @@ def featurize_instance(task: dict) -> dict:
     """Generate one instance into the scratch folder (or take the complete one there) and
     compute its stored features; a worker's job, never raises.
 
-    ``task``: ``job`` (a :func:`vvtbench.generate_jobs.generate_instance` job), ``module``,
+    ``task``: ``job`` (a :func:`vvtbench.samples.jobs.generate_instance` job), ``module``,
     ``basis`` (path) and ``basis_sha256``, ``mesh_key`` (the basis' mesh, or None),
     ``observe`` (options), ``index``.
     """
@@ -360,7 +360,7 @@ def _create(root: Path, spec: StoreSpec, identity: dict, n_train: int, executor,
     """Generate the reference instances (the first ``N_REFERENCE`` train instances, or the
     ``n_train`` asked for if fewer, as ``fit`` takes them), fix the basis and write basis.npz
     and store.json."""
-    from ..io import write_json, write_npz
+    from ..io.files import write_json, write_npz
     from ..observe import ObserveOptions, observe
 
     hooks = importlib.import_module(spec.module)
@@ -415,7 +415,7 @@ def _raise_failed(results: list[dict]) -> None:
 
 def _write_shard(store: FeatureStore, split: str, results: list[dict], keys: tuple[str, ...]
                  ) -> Path:
-    from ..io import write_npz
+    from ..io.files import write_npz
 
     results = sorted(results, key=lambda r: r["index"])
     arrays = {k: np.concatenate([r["arrays"][k] for r in results]) for k in keys}
@@ -465,8 +465,8 @@ def build_store(root: str | Path, spec: StoreSpec, plan: dict[str, tuple[int, in
         The store, holding every instance of ``plan``.
     """
     from ..bench.executors import make_executor
-    from ..bench.lock import RunLock, RunLocked
-    from ..io import check_free_space
+    from ..io.files import check_free_space
+    from ..io.lock import RunLock, RunLocked
 
     log = log or (lambda line: None)
     root = Path(root)

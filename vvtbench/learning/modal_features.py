@@ -25,7 +25,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.optimize import linear_sum_assignment
 
-from vvtbench.problem import InverseProblem
+from vvtbench.solving.problem import InverseProblem
 
 
 def mesh_key(model) -> str:
@@ -91,7 +91,7 @@ def pair_observed(problem: InverseProblem, mu: np.ndarray, psi: np.ndarray, n_sl
     noisy to place still gets *some* slot from the assignment, at a low MAC: its first-order
     equations would be wrong, not just noisy.
     """
-    from vvtbench.mac import mac_matrix
+    from vvtbench.modes.mac import mac_matrix
 
     n_basis = min(psi.shape[1], N_FIT)
     A = np.asarray(problem.P @ psi[:, :n_basis])

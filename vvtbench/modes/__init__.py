@@ -3,11 +3,11 @@
 See ``docs/modes.md`` for the pipeline and the file format.
 """
 
-from ..mac import mac
-from ..video import open_video
+from ..video.files import open_video
 from .damping import damping_half_power, damping_lorentzian
 from .extract import confidence_weights, extract_modes, modes_from_displacements
 from .joint import extract_joint, joint_modes, modal_phasors
+from .mac import mac
 from .merging import merge_modes
 from .modeset import ModeSet, merge_modesets
 from .peaks import align_phase, check_band, pick_peaks, translation_mac

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..motion.phase import upsample_periodic
-from ..video import average_frames, open_video
+from ..video.files import average_frames, open_video
 from .damping import damping_half_power, damping_lorentzian
 from .jackknife import peak_uncertainty
 from .lines import Lines, clean_lines, peak_gain
@@ -814,7 +814,7 @@ def extract_modes(
         Peak significance, the lowest peak bin and resolved shoulders, see
         :func:`modes_from_displacements`.
     extractor : str, class or instance, default "phase"
-        Motion extractor plug-in (:mod:`vvtbench.extractors`): a registered name
+        Motion extractor plug-in (:mod:`vvtbench.solving.extractors`): a registered name
         (``"phase"``, ``"farneback"``, ...), ``module:Class`` / ``path.py:Class``, a class or an
         instance.  ``n_scales``, ``n_orientations``, ``sigma``, ``outlier_fraction`` and
         ``workers`` configure the phase-based extractor unless ``extractor_config`` (a
@@ -883,7 +883,7 @@ def extract_modes(
         ref = next(it)
     except StopIteration:
         raise ValueError("the video has no frames") from None
-    from ..extractors import make_extractor
+    from ..solving.extractors import make_extractor
 
     if extractor == "phase" and (extractor_config is None or isinstance(extractor_config,
                                                                        Mapping)):

@@ -133,13 +133,13 @@ def modal_phasors(
     The projection ``p_i(t)`` of frame ``t`` on shape ``i`` is a time series of the mode's
     coordinate: for displacement fields ``(T, H, W, 2)`` (``kind="displacements"``, px) it is
     ``<d_t, shape_i>``; for video frames (``kind="frames"``: a path, an array ``(T, H, W)`` or
-    anything :func:`vvtbench.video.open_video` reads) it is the first-order brightness
+    anything :func:`vvtbench.video.files.open_video` reads) it is the first-order brightness
     change, ``-<I_t - I_0, g_i> / <g_i, g_i>`` with ``g_i = grad(I_0) . shape_i`` (px), so
     one streamed pass over the video. The result is ``2 sum_t w_t p_i(t) e^{-2 pi i f_i t /
     fps} / sum_t w_t`` with a Hann window ``w`` (the mean removed first): a sinusoid
     ``A cos(2 pi f_i t / fps + phi)`` gives about ``A e^{i phi}``.
     """
-    from ..video import open_video
+    from ..video.files import open_video
 
     if kind not in ("frames", "displacements"):
         raise ValueError(f"kind must be 'frames' or 'displacements', got {kind!r}")

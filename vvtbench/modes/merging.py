@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..mac import mac
+from .mac import mac
 
 __all__ = ["MergedModes", "merge_modes"]
 

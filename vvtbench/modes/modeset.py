@@ -344,7 +344,7 @@ class ModeSet:
         arrays = {name: getattr(self, name) for name in (*_PER_MODE, "shapes", "freqs_hz", "power")}
         if self.confidence is not None:
             arrays["confidence"] = self.confidence
-        from ..io import write_npz, write_text
+        from ..io.files import write_npz, write_text
 
         write_npz(d / "modes.npz", arrays, compressed=False)
         doc = {

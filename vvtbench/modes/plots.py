@@ -123,7 +123,7 @@ def plot_spectrum(ms: ModeSet, path: str | Path) -> Path:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out = Path(path)
-    from ..io import atomic_file
+    from ..io.files import atomic_file
 
     with atomic_file(out) as f:  # never through a link at ``out``
         fig.savefig(f, format=out.suffix[1:] or "png")
@@ -173,7 +173,7 @@ def plot_mode(ms: ModeSet, i: int, path: str | Path, max_arrows: int = 32) -> Pa
         + ("  [camera shake]" if ms.camera_shake[i] else "")
     )
     out = Path(path)
-    from ..io import atomic_file
+    from ..io.files import atomic_file
 
     with atomic_file(out) as f:  # never through a link at ``out``
         fig.savefig(f, format=out.suffix[1:] or "png")
@@ -229,7 +229,7 @@ def plot_uncertainty(ms: ModeSet, path: str | Path) -> Path:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out = Path(path)
-    from ..io import atomic_file
+    from ..io.files import atomic_file
 
     with atomic_file(out) as fh:
         fig.savefig(fh, format=out.suffix[1:] or "png")
@@ -274,7 +274,7 @@ def plot_stability(ms: ModeSet, path: str | Path) -> Path:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out = Path(path)
-    from ..io import atomic_file
+    from ..io.files import atomic_file
 
     with atomic_file(out) as fh:
         fig.savefig(fh, format=out.suffix[1:] or "png")

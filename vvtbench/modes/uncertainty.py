@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .lines import line_kernel
+from .kernel import line_kernel
 
 __all__ = ["LINE_FIT_METHOD", "LineUncertainty", "Z95", "block_clusters", "damping_interval",
            "line_uncertainty", "mode_uncertainty"]

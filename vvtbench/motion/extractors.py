@@ -1,7 +1,7 @@
 """The shipped motion extractors (plug-ins of the ``vvtbench.extractors`` group).
 
 An extractor turns a video into per-pixel displacement fields relative to its first frame.
-Contract (checked by :func:`vvtbench.extractors.validate_extractor_class`)::
+Contract (checked by :func:`vvtbench.solving.extractors.validate_extractor_class`)::
 
     name: str                  # unique, lower-case
     version: str

@@ -199,7 +199,7 @@ class Camera:
 
     @classmethod
     def from_spec(cls, spec: Any) -> Camera:
-        """Camera of a scene's ``[camera]`` table (a :class:`vvtbench.scene.CameraSpec`).
+        """Camera of a scene's ``[camera]`` table (a :class:`vvtbench.scene.scene.CameraSpec`).
 
         ``resolution`` is ``[height, width]``; the focal lengths are ``fx`` and ``fy``
         (pixels, ``fy`` defaults to ``fx``) when ``fx`` is given, else they follow from

@@ -1,7 +1,10 @@
-"""Physical yardsticks of the benchmark's scores.
+"""Scoring: every number a board shows is made here, from estimates and truth.
 
-* :mod:`vvtbench.scoring.crb`: the Cramér-Rao bound of image motion in a sample's video and
-  the detectability of its true modes by it.
-* :mod:`vvtbench.scoring.efficiency`: a motion extractor's efficiency
-  ``eta = sigma_CRB^2 / MSE`` against that bound, and the known-texture ideal estimator.
+* :mod:`vvtbench.scoring.metrics`: NC, intrinsic resolution, mode match, validity
+  (docs/metrics.md).
+* :mod:`vvtbench.scoring.extraction`: extracted modes against the true ones (precision,
+  recall over detectable modes, frequency, damping and shape errors).
+* :mod:`vvtbench.scoring.efficiency`: a motion extractor's efficiency against the
+  Cramér-Rao ruler (:mod:`vvtbench.render.crb`, which generation writes into each sample).
+* :mod:`vvtbench.scoring.stats`: bootstrap intervals and paired comparisons over instances.
 """

@@ -6,9 +6,9 @@ The rest image is the project's speckle (:func:`vvtbench.render.texture.speckle_
 periodic, ``grain`` in image pixels, intensities ``0.5 +- contrast / 2``).  Frame ``t`` is
 that image translated by a known sub-pixel shift ``s_t`` (exact Fourier phase ramp of the
 periodic image, content moving right/down for positive ``dx``/``dy``) and passed through the
-sensor model (:func:`vvtbench.sensor.sensor_dn`: read noise ``noise`` times full scale, shot
+sensor model (:func:`vvtbench.render.sensor.sensor_dn`: read noise ``noise`` times full scale, shot
 noise optional, rounding to whole DN at ``bit_depth``), its noise drawn from
-:func:`vvtbench.sensor.noise_rng` ``(seed, t)``.  The shifts have magnitude ``amplitude_px``
+:func:`vvtbench.render.sensor.noise_rng` ``(seed, t)``.  The shifts have magnitude ``amplitude_px``
 along ``directions`` directions ``pi / 8 + 2 pi k / directions``, each filmed ``repeats``
 times with fresh noise.
 
@@ -18,8 +18,8 @@ The extractor is prepared on the noise-free rest image (the known texture the bo
 assumes) and measures every frame.  Its estimate of a block's shift is the mean of its
 displacement field over the grid samples inside the block (``block`` px; ``None`` = the whole
 frame, which, being periodic, has no edges).  The bound is the ruler's
-(:func:`vvtbench.scoring.crb.block_crb` of :func:`~vvtbench.scoring.crb.pixel_fisher` with
-:func:`~vvtbench.scoring.crb.noise_variance_dn2`), on the rest image padded periodically so
+(:func:`vvtbench.render.crb.block_crb` of :func:`~vvtbench.render.crb.pixel_fisher` with
+:func:`~vvtbench.render.crb.noise_variance_dn2`), on the rest image padded periodically so
 its gradient has no reflected edges.  Per direction, block and axis the ``repeats`` errors
 give the bias (``mean^2 - var / repeats``, unbiased) and the variance (``ddof = 1``), which
 add up to the mean squared error.  Then
@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
-from . import crb
+from ..render import crb
+from ..render.sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
 
 __all__ = [
     "EfficiencySetting",
@@ -168,7 +168,7 @@ def extractor_efficiency(extractor: Any, setting: EfficiencySetting, *,
     Parameters
     ----------
     extractor : str, type or instance
-        Anything :func:`vvtbench.extractors.make_extractor` takes.
+        Anything :func:`vvtbench.solving.extractors.make_extractor` takes.
     setting : EfficiencySetting
     config : mapping or Config, optional
         Overrides of the extractor's configuration.
@@ -183,7 +183,7 @@ def extractor_efficiency(extractor: Any, setting: EfficiencySetting, *,
         negative from noise; ``rmse^2 = bias2 + std^2``), ``eta``, ``eta_variance``,
         ``eta_se``, ``n_frames``, ``ms_frame`` (extraction wall time per frame).
     """
-    from ..extractors import make_extractor
+    from ..solving.extractors import make_extractor
 
     ext = make_extractor(extractor, config)
     rest = rest_image(setting)
