@@ -5,8 +5,10 @@
   Frames are ordered by the number in their names (``img_2`` before ``img_10``). An image
   sequence has no frame rate.
 * **Photron** ``.cih``/``.cihx`` + ``.mraw``: the header is parsed by pyMRAW
-  (frame rate, size, frame count, colour bits 8/12/16, effective bit depth and side); frames
-  are read from the ``.mraw`` by offset (12-bit data is packed, two pixels in three bytes).
+  (frame rate, size, frame count, colour bits 8/12/16, effective bit depth and side) and the
+  save step read beside it (the rate of the stored frames is the record rate over the step);
+  frames are read from the ``.mraw`` by offset (12-bit data is packed, two pixels in three
+  bytes).
 * **Phantom** ``.cine``: CINEFILEHEADER, BITMAPINFOHEADER, SETUP (``FrameRate``,
   ``RealBPP``) and the table of image offsets; gray images uncompressed at 8 or 16 bits, or
   packed: P10 (10-bit log-encoded samples, linearised to 12 bits through Phantom's table)
@@ -302,6 +304,52 @@ def _photron_pair(path: Path) -> tuple[Path, Path]:
     return path, mraw
 
 
+#: the highest frame rate a camera file may state (fps): no camera records near it
+MAX_FPS = Fraction(10**8)
+#: the largest save step (every n-th recorded frame stored) a header may state
+MAX_STEP = 10**9
+
+
+def _check_rate(value: Any, where: Path, key: str) -> Fraction:
+    """``value`` as an exact frame rate, or one line naming the file, the key and the range."""
+    try:
+        rate = Fraction(str(value).strip())
+    except (ValueError, ZeroDivisionError):
+        rate = None
+    if rate is None or not 0 < rate <= MAX_FPS:
+        raise VideoError(f"{where}: key {key!r} is {value!r}; allowed: a frame rate above 0 "
+                         f"and at most {float(MAX_FPS):.0e} fps")
+    return rate
+
+
+def _check_step(value: Any, where: Path, key: str) -> int:
+    """A save step (every ``step``-th recorded frame stored), or one line naming the key."""
+    try:
+        step = Fraction(str(value).strip())
+    except (ValueError, ZeroDivisionError):
+        step = None
+    if step is None or step.denominator != 1 or not 1 <= step <= MAX_STEP:
+        raise VideoError(f"{where}: key {key!r} is {value!r}; allowed: a whole number from 1 "
+                         f"to {MAX_STEP:.0e} (every n-th recorded frame stored; 1: all)")
+    return int(step)
+
+
+def _cihx_value(header: Path, element: str) -> str | None:
+    """The text of ``element`` (a path below ``<cih>``) of a ``.cihx`` header's XML, or None
+    (the XML follows a binary preamble)."""
+    import xml.etree.ElementTree as ET
+
+    raw = header.read_bytes()
+    a, b = raw.find(b"<cih>"), raw.rfind(b"</cih>")
+    if a < 0 or b < a:
+        return None
+    try:
+        found = ET.fromstring(raw[a:b + len(b"</cih>")]).find(element)
+    except ET.ParseError as e:
+        raise VideoError(f"{header}: the XML of the header is not readable ({e})") from None
+    return None if found is None else (found.text or "").strip()
+
+
 def _pread(fd: int, n: int, offset: int, path: Path) -> bytes:
     buf = os.pread(fd, n, offset)
     if len(buf) != n:
@@ -319,7 +367,14 @@ def _unpack12(buf: bytes) -> NDArray[np.uint16]:
 
 
 def open_photron(path: str | Path, *, bit_depth: int | None = None) -> CameraFile:
-    """A Photron recording: its ``.cih``/``.cihx`` header (or the ``.mraw`` next to one)."""
+    """A Photron recording: its ``.cih``/``.cihx`` header (or the ``.mraw`` next to one).
+
+    The frames' rate is the camera's ``Record Rate(fps)`` over the save step, ``Save Step``
+    (``.cih``) or ``frameInfo/skipFrame`` (``.cihx``): a recording at 15000 fps saved every
+    100th frame holds 150 frames per second of the record (``meta["record_fps"]``,
+    ``meta["decimation"]``).  A header whose rate, step, size or frame count is impossible, or
+    that describes another ``.mraw`` size, is refused in one line naming the key.
+    """
     import pyMRAW
 
     header, mraw = _photron_pair(Path(path))
@@ -336,6 +391,14 @@ def open_photron(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
     except (KeyError, TypeError, ValueError) as e:
         raise VideoError(f"{header}: missing or invalid key {e} (needs 'Total Frame', "
                          "'Image Height', 'Image Width', 'Color Bit')") from None
+    for key, value in (("Total Frame", n), ("Image Height", h), ("Image Width", w)):
+        if value < 1:
+            raise VideoError(f"{header}: key {key!r} is {value}; allowed: a whole number >= 1")
+    if header.suffix.lower() == ".cihx":
+        step_key, step = "frameInfo/skipFrame", _cihx_value(header, "frameInfo/skipFrame")
+    else:
+        step_key, step = "Save Step", cih.get("Save Step")
+    step = 1 if step in (None, "") else _check_step(step, header, step_key)
     fmt = str(cih.get("File Format", "MRaw")).lower()
     if fmt != "mraw":
         raise VideoError(f"{header}: key 'File Format' is {cih.get('File Format')!r}; only "
@@ -356,11 +419,21 @@ def open_photron(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
     if size < n * frame_bytes:
         raise VideoError(f"{mraw}: truncated: {header.name} says {n} frames of {frame_bytes} "
                          f"bytes, the file holds {size // frame_bytes} ({size} bytes)")
-    fps = Fraction(str(rate)) if rate not in (None, "", 0) else None
+    if size > n * frame_bytes:
+        raise VideoError(
+            f"{mraw}: {size} bytes, more than the {n} frames of {w}x{h} at {color_bits} bits "
+            f"({n * frame_bytes} bytes) that {header.name} describes ('Total Frame', "
+            "'Image Width', 'Image Height', 'Color Bit'): the header is not this file's (the "
+            f"file holds {size / frame_bytes:g} such frames)")
+    record = None if rate in (None, "") else _check_rate(rate, header, "Record Rate(fps)")
+    fps = None if record is None else record / step
     meta = {"header": str(header), "mraw": str(mraw), "color_bits": color_bits,
             "effective_bits": effective, "effective_side": side,
             "bit_depth_source": "--bit-depth" if bit_depth is not None else "EffectiveBit Depth",
-            "camera": cih.get("Camera Type")}
+            "camera": cih.get("Camera Type"),
+            "record_fps": None if record is None else str(record), "decimation": step,
+            "decimation_key": step_key,
+            "original_total_frame": cih.get("Original Total Frame")}
     row_bytes = w * color_bits // 8 if (w * color_bits) % 8 == 0 else None
     dtype = np.uint8 if color_bits == 8 else np.dtype("<u2")
 
@@ -390,6 +463,15 @@ _SETUP_FRAMERATE16 = 0
 _SETUP_FRAMERATE = 768
 _SETUP_REALBPP = 896
 _SETUP_MIN_SIZE = _SETUP_REALBPP + 4
+_SETUP_MARK = 140  # "ST", then Length (uint16): the bytes of SETUP this file holds
+_SETUP_FRP_STEPS = 1048  # frame rate profile: FRPSteps, FRPImgNr[16], FRPRate[16]
+_SETUP_FRP_RATE = 1116
+_SETUP_DECIMATION = 1556
+_SETUP_READ = _SETUP_DECIMATION + 4
+#: tagged information block of the images' time stamps (a TIME64 per image)
+_TIME_ONLY_BLOCK = 1002
+#: time stamps and the stated rate must agree within this fraction
+RATE_TOLERANCE = 0.01
 #: biCompression of the packed gray images: (name, bits per stored sample)
 CINE_PACKINGS = {256: ("P10", 10), 1024: ("P12L", 12)}
 _PACKING_CODES = {name: (code, bits) for code, (name, bits) in CINE_PACKINGS.items()}
@@ -507,7 +589,7 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
         (_, width, height, _, bit_count, bi_compression, size_image, *_rest) = \
             _BITMAP_HEADER.unpack(bm)
         fh.seek(off_setup)
-        setup = fh.read(_SETUP_MIN_SIZE)
+        setup = fh.read(_SETUP_READ)
         fh.seek(off_offsets)
         table = fh.read(8 * count)
     if compression != 0:
@@ -610,16 +692,94 @@ def open_phantom(path: str | Path, *, bit_depth: int | None = None) -> CameraFil
             a = unpack_msb_first(buf, stored_bits, h * w).reshape(h, w)[y0:y1]
         return P10_TO_LINEAR[a] if packing[0] == "P10" else a
 
-    fps = Fraction(int(rate)) if rate else None
+    fps, timing = _cine_timing(path, setup, rate, int(off_setup), int(off_offsets), int(count))
+    meta.update(timing)
     return CameraFile("phantom", path, h, w, int(count), bits, fps, meta, read_rows)
 
 
+def _cine_time_stamps(path: Path, start: int, end: int, count: int) -> NDArray | None:
+    """The images' time stamps (s after the first image's) from the tagged block
+    ``TimeOnlyBlock`` (1002) between ``start`` and ``end`` (after SETUP, before the offsets
+    table), or None."""
+    with open(path, "rb") as fh:
+        pos = start
+        while pos + 8 <= end:
+            fh.seek(pos)
+            size, kind, _ = struct.unpack("<IHH", fh.read(8))
+            if size < 8 or pos + size > end:
+                return None
+            if kind == _TIME_ONLY_BLOCK and size - 8 >= 8 * count:
+                raw = np.frombuffer(fh.read(8 * count), "<u4").reshape(-1, 2).astype(np.int64)
+                # TIME64: seconds, and fractions of a second in units of 2**-32 whose two
+                # lowest bits are flags (IRIG synchronisation, event input)
+                ticks = (raw[:, 1] - raw[0, 1]) * (1 << 32) + (raw[:, 0] & 0xFFFFFFFC)
+                return (ticks - ticks[0]) / 2.0**32
+            pos += size
+    return None
+
+
+def _cine_timing(path: Path, setup: bytes, rate: int, off_setup: int, off_offsets: int,
+                 count: int) -> tuple[Fraction, dict[str, Any]]:
+    """The frame rate of a ``.cine``'s images, checked against what else the file says.
+
+    ``FrameRate`` (``FrameRate16`` in old files) over SETUP ``Decimation`` (the factor the
+    SDK describes as reducing the rate of the images sent to external memory; 0 or 1: none);
+    a frame rate profile (``FRPSteps`` > 0 with another rate in ``FRPRate``) means the images
+    are not evenly spaced and is refused; the median interval of the images' time stamps
+    (``TimeOnlyBlock``), when the file has them, must agree within :data:`RATE_TOLERANCE`.
+    """
+    length = struct.unpack_from("<H", setup, _SETUP_MARK + 2)[0] \
+        if len(setup) >= _SETUP_MARK + 4 and setup[_SETUP_MARK:_SETUP_MARK + 2] == b"ST" else 0
+    key = "SETUP FrameRate" if len(setup) >= _SETUP_MIN_SIZE and \
+        struct.unpack_from("<I", setup, _SETUP_FRAMERATE)[0] else "SETUP FrameRate16"
+    if not rate:
+        raise VideoError(f"{path}: {key} is 0; allowed: a frame rate above 0 and at most "
+                         f"{float(MAX_FPS):.0e} fps")
+    record = _check_rate(rate, path, key)
+    out: dict[str, Any] = {"frame_rate_key": key, "setup_length": int(length),
+                           "decimation": 1, "record_fps": None, "time_stamps": None}
+    if length >= _SETUP_FRP_RATE + 64:
+        steps = struct.unpack_from("<I", setup, _SETUP_FRP_STEPS)[0]
+        rates = struct.unpack_from("<16I", setup, _SETUP_FRP_RATE)[:min(16, steps + 1)]
+        other = sorted({int(r) for r in rates if r and r != rate})
+        if steps and other:
+            raise VideoError(f"{path}: a frame rate profile (SETUP FRPSteps {steps}, FRPRate "
+                             f"{', '.join(map(str, other))} besides FrameRate {rate}): the "
+                             "images are not evenly spaced in time; allowed: FRPSteps 0 (save "
+                             "the part recorded at one rate as its own cine)")
+    fps = record
+    if length >= _SETUP_DECIMATION + 4:
+        step = struct.unpack_from("<I", setup, _SETUP_DECIMATION)[0]
+        if step > 1:
+            fps = record / _check_step(step, path, "SETUP Decimation")
+            out.update(decimation=int(step), record_fps=str(record))
+    tagged = off_setup + length
+    stamps = _cine_time_stamps(path, tagged, off_offsets, count) \
+        if length and count >= 3 and tagged < off_offsets else None
+    if stamps is not None:
+        interval = float(np.median(np.diff(stamps)))
+        if interval > 0:
+            out["time_stamps"] = {"median_interval_s": interval, "fps": 1.0 / interval,
+                                  "n": int(count)}
+            if abs(interval * float(fps) - 1.0) > RATE_TOLERANCE:
+                said = f"{key} {rate}" + (f" / Decimation {out['decimation']}"
+                                          if out["decimation"] > 1 else "")
+                raise VideoError(
+                    f"{path}: {said} ({float(fps):g} fps) disagrees with the images' time "
+                    f"stamps (TimeOnlyBlock: a median interval of {interval * 1e3:.6g} ms, "
+                    f"{1.0 / interval:.6g} fps); allowed: a rate within "
+                    f"{RATE_TOLERANCE:.0%} of the time stamps'")
+    return fps, out
+
+
 def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | None = None,
-               annotation: bytes = b"", packing: str | None = None) -> Path:
+               annotation: bytes = b"", packing: str | None = None,
+               time_stamps: NDArray | None = None) -> Path:
     """Write gray frames ``(T, H, W)`` as a ``.cine`` file, uncompressed or packed.
 
     The layout is the documented one: CINEFILEHEADER, BITMAPINFOHEADER, a SETUP block
-    holding ``FrameRate`` and ``RealBPP``, the table of 64-bit image offsets, then each
+    holding ``FrameRate``, ``RealBPP`` and its own length, optionally a tagged block of the
+    images' time stamps (``TimeOnlyBlock``), the table of 64-bit image offsets, then each
     image after its annotation block (``AnnotationSize``, the annotation, ``ImageSize``).
     Uncompressed images (uint8 or uint16 frames) are stored bottom row first, rows padded
     to 4 bytes. With ``packing="P12L"`` (12-bit values) or ``"P10"`` (10-bit codes, which a
@@ -635,6 +795,7 @@ def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | N
     real_bpp : ``RealBPP`` (default: the stored bits per sample).
     annotation : bytes stored in each image's annotation block.
     packing : None (uncompressed), ``"P10"`` or ``"P12L"``.
+    time_stamps : ``(T,)`` time of each image (s, from 1970), stored as TIME64; None: none.
 
     Returns
     -------
@@ -667,7 +828,18 @@ def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | N
     setup_size = 5816  # SETUP size of current cine files
     off_bitmap = _CINE_HEADER.size
     off_setup = off_bitmap + _BITMAP_HEADER.size
-    off_offsets = off_setup + setup_size
+    tagged = b""
+    if time_stamps is not None:
+        stamps = np.asarray(time_stamps, np.float64).reshape(-1)
+        if stamps.size != t or not np.all(np.isfinite(stamps)) or np.any(stamps < 0):
+            raise ValueError(f"time_stamps must be {t} finite times >= 0 (s), got "
+                             f"{stamps.size}")
+        seconds = np.floor(stamps)
+        fractions = np.minimum(np.round((stamps - seconds) * 2.0**32), 2.0**32 - 4)
+        words = np.stack([fractions.astype(np.uint64) & 0xFFFFFFFC,
+                          seconds.astype(np.uint64)], axis=1).astype("<u4")
+        tagged = struct.pack("<IHH", 8 + 8 * t, _TIME_ONLY_BLOCK, 0) + words.tobytes()
+    off_offsets = off_setup + setup_size + len(tagged)
     first_image = off_offsets + 8 * t
     ann_size = 8 + len(annotation)
     offsets = first_image + np.arange(t, dtype=np.int64) * (ann_size + frame_bytes)
@@ -675,6 +847,7 @@ def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | N
     struct.pack_into("<H", setup, _SETUP_FRAMERATE16, min(int(fps), 0xFFFF))
     struct.pack_into("<I", setup, _SETUP_FRAMERATE, int(fps))
     struct.pack_into("<I", setup, _SETUP_REALBPP, int(real_bpp or bit_count))
+    struct.pack_into("<2sH", setup, _SETUP_MARK, b"ST", setup_size)
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
@@ -684,6 +857,7 @@ def write_cine(path: str | Path, frames: NDArray, fps: int, *, real_bpp: int | N
             fh.write(_BITMAP_HEADER.pack(_BITMAP_HEADER.size, w, h, 1, bit_count,
                                          bi_compression, frame_bytes, 0, 0, 0, 0))
             fh.write(bytes(setup))
+            fh.write(tagged)
             fh.write(offsets.astype("<i8").tobytes())
             for f in frames:
                 fh.write(struct.pack("<I", ann_size) + annotation

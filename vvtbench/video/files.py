@@ -160,6 +160,9 @@ class VideoInfo:
     frame_count : exact frame count stated by a camera file's header, or None.
     bits : significant bits per sample of a camera file, or None.
     n_streams : streams in the file (video, audio, data).
+    record_rate : the rate a camera file says the camera recorded at, when it stored every
+        ``decimation``-th frame only (Photron ``Save Step``); else None.
+    decimation : recorded frames per stored frame (1: every frame stored).
     """
 
     path: Path
@@ -173,6 +176,8 @@ class VideoInfo:
     frame_count: int | None = None
     bits: int | None = None
     n_streams: int = 1
+    record_rate: Fraction | None = None
+    decimation: int = 1
 
     @property
     def frame_rate(self) -> Fraction | None:
@@ -218,16 +223,20 @@ def probe_video(path: str | Path) -> VideoInfo:
     when the file has no decodable video stream.  Image sequences (a folder, a glob, a printf
     pattern), Photron, Phantom and ``.npy`` files are described from their headers
     (:mod:`vvtbench.video.cameras`): ``codec`` is the reader's kind, ``frame_count`` and
-    ``bits`` are set.
+    ``bits`` are set, the rate is that of the stored frames (a record saved every n-th frame:
+    ``record_rate`` and ``decimation``) and ``duration`` the time they span.
     """
     from .cameras import is_camera_source, open_camera_file
 
     if is_camera_source(path):
         cam = open_camera_file(path)
         pix = "gray" if cam.bits is not None and cam.bits <= 8 else "gray16le"
+        step = int(cam.meta.get("decimation") or 1)
+        record = cam.meta.get("record_fps")
         return VideoInfo(Path(str(path)), cam.width, cam.height, pix, cam.kind, cam.fps, None,
                          cam.n_frames / float(cam.fps) if cam.fps else None, cam.n_frames,
-                         cam.bits)
+                         cam.bits, record_rate=Fraction(record) if record and step > 1
+                         else None, decimation=step)
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video file not found: {path}")
