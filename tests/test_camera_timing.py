@@ -7,13 +7,15 @@ a FASTCAM SA-Z recording at 15 000 fps saved every 100th frame, and a packed-P10
 
 from __future__ import annotations
 
+import json
 import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from vvtbench.field.readers import open_camera_file, write_cine
+from vvtbench.video.cameras import open_camera_file, write_cine
+from vvtbench.modes.record import FREQUENCY_FLOOR_BINS, no_modes_reason, record_notes
 from vvtbench.video import VideoError, open_video, probe_video
 
 DATA = Path(__file__).parent / "data" / "pyidi"
@@ -38,6 +40,44 @@ def test_photron_save_step_sets_the_rate_of_the_stored_frames() -> None:
     assert vs.meta["decimation"] == 100 and vs.meta["decimation_key"] == "Save Step"
     np.testing.assert_allclose(np.stack(list(vs.frames)), np.asarray(reference) / 255,
                                atol=1e-6)
+
+
+def test_extract_reads_the_line_at_18_hz_not_1804(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture) -> None:
+    from vvtbench.cli import main
+    from vvtbench.modes import ModeSet
+
+    out = tmp_path / "out"
+    assert main(["extract", str(CIH), "-o", str(out), "--no-plots", "--quiet"]) == 0
+    captured = capsys.readouterr()
+    ms = ModeSet.load(out)
+    assert ms.fps == 150 and ms.n_frames == 75
+    bin_hz = 150 / 75
+    assert np.min(np.abs(ms.frequencies_hz - 18.04)) < bin_hz
+    assert not np.any(ms.frequencies_hz > 75)
+    # the +- is never finer than the record supports (a tenth of its 2 Hz bins)
+    assert np.all(ms.frequency_std_hz() >= FREQUENCY_FLOOR_BINS * bin_hz - 1e-12)
+    assert "using 150 fps from the header" in captured.err
+    assert "recorded at 15000 fps, every 100th frame stored: Save Step 100" in captured.err
+    assert "warning: decimated record" in captured.err and "above 75 Hz" in captured.err
+    assert "warning: short record: 75 frames" in captured.err
+    doc = json.loads((out / "modes.json").read_text())
+    kinds = [n["kind"] for n in doc["metadata"]["record_notes"]]
+    assert kinds == ["aliasing", "short_record"]
+    aliasing = doc["metadata"]["record_notes"][0]
+    assert aliasing["record_fps"] == 15000 and aliasing["stored_fps"] == 150
+    assert aliasing["nyquist_hz"] == 75 and doc["metadata"]["decimation"] == 100
+    assert doc["metadata"]["frequency_floor_hz"] == pytest.approx(0.2)
+    # a rate given against the file's is used, and said
+    assert main(["extract", str(CIH), "--fps", "15000", "-o", str(tmp_path / "o2"),
+                 "--no-plots", "--quiet"]) == 0
+    assert "--fps 15000 is not the 150 fps the file states" in capsys.readouterr().err
+    # nothing found: the reason is on screen
+    assert main(["extract", str(CIH), "--fmin", "30", "-o", str(tmp_path / "o3"),
+                 "--no-plots", "--quiet"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("0 modes") and "no peak in 30-75 Hz rose above the noise" \
+        in lines[1] and "a short record (75 frames, 0.5 s)" in lines[1]
 
 
 def _cihx(step: str) -> str:
@@ -183,3 +223,63 @@ def test_phantom_decimation_time_stamps_and_profile(tmp_path: Path) -> None:
         open_camera_file(_patch(_patch(plain, s + 768, "<I", 0), s, "<H", 0))
     with pytest.raises(VideoError, match="key 'SETUP FrameRate' is 4000000000; allowed"):
         open_camera_file(_patch(plain, s + 768, "<I", 4_000_000_000))
+
+
+# --------------------------------------------------------------------------- notes
+def test_record_notes_and_no_modes_reasons() -> None:
+    cam = {"frame_rate": "150", "frame_rate_source": "file header", "record_fps": "15000",
+           "decimation": 100, "decimation_key": "Save Step"}
+    notes = record_notes(cam, 150.0, 1000, fps_source="container")
+    assert [n["kind"] for n in notes] == ["aliasing"]
+    assert "every 100th frame stored (Save Step 100): 150 fps" in notes[0]["message"]
+    notes = record_notes(cam, 15000.0, 1000)
+    assert [n["kind"] for n in notes] == ["aliasing", "fps_mismatch"]
+    assert record_notes({}, 100.0, 1000) == []
+    short = record_notes({}, 100.0, 500, fmin=0.25)
+    assert [n["kind"] for n in short] == ["short_record"]
+    assert "nothing from --fmin 0.25 Hz to 0.6 Hz was searched; 12 s" in short[0]["message"]
+    assert record_notes({}, 100.0, 100)[0]["n_frames"] == 100
+    meta = {"band_hz": [0.0, 50.0], "min_bin": 3, "roughness": [],
+            "noise_floor": {"false_alarm": 0.01}, "rejected": []}
+    assert no_modes_reason(meta, 100.0, 1000).startswith(
+        "no peak in 0.3-50 Hz rose above the noise floor (false alarm 0.01)")
+    meta.update(roughness=[0.5, 0.2, 0.4], rejected=[
+        {"reason": "incoherent"}, {"reason": "distortion"}, {"reason": "incoherent"}])
+    assert no_modes_reason(meta, 100.0, 1000).startswith(
+        "all 3 candidate peaks were rejected (2 incoherent, 1 distortion")
+    meta.update(band_hz=[0.0, 2.0], rejected=[])
+    assert no_modes_reason(meta, 100.0, 100).startswith("nothing could be searched")
+
+
+def test_noise_alone_says_why_no_mode() -> None:
+    from vvtbench.modes import extract_modes
+
+    rng = np.random.default_rng(0)
+    frames = (0.5 + 0.01 * rng.standard_normal((96, 32, 32))).astype(np.float32)
+    ms = extract_modes(frames, 100.0, min_bin=3)
+    assert len(ms) == 0
+    assert "rose above the noise floor" in ms.metadata["no_modes"]
+    assert [n["kind"] for n in ms.metadata["record_notes"]] == ["short_record"]
+
+
+def test_peak_picker_frequency_error_has_a_floor() -> None:
+    from vvtbench.modes import modes_from_displacements
+
+    rng = np.random.default_rng(5)
+    T, fps, f0 = 512, 100.0, 23.4
+    t = np.arange(T) / fps
+    yy, xx = np.mgrid[0:16, 0:16]
+    shape = np.stack([np.sin(np.pi * (xx + 0.5) / 16), np.cos(np.pi * (yy + 0.5) / 16)], -1)
+    sig = np.exp(-2 * np.pi * f0 * 0.01 * t) * np.cos(2 * np.pi * f0 * t)
+    disp = (0.05 * sig[:, None, None, None] * shape[None]
+            + 1e-4 * rng.normal(size=(T, 16, 16, 2))).astype(np.float32)
+    ms = modes_from_displacements(disp, fps, fmax=45)
+    i = int(np.argmin(np.abs(ms.frequencies_hz - f0)))
+    floor = FREQUENCY_FLOOR_BINS * fps / T
+    assert ms.metadata["frequency_floor_hz"] == pytest.approx(floor)
+    noise = ms.mode_list("frequency_std_noise_hz")[i]
+    assert 0 < noise < floor and ms.frequency_std_hz()[i] == pytest.approx(floor)
+    # a fitted line states its own (model) error, not floored
+    fitted = modes_from_displacements(disp, fps, fmax=45, line_fit=True)
+    j = int(np.argmin(np.abs(fitted.frequencies_hz - f0)))
+    assert fitted.frequency_std_hz()[j] < floor

@@ -8,11 +8,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
 from ..modes.modeset import ModeSet
+from ..modes.record import ordinal
 from ..video.files import VIDEO_SUFFIXES, open_video
 from .args import bounded, nonnegative_float, positive_float, positive_int
 
@@ -115,8 +117,12 @@ def _note_fps(given: Path, src: Path, fps: float | None,
     except (OSError, ValueError):
         return  # extract_modes reports the error
     fps = stream.fps
+    step = int(stream.meta.get("decimation") or 1)
     if fps is not None and stream.meta.get("frame_rate_source") == "file header":
-        print(f"note: --fps not given: using {fps:g} fps from the header of {src}",
+        saved = (f" (recorded at {float(Fraction(stream.meta['record_fps'])):g} fps, every "
+                 f"{ordinal(step)} frame stored: {stream.meta.get('decimation_key')} {step})"
+                 if step > 1 and stream.meta.get("record_fps") else "")
+        print(f"note: --fps not given: using {fps:g} fps from the header of {src}{saved}",
               file=sys.stderr)
     elif fps is not None:
         print(
@@ -317,12 +323,16 @@ def main_extract(argv: list[str] | None = None) -> int:
 
         print(f"warning: {describe_lossy(ms.lossy, ms.metadata.get('fps_input'))}",
               file=sys.stderr)
+    for note in ms.metadata.get("record_notes") or []:
+        print(f"warning: {note['message']}", file=sys.stderr)
     ms.save(args.out)
     if not args.no_plots:
         from ..modes.plots import plot_modes
 
         plot_modes(ms, args.out)
     print(f"{len(ms)} modes, T = {ms.n_frames} frames at {ms.fps:g} fps -> {args.out}")
+    if not len(ms) and ms.metadata.get("no_modes"):
+        print(f"  no mode: {ms.metadata['no_modes']}")
     peak, resolved = ms.peak_displacement_px, ms.damping_resolved()
     start = ms.initial_displacement_px
     sf, (zlo, zhi) = ms.frequency_std_hz(), ms.damping_interval()

@@ -848,7 +848,11 @@ def extract_modes(
     -------
     ModeSet
         ``metadata`` records the source, parameters and timings; ``fps_source`` is
-        ``"argument"`` or ``"container"`` (then also logged at INFO level).
+        ``"argument"`` or ``"container"`` (then also logged at INFO level);
+        ``record_notes`` what the record's timing and length allow
+        (:func:`.record.record_notes`: a decimated record that may alias, a rate given
+        against the file's, a short record) and, when no mode is kept, ``no_modes`` why
+        (:func:`.record.no_modes_reason`).
     """
     if weighting not in ("confidence", "none", "noise"):
         raise ValueError(
@@ -971,6 +975,13 @@ def extract_modes(
         from .combinations import reject_combinations
 
         ms = reject_combinations(ms)
+    from .record import no_modes_reason, record_notes
+
+    ms.metadata["record_notes"] = record_notes(
+        video.meta, float(fps), ms.n_frames, average=average, fmin=fmin, min_bin=min_bin,
+        fps_source=fps_source)
+    if not len(ms):
+        ms.metadata["no_modes"] = no_modes_reason(ms.metadata, ms.fps, ms.n_frames)
     t2 = time.perf_counter()
     ms.metadata["timing_s"] = {"motion": t1 - t0, "spectrum_and_modes": t2 - t1}
     return ms

@@ -53,6 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .damping import lorentzian_fit
 from .peaks import refine_frequency
+from .record import FREQUENCY_FLOOR_BINS
 from .significance import noise_floor
 from .spectrum import DisplacementStore, Window, _as_store, _iter_blocks, hann_from_unwindowed
 from .uncertainty import CLOSE_BINS, MAX_MISFIT, block_clusters
@@ -426,7 +427,10 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     Returns
     -------
     dict
-        ``frequency_std_hz``, ``damping_lo``, ``damping_hi``, ``shape_mac_expected``,
+        ``frequency_std_hz`` (never below :data:`.record.FREQUENCY_FLOOR_BINS` of a bin,
+        ``fps / n_frames``; ``frequency_std_noise_hz`` is the jackknife's own, with the
+        parabola's bias, and ``frequency_floor_hz`` the floor), ``damping_lo``,
+        ``damping_hi``, ``shape_mac_expected``,
         ``close_mode_bias``, ``line_misfit`` (``None``: no line is fitted) and, with the
         Hann window, ``damping_unwindowed`` (the damping fitted to the spectrum without
         window; ``damping_lo`` and ``damping_hi`` are then the hull of both fits' intervals)
@@ -439,16 +443,19 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     k = np.atleast_1d(np.asarray(bins, np.int64))
     f = np.asarray(freqs, np.float64)
     M = k.size
-    empty = {"frequency_std_hz": [], "damping_lo": [], "damping_hi": [],
-             "shape_mac_expected": [], "close_mode_bias": [], "line_misfit": [],
-             "damping_unwindowed": [], "onset_amplitude_ratio": [],
-             "uncertainty_method": METHOD}
+    floor = FREQUENCY_FLOOR_BINS * float(fps) / store.n_frames
+    empty = {"frequency_std_hz": [], "frequency_std_noise_hz": [], "damping_lo": [],
+             "damping_hi": [], "shape_mac_expected": [], "close_mode_bias": [],
+             "line_misfit": [], "damping_unwindowed": [], "onset_amplitude_ratio": [],
+             "uncertainty_method": METHOD, "frequency_floor_hz": floor,
+             "frequency_floor_bins": FREQUENCY_FLOOR_BINS}
     if M == 0:
         return {**empty, "uncertainty_groups": None}
     labels, G, block = group_labels(store.frame_shape, n_groups)
     none = [None] * M
     if G < MIN_GROUPS:
-        return {**empty, "frequency_std_hz": none, "damping_lo": none, "damping_hi": none,
+        return {**empty, "frequency_std_hz": none, "frequency_std_noise_hz": none,
+                "damping_lo": none, "damping_hi": none,
                 "shape_mac_expected": none, "close_mode_bias": [False] * M,
                 "line_misfit": none, "damping_unwindowed": none,
                 "onset_amplitude_ratio": none, "uncertainty_groups": None}
@@ -491,8 +498,11 @@ def peak_uncertainty(disp: DisplacementStore | ArrayLike, freqs: ArrayLike, bins
     def clean(a: NDArray) -> list:
         return [float(x) if np.isfinite(x) else None for x in a]
 
+    sf = np.asarray(ju["frequency_std_hz"], np.float64)
     return {
-        "frequency_std_hz": clean(ju["frequency_std_hz"]),
+        **empty,
+        "frequency_std_hz": clean(np.where(np.isfinite(sf), np.maximum(sf, floor), np.nan)),
+        "frequency_std_noise_hz": clean(sf),
         "damping_lo": clean(ju["damping_lo"]),
         "damping_hi": clean(ju["damping_hi"]),
         "shape_mac_expected": clean(mac),

@@ -36,7 +36,7 @@ _PER_MODE = (
 CANDIDATE_LISTS = ("roughness", "roughness_shape", "reliable_fraction", "phase_rad",
                    "frequency_std_hz", "damping_lo", "damping_hi", "shape_mac_expected",
                    "close_mode_bias", "line_misfit", "damping_unwindowed",
-                   "onset_amplitude_ratio")
+                   "onset_amplitude_ratio", "frequency_std_noise_hz")
 
 
 @dataclass
@@ -318,7 +318,9 @@ class ModeSet:
         ``metadata`` holds the same as per-candidate lists, one entry per analysed peak, mapped
         by ``analysed_index``), each a scalar per mode, ``null`` where not computed:
 
-        - ``frequency_std_hz`` (float64, Hz): standard error of the frequency;
+        - ``frequency_std_hz`` (float64, Hz): standard error of the frequency (the peak
+          picker's never below a tenth of a bin, ``metadata["frequency_floor_hz"]``;
+          ``frequency_std_noise_hz`` is its jackknife's own);
         - ``damping_lo``, ``damping_hi`` (float64, dimensionless): 95 % interval of the
           damping ratio;
         - ``shape_mac_expected`` (float64 in ``[0, 1]``): expected MAC of the shape with the
