@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vvtbench.video.cameras import open_camera_file, write_cine
 from vvtbench.modes.record import FREQUENCY_FLOOR_BINS, no_modes_reason, record_notes
-from vvtbench.video import VideoError, open_video, probe_video
+from vvtbench.video.cameras import open_camera_file, write_cine
+from vvtbench.video.files import VideoError, open_video, probe_video
 
 DATA = Path(__file__).parent / "data" / "pyidi"
 CIH = DATA / "data_showcase.cih"

@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 from bench_motion_e2e import make_scene, run  # noqa: E402
 
-from vvtbench.samples import reader as ds  # noqa: E402
 from vvtbench.samples import generate as gen  # noqa: E402
+from vvtbench.samples import reader as ds  # noqa: E402
 
 
 @pytest.fixture(scope="module")
