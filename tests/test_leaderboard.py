@@ -681,3 +681,33 @@ def test_a_views_sweep_is_drawn_pooled_over_instances_and_against_dofs(tmp_path,
     assert sum(len(xy) == 3 and np.allclose(xy[:, 0], [0.2, 0.4, 0.6]) for xy in dof_lines) == 11
     assert sum(len(xy) == 2 and np.allclose(xy[:, 0], [0.2, 0.4])  # the invalid row's instance
                for xy in dof_lines) == 1
+
+
+def test_the_resolution_figure_draws_exactly_the_rows_its_table_averages(tmp_path, monkeypatch):
+    """A defect-free instance has no NC in the table (constant truth): its curve is not drawn
+    either, so the figure's n is the table's n."""
+    import numpy as np
+    import pandas as pd
+
+    from vvtbench.reporting import leaderboard as lb
+    from vvtbench.reporting import plots
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for i, defect in enumerate([True, True, False]):
+        w_true = np.ones(27) + (rng.random(27) if defect else 0.0)
+        np.savez(tmp_path / f"f{i}.npz", w=w_true + 0.1 * rng.random(27),
+                 v=np.ones(27) + rng.random(27),
+                 w_true=w_true, v_true=np.ones(27) + rng.random(27))
+        rows.append({"track": "t", "solver": "s", "observation": "true", "variation": "base",
+                     "status": "ok", "estimate_path": f"f{i}.npz", "scene": f"c{i}", "seed": 0,
+                     "nc_w": 0.9 if defect else np.nan, "nc_v": 0.5})
+    seen = {}
+
+    def capture(path, curves, styles, title=""):
+        seen.update({k: {f: len(c.get(f, [])) for f in ("w", "v")} for k, c in curves.items()})
+        return False
+
+    monkeypatch.setattr(plots, "plot_intrinsic_resolution", capture)
+    lb.curve_figures(pd.DataFrame(rows), "t", tmp_path, tmp_path, "figures", styles=None)
+    assert seen == {("s", "true"): {"w": 2, "v": 3}}

@@ -470,10 +470,15 @@ def curve_figures(df, track: str, base: Path, folder: Path, rel_dir: str, styles
             continue
         c = curves.setdefault((r.solver, r.observation), {"w": [], "v": []})
         for field in ("w", "v"):
+            # exactly the rows the table averages: an instance whose NC is undefined there (a
+            # constant truth, no defect) is not drawn as a curve of zeros
+            if not np.isfinite(float(getattr(r, f"nc_{field}", np.nan))):
+                continue
             ir = intrinsic_resolution(z[field], z[f"{field}_true"])
             c[field].append(ir["nc"])
             c["sigmas"] = ir["sigmas"]
     rel = f"{rel_dir}/{_slug(track)}_intrinsic_resolution.png"
+    curves = {k: c for k, c in curves.items() if "sigmas" in c}
     if curves and plot_intrinsic_resolution(folder / Path(rel).name, curves, styles,
                                             title=f"{track} [{variation}]: intrinsic "
                                                   "resolution (mean over instances)"):
@@ -759,6 +764,30 @@ def _tied_with(groups, b) -> list[str]:
     return []
 
 
+def solver_versions(df) -> str:
+    """One sentence naming the version of every solver in the table; a solver whose rows come
+    from several versions says so, with the number of rows of each.
+
+    >>> import pandas as pd
+    >>> solver_versions(pd.DataFrame({"solver": ["a", "b", "b"],
+    ...                               "solver_version": ["1.0", "1.0", "2.0"]}))
+    'Solver versions: a 1.0; b 1.0 (1 row) and 2.0 (1 row): rows of several versions.'
+    """
+    if "solver_version" not in df:
+        return "Solver versions: not recorded in this table."
+    parts = []
+    for solver in sorted(df.solver.unique()):
+        counts = df.loc[df.solver == solver, "solver_version"].fillna("?").astype(str)
+        counts = counts.value_counts().sort_index()
+        if len(counts) == 1:
+            parts.append(f"{solver} {counts.index[0]}")
+        else:
+            listed = " and ".join(f"{v} ({n} row{'s' if n != 1 else ''})"
+                                  for v, n in counts.items())
+            parts.append(f"{solver} {listed}: rows of several versions")
+    return "Solver versions: " + "; ".join(parts) + "."
+
+
 def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
     """(README.md lines, index.html text, the tracks' statistics for leaderboard.json)."""
     n_failed = int((df.status == "error").sum())
@@ -772,7 +801,8 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
              "includes 0 shares its rank (1=); with fewer than "
              f"{MIN_RANK_N} instances a solver shows its mean and n only: too few instances "
              "to rank. Reference solvers (they saw the truth: an upper bound) are shown "
-             "apart, last, and never ranked. The method is at the end of the page.")
+             "apart, last, and never ranked. The method is at the end of the page. "
+             + solver_versions(df))
     md = ["# vvtbench leaderboard\n", f"**{trust}**\n", intro + "\n", "## Summary\n",
           f"| track | ranked first: NC w mean [{_PCT} CI] | tied with | reference: NC w mean "
           f"[{_PCT} CI] | runs | failed | invalid |", "|---|---|---|---|---|---|---|"]
