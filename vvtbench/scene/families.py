@@ -48,6 +48,7 @@ __all__ = [
     "Family",
     "FamilyError",
     "draw",
+    "draw_secret",
     "family_info",
     "find_family",
     "instance_seed",
@@ -570,29 +571,68 @@ def draw(family: str | Path | Family, split: str, index: int) -> Scene:
     element centroid, the pluck is on the body) and its content belongs to ``split``
     (:func:`split_of_content`); FamilyError if that never happens.
     """
-    from ..simulation.simulate import load_nodes, material_fields
-
     fam = load_family(family)
     _check_split(split, index)
     index = int(index)
     draw_ss, _ = _seed_sequence(fam.name, split, index).spawn(2)
-    rng = np.random.default_rng(draw_ss)
+    description = (f"instance {index} of split {split} of scene family {fam.name}"
+                   + (f": {fam.description}" if fam.description else ""))
+    return _draw_valid(fam, np.random.default_rng(draw_ss), f"{fam.name}-{split}-{index:05d}",
+                       instance_seed(fam.name, split, index), description, split,
+                       f"instance {index} of split {split}")
+
+
+SECRET_BYTES = 32
+"""The length of a challenge secret (:func:`draw_secret`): 256 random bits."""
+
+
+def _secret_stream(fam: Family, secret: bytes, index: int) -> np.random.SeedSequence:
+    import hmac
+
+    key = hmac.new(bytes(secret), f"vvtbench-challenge-draw:{fam.name}".encode(),
+                   hashlib.sha256).digest()
+    return np.random.SeedSequence(int.from_bytes(key, "little"), spawn_key=(int(index),))
+
+
+def draw_secret(family: str | Path | Family, secret: bytes, index: int, name: str) -> Scene:
+    """Instance ``index`` of ``family`` drawn from ``secret`` (at least
+    :data:`SECRET_BYTES` random bytes that only the host of a challenge holds), named ``name``.
+
+    The same distributions as :func:`draw`, from a stream keyed by HMAC-SHA256(secret, family
+    name): without the secret neither the material, the geometry, the pluck, the camera nor
+    the scene ``seed`` can be recomputed, and no public split is drawn from such a stream. The
+    scene's description names no family, split or index. Deterministic in (secret, family,
+    index), so the host can draw the same instances again from the kept secret.
+    """
+    fam = load_family(family)
+    if not isinstance(secret, bytes | bytearray) or len(secret) < SECRET_BYTES:
+        raise FamilyError(f"challenge secret: allowed: at least {SECRET_BYTES} random bytes")
+    if isinstance(index, bool) or not isinstance(index, int | np.integer) or not (
+            0 <= int(index) <= MAX_INDEX):
+        raise FamilyError(f"index {index!r}: allowed: an integer 0..{MAX_INDEX}")
+    draw_ss, seed_ss = _secret_stream(fam, secret, index).spawn(2)
+    seed = int(seed_ss.generate_state(1, np.uint64)[0]) & (2**63 - 1)
+    return _draw_valid(fam, np.random.default_rng(draw_ss), name, seed,
+                       "an instance of a challenge of record", None,
+                       f"secret instance {int(index)}")
+
+
+def _draw_valid(fam: Family, rng: np.random.Generator, name: str, seed: int,
+                description: str, split: str | None, what: str) -> Scene:
+    """The first valid draw from ``rng`` (in ``split`` when one is given)."""
+    from ..simulation.simulate import load_nodes, material_fields
+
     attempts = fam.attempts
-    name = f"{fam.name}-{split}-{index:05d}"
-    seed = instance_seed(fam.name, split, index)
     last_error = "its content hashed to another split every time"
     for _ in range(attempts):
         data = _draw_once(fam, rng, attempts)
-        data.update(name=name, seed=seed,
-                    description=f"instance {index} of split {split} of scene family "
-                                f"{fam.name}" + (f": {fam.description}" if fam.description
-                                                 else ""))
+        data.update(name=name, seed=seed, description=description)
         try:
             scene = parse_scene(data, name)
         except SceneError as error:
             last_error = str(error)
             continue
-        if split_of_content(scene.to_toml_dict()) != split:
+        if split is not None and split_of_content(scene.to_toml_dict()) != split:
             continue
         try:
             mesh = _mesh_of(json.dumps(data["geometry"], sort_keys=True))[0]
@@ -603,9 +643,8 @@ def draw(family: str | Path | Family, split: str, index: int) -> Scene:
             last_error = str(error)
             continue
         return scene
-    raise FamilyError(f"{fam.source}: instance {index} of split {split}: no valid draw in "
-                      f"{attempts} attempts (last: {last_error}); allowed: distributions that "
-                      "give valid scenes")
+    raise FamilyError(f"{fam.source}: {what}: no valid draw in {attempts} attempts (last: "
+                      f"{last_error}); allowed: distributions that give valid scenes")
 
 
 def family_info(family: str | Path | Family, split: str, index: int) -> dict:
