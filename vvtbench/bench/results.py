@@ -26,7 +26,7 @@ COLUMNS = ("track", "solver", "solver_version", "reference", "config_hash", "con
            "variation_options", "seed", "observation", "n_modes", "n_modes_observed",
            *METRIC_COLUMNS, "runtime_s", "status", "error", "vvtbench_version",
            "dataset_revision", "estimate_path", "traceback_path", "estimate_sha256",
-           "observation_sha256", "sandbox")
+           "observation_sha256", "sandbox", "split_kind")
 
 
 def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
@@ -39,7 +39,7 @@ def _row(run: Run, results: dict[str, dict], cache_rel: str) -> dict:
                seed=int(run.seed), observation=run.observation, n_modes=int(run.n_modes),
                reference=bool(run.reference),
                vvtbench_version=__version__, dataset_revision=run.dataset_revision,
-               status="ok", error="")
+               status="ok", error="", split_kind="public")
     for m in METRIC_COLUMNS:
         row[m] = float("nan")
     row["runtime_s"] = float("nan")
@@ -130,7 +130,7 @@ _OPTIONAL_STR = ("estimate_path", "traceback_path", "estimate_sha256", "observat
 # Columns a table may lack (tables written before they existed); every other column is
 # required.
 OPTIONAL = ("reference", "estimate_sha256", "observation_sha256", "sandbox",
-            "observed_dof_fraction")
+            "observed_dof_fraction", "split_kind")
 
 
 def _parse_csv(raw) -> tuple[object, list[str]]:
@@ -201,7 +201,7 @@ def read_results(path: str | Path):
     return _read(path)[0]
 
 
-_ALLOWED = {"status": ("ok", "error", "invalid")}
+_ALLOWED = {"status": ("ok", "error", "invalid"), "split_kind": ("public", "challenge")}
 _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered",
                                        "nc_at_sigma_star_w", "nc_at_sigma_star_v")},
            "sigma_star_w": (0.0, None), "sigma_star_v": (0.0, None), "mode_mac": (0.0, 1.0),
@@ -383,6 +383,8 @@ def check_results(path_or_df, max_errors: int = 50) -> list[str]:
         for i, row in df.iterrows():
             if row["status"] == "ok":
                 for c in SCORED:
+                    if c == "runtime_s" and row.get("sandbox") == "submitted":
+                        continue  # a scored submission: its runtime was not measured (NaN)
                     if c in df.columns and not np.isfinite(
                             pd.to_numeric(pd.Series([row[c]]), errors="coerce").iloc[0]):
                         err(f"column {c!r}, row {i}: rows with status 'ok' need a finite "

@@ -171,8 +171,8 @@ DELEGATED = {
                         "observe -> solve -> report (see `invert --help`)"),
     "release": (_release, "build a frozen dataset release, verify a copy byte for byte, or "
                           "freeze a build (see `release --help`)"),
-    "challenge": (_challenge, "write a hidden-truth challenge from samples: problems to hand "
-                              "out, truth to keep"),
+    "challenge": (_challenge, "write a hidden-truth challenge: problems to hand out, truth to "
+                              "keep (from a family: a challenge of record, drawn from a secret)"),
     "score": (_score, "score a folder of estimates against truth the submitter does not hold"),
 }
 COMMANDS = ("simulate", "generate", "scenes", *DELEGATED)
