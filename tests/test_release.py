@@ -103,3 +103,30 @@ def test_a_rebuild_resumes(built, capsys):
     assert main(["release", "build", str(definition), "-o", str(out), "--part", "cubes"]) == 0
     assert {p: p.stat().st_mtime_ns for p in out.rglob("truth.json")} == before
     assert main(["release", "verify", str(out), "--release", str(definition)]) == 0
+
+
+def test_a_build_lists_only_its_files_and_never_writes_over_the_users(built, tmp_path,
+                                                                      capsys):
+    root, definition, out = built
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)  # a build: its own folder, resumed
+    (copy / "notes.txt").write_text("mine")
+    (copy / "cubes" / "train" / "notes.txt").write_text("mine")
+    assert main(["release", "build", str(definition), "-o", str(copy), "--part", "cubes"]) == 0
+    listed = read_sums(copy / "SHA256SUMS")
+    assert listed and not any("notes.txt" in k for k in listed)
+    assert all(k.startswith("cubes/") and "/cube_defects-" in k for k in listed)
+    assert (copy / "notes.txt").read_text() == "mine"
+    (copy / ".vvtbench-output.json").unlink()  # a build made before folders were marked
+    (copy / "notes.txt").unlink()
+    assert main(["release", "build", str(definition), "-o", str(copy), "--part", "cubes"]) == 0
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "SHA256SUMS").write_text("their own list\n")
+    (theirs / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main(["release", "build", str(definition), "-o", str(theirs), "--part", "cubes"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(theirs) in err[0] and "SHA256SUMS" in err[0]
+    assert sorted(os.listdir(theirs)) == ["SHA256SUMS", "notes.txt"]
+    assert (theirs / "SHA256SUMS").read_text() == "their own list\n"

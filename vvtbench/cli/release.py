@@ -56,15 +56,23 @@ def _fail(message) -> int:
 
 
 def _build(args, main) -> int:
-    from ..datasets.release import SUMS, ReleaseError, file_sums, load_release, write_sums
+    from ..datasets.release import (
+        SUMS,
+        ReleaseError,
+        build_sums,
+        is_earlier_build,
+        load_release,
+        write_sums,
+    )
     from ..io.files import write_text
+    from ..io.outputs import OutputError, claim_output
     try:
         rel = load_release(args.release)
         parts = [rel.part(n) for n in args.part] if args.part else list(rel.parts)
-    except ReleaseError as error:
+        out = claim_output(args.out, "release build",
+                           adopt=lambda folder: is_earlier_build(folder, rel))
+    except (ReleaseError, OutputError) as error:
         return _fail(error)
-    out = args.out
-    out.mkdir(parents=True, exist_ok=True)
     write_text(out / "release.toml", rel.source.read_text())
     t0 = time.perf_counter()
     for part in parts:
@@ -83,7 +91,10 @@ def _build(args, main) -> int:
                 print(f"error: {part.name} {split}: generate exited {code}; rerun the same "
                       "command to resume", file=sys.stderr)
                 return code
-    sums = file_sums(out)
+    try:
+        sums = build_sums(out, rel)
+    except ReleaseError as error:
+        return _fail(error)
     write_sums(sums, out / SUMS)
     size = sum((out / p).stat().st_size for p in sums)
     print(f"{rel.name}: {len(sums)} files, {size / 2**20:.1f} MiB in "

@@ -23,7 +23,9 @@ a sample byte for byte; the TOML records the sha256 of that list (``files_sha256
 
 * :func:`load_release` reads and checks a definition;
 * ``vvtbench release build NAME -o DIR`` generates every part (resumable: finished instances
-  are kept; ``--workers``, ``--scheduler`` as for ``generate``) and writes ``DIR/SHA256SUMS``;
+  are kept; ``--workers``, ``--scheduler`` as for ``generate``) and writes ``DIR/SHA256SUMS``,
+  listing only the files the build wrote (:func:`build_sums`); DIR must be new, empty or a
+  build of the same release (:func:`vvtbench.io.outputs.claim_output`);
 * :func:`verify_copy` (``vvtbench release verify DIR``) checks a copy against the frozen list
   byte for byte: every file present with its sha256, none extra.
 
@@ -43,8 +45,9 @@ from pathlib import Path
 
 from ..samples.reader import sha256_file as _sha256
 
-__all__ = ["RELEASES_DIR", "Release", "ReleaseError", "file_sums", "load_release",
-           "read_sums", "release_sums", "verify_copy", "write_sums"]
+__all__ = ["RELEASES_DIR", "Release", "ReleaseError", "build_sums", "file_sums",
+           "is_earlier_build", "load_release", "read_sums", "release_sums", "verify_copy",
+           "write_sums"]
 
 _PACKAGE_DIR = Path(__file__).resolve().parent.parent
 RELEASES_DIR = next((d for d in (_PACKAGE_DIR / "releases", _PACKAGE_DIR.parent / "releases")
@@ -226,6 +229,59 @@ def release_sums(root: str | Path) -> dict[str, str]:
         if listed.get(rel[len(owner) + 1:]) != digest:
             raise ReleaseError(f"{root / rel}: not the file its sample's manifest.json lists")
     return out
+
+
+def build_sums(root: str | Path, release: Release) -> dict[str, str]:
+    """``{relative POSIX path: sha256}`` of the files a build of ``release`` wrote under
+    ``root``: for every instance of every part and split found there, its sample's
+    ``manifest.json`` and each file that manifest lists -- never another file the folder holds
+    (the user's notes, a foreign ``SHA256SUMS``). A listed file that is missing, a link or not
+    a regular file is refused."""
+    from ..scene.families import load_family
+
+    root = Path(root)
+    out: dict[str, str] = {}
+    for part in release.parts:
+        family = load_family(part.family).name
+        for split, n in part.splits.items():
+            folder = root / part.name / split
+            if folder.is_symlink() or not folder.is_dir():
+                continue
+            for i in range(n):
+                sample = folder / f"{family}-{split}-{i:05d}"
+                manifest = sample / "manifest.json"
+                if sample.is_symlink() or manifest.is_symlink() or not manifest.is_file():
+                    continue
+                listed = _sample_manifest(manifest)
+                if listed is None:
+                    raise ReleaseError(f"{manifest}: not a sample manifest (no 'files')")
+                for name in ("manifest.json", *listed):
+                    f = sample / name
+                    if Path(name).is_absolute() or ".." in Path(name).parts:
+                        raise ReleaseError(f"{manifest}: lists {name!r}, not a file inside "
+                                           "the sample")
+                    if f.is_symlink() or not f.is_file():
+                        raise ReleaseError(f"{f}: listed by its sample's manifest.json but "
+                                           "missing or not a regular file")
+                    out[f.relative_to(root).as_posix()] = _sha256(f)
+    return dict(sorted(out.items()))
+
+
+def is_earlier_build(root: str | Path, release: Release) -> bool:
+    """Whether ``root`` is a build of ``release`` made before output folders were marked: its
+    ``release.toml`` names the release, and it holds nothing but that, ``SHA256SUMS`` and the
+    release's part folders (hidden files aside)."""
+    root = Path(root)
+    definition = root / DEFINITION
+    if definition.is_symlink() or not definition.is_file():
+        return False
+    try:
+        name = tomllib.loads(definition.read_text()).get("name")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
+    own = {DEFINITION, SUMS, *(p.name for p in release.parts)}
+    return name == release.name and all(
+        p.name in own for p in root.iterdir() if not p.name.startswith("."))
 
 
 def _prefixes(rel: str) -> list[str]:
