@@ -140,3 +140,18 @@ def test_source_sha256_of_folder_and_pattern(tmp_path):
     before = source_sha256(tmp_path)
     (tmp_path / "img_10.png").write_bytes(b"\x00" * 5)
     assert source_sha256(tmp_path) != before
+
+
+def test_a_folder_of_the_users_is_never_written_into(clip, capsys, tmp_path):
+    root, video, clicks = clip
+    mine = tmp_path / "mine"
+    (mine / "extract").mkdir(parents=True)
+    (mine / "report.md").write_text("my own notes\n")
+    (mine / "extract" / "keep.txt").write_text("mine")
+    capsys.readouterr()
+    assert _invert(root, video, clicks, mine) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(mine) in err[0] and "report.md" in err[0]
+    assert sorted(p.relative_to(mine).as_posix() for p in mine.rglob("*")) == [
+        "extract", "extract/keep.txt", "report.md"]
+    assert (mine / "report.md").read_text() == "my own notes\n"

@@ -51,7 +51,9 @@ def build_parser(prog: str = "vvtbench invert") -> argparse.ArgumentParser:
                     help="initial density (kg/m^3; kg/m^2 for plates): default 1000 / 0.5")
     ap.add_argument("--timeout", type=positive_float, default=1800.0,
                     help="seconds the solver may take (default 1800)")
-    ap.add_argument("-o", "--out", type=Path, required=True, help="report folder")
+    ap.add_argument("-o", "--out", type=Path, required=True,
+                    help="report folder: new, empty, or one `vvtbench invert` wrote before "
+                    "(its finished stages are reused)")
     return ap
 
 
@@ -64,8 +66,9 @@ def main_invert(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.fmin is not None and args.fmax is not None and args.fmin >= args.fmax:
         raise ValueError(f"--fmin {args.fmin:g} must be below --fmax {args.fmax:g}")
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"-o {args.out}: exists and is not a folder")
+    from ..io.outputs import claim_output
+
+    claim_output(args.out, "invert", create=False)  # checked before any stage runs
     config = {}
     if args.solver_set:
         checked = parse_overrides(args.solver_set, load_solver(args.solver).Config)

@@ -218,16 +218,22 @@ def invert(video: str | Path, object_spec: str, clicks: str | Path, out: str | P
            log: Callable[[str], None] = print) -> InvertResult:
     """Extract, observe, solve and report (module notes) into the folder ``out``.
 
+    ``out`` must be a new or empty folder, or one an earlier ``invert`` wrote
+    (:func:`vvtbench.io.outputs.claim_output`): a folder holding the user's own files is
+    refused before anything is written, so no ``report.md`` or ``fields.npz`` of theirs is
+    replaced or removed.
+
     Raises
     ------
     ObserveError, CalibrationError, VideoError, PluginError, ValueError
-        Bad input, one line (the CLI exits with status 2).
+        Bad input, one line (the CLI exits with status 2); an ``OutputError`` (a ValueError)
+        for an output folder that is not the command's.
     """
     from ..io.lock import RunLock, RunLocked
+    from ..io.outputs import claim_output
 
     opts = options or InvertOptions()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = claim_output(Path(out), "invert")  # new, empty, or an earlier invert's; else refused
     lock = RunLock(out, name=".invert.lock")
     try:
         lock.acquire()
