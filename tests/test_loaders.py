@@ -306,3 +306,25 @@ def test_nodes_are_padded_to_a_stated_count_and_the_grid_follows_the_options(dat
                                            r"the 100 .*n_nodes >= 125"):
         InstanceDataset(data / "train", "train", n_nodes=100,
                         options={"inference_shape": [4, 4, 4]})[0]
+
+
+def test_a_missing_truth_chunk_is_an_error_naming_it_never_zeros(data, tmp_path):
+    from vvtbench.datasets.packed import ExportError
+
+    pack = tmp_path / "damaged.zarr"
+    assert main(["export", str(data / "train"), "-o", str(pack)]) == 0
+    good = InstanceDataset(pack, "train", max_modes=16)[0]["targets"]["w"]
+    assert good.min() > 0
+    (chunk,) = sorted(pack.glob("samples/*-00000/truth/material/stiffness/c/*"))
+    rel = chunk.relative_to(pack).as_posix()
+    data_bytes = chunk.read_bytes()
+    chunk.unlink()
+    with pytest.raises(ExportError, match=re.escape(f"chunk {rel} is missing")):
+        InstanceDataset(pack, "train", max_modes=16)[0]
+    chunk.write_bytes(data_bytes[:-1] + bytes([data_bytes[-1] ^ 1]))  # changed, not missing
+    with pytest.raises(ExportError, match=re.escape(f"chunk {rel} differs")):
+        InstanceDataset(pack, "train", max_modes=16)[0]
+    chunk.write_bytes(data_bytes)
+    (pack / "SHA256SUMS").unlink()  # nothing to check the chunks against: refused too
+    with pytest.raises(ExportError, match="SHA256SUMS: missing"):
+        InstanceDataset(pack, "train", max_modes=16)[0]

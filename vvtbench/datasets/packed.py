@@ -70,11 +70,12 @@ class PackedSample(SampleView):
     ``n_views`` / ``view(i)`` for a sample filmed by several cameras."""
 
     def __init__(self, group, name: str, dataset_path: Path | None = None, *,
-                 view: int = 0):
+                 view: int = 0, chunks: _Chunks | None = None):
         from ..render import Camera
         from ..scene.scene import parse_scene
 
         self.group, self.name, self.dataset_path = group, name, dataset_path
+        self._chunks = chunks
         a = group.attrs
         self.info: dict = json.loads(_text(a["truth"]))
         self.manifest: dict = json.loads(_text(a["manifest"]))
@@ -123,7 +124,8 @@ class PackedSample(SampleView):
                               f"{index!r}; the sample holds views 0..{n - 1}")
         if int(index) == self.view_index:
             return self
-        return PackedSample(self.group, self.name, self.dataset_path, view=int(index))
+        return PackedSample(self.group, self.name, self.dataset_path, view=int(index),
+                            chunks=self._chunks)
 
     # ---- the Sample interface
     @property
@@ -137,31 +139,46 @@ class PackedSample(SampleView):
 
     @property
     def video(self):
-        """The lazy (time, row, col) video array (slice it)."""
+        """The lazy (time, row, col) video array (slice it); every chunk the export wrote must
+        be there (a missing one is an error, never frames of zeros)."""
+        view = f"/views/{self.view_index}" if self.view_index else ""
+        self._check(f"samples/{self.name}{view}/video", content=False)
         return self._view_group["video"]
+
+    def _check(self, prefix: str, content: bool) -> None:
+        if self._chunks is not None:
+            self._chunks.check(prefix, content)
 
     @property
     def times(self) -> np.ndarray:
         return self["transient/times"]
 
     def __getitem__(self, name: str) -> np.ndarray:
-        return np.asarray(self.array(name)[...])
+        """The whole truth array ``name``, its chunk files checked against the sha256 the
+        export recorded."""
+        return np.asarray(self.array(name, content=True)[...])
 
     def __contains__(self, name: str) -> bool:
         return name in self.truth_arrays
 
-    def array(self, name: str):
+    def array(self, name: str, *, content: bool = False):
         """The lazy array ``name`` of the truth (slice it to read part of it): a name of the
         sample's truth.zarr (``views/<i>/...`` is view ``i``'s array); in a view, its own
-        arrays and the shared ones."""
+        arrays and the shared ones. Every chunk file the export wrote must be there (Zarr:
+        a missing chunk would read as zeros), and with ``content`` match its sha256;
+        ExportError naming the chunk otherwise."""
         if name not in self.truth_arrays:
             raise KeyError(f"{self.name}: no truth array {name!r}; arrays: "
                            f"{', '.join(self.truth_arrays)}")
+        base = f"samples/{self.name}"
         if self.view_index and name.startswith(VIEW_GROUPS):
+            self._check(f"{base}/views/{self.view_index}/truth/{name}", content)
             return self._view_group["truth"][name]
         found = view_truth_path(name)
         if found is not None:
+            self._check(f"{base}/views/{found[0]}/truth/{found[1]}", content)
             return self.group["views"][str(found[0])]["truth"][found[1]]
+        self._check(f"{base}/truth/{name}", content)
         return self.group["truth"][name]
 
     def frames(self, start: int = 0, stop: int | None = None, *,
@@ -196,6 +213,9 @@ class PackedSample(SampleView):
         for i in range(len(self._extracted)):
             g = self.group["extracted"][str(i)]
             doc = json.loads(_text(g.attrs["modes_json"]))
+            for a in (*MODESET_ARRAYS, "frequency"):
+                if a in g:
+                    self._check(f"samples/{self.name}/extracted/{i}/{a}", content=True)
             arrays = {a: np.asarray(g[a][...]) for a in MODESET_ARRAYS if a in g}
             out.append(ModeSet(**arrays, freqs_hz=np.asarray(g["frequency"][...]),
                                fps=float(g.attrs["fps"]), n_frames=int(g.attrs["n_frames"]),
@@ -210,12 +230,61 @@ class PackedSample(SampleView):
                 f"{len(self._extracted)} extracted mode sets)")
 
 
+class _Chunks:
+    """The chunk files of a Zarr dataset, from its ``SHA256SUMS`` (written by the export),
+    grouped by array: :meth:`check` refuses an array one of whose chunks is missing (Zarr
+    reads a missing chunk as the fill value: zeros) or, with ``content``, changed."""
+
+    def __init__(self, path: Path):
+        from .release import ReleaseError, read_sums
+
+        self.path = path
+        sums_file = path / "SHA256SUMS"
+        self.by_array: dict[str, dict[str, str]] | None = None
+        self.problem: str | None = None
+        if not sums_file.is_file():
+            self.problem = (f"{sums_file}: missing (deleted, or written by an older vvtbench): "
+                            "its chunks cannot be checked and a missing chunk would read as "
+                            "zeros; export the dataset again")
+            return
+        try:
+            sums = read_sums(sums_file)
+        except ReleaseError as error:
+            self.problem = str(error)
+            return
+        self.by_array = {}
+        for rel, digest in sums.items():
+            array, sep, _ = rel.rpartition("/c/")
+            if sep:
+                self.by_array.setdefault(array, {})[rel] = digest
+        self.checked: dict[str, bool] = {}
+
+    def check(self, prefix: str, content: bool) -> None:
+        if self.by_array is None:
+            raise ExportError(self.problem)
+        if self.checked.get(prefix) or (self.checked.get(prefix) is False and not content):
+            return
+        from ..samples.reader import sha256_file
+
+        for rel, digest in self.by_array.get(prefix, {}).items():
+            f = self.path / rel
+            if f.is_symlink() or not f.is_file():
+                raise ExportError(f"{self.path}: chunk {rel} is missing (listed in "
+                                  "SHA256SUMS; it would read as zeros): the dataset is "
+                                  "damaged; copy or export it again")
+            if content and sha256_file(f) != digest:
+                raise ExportError(f"{self.path}: chunk {rel} differs from its sha256 in "
+                                  "SHA256SUMS: the dataset is damaged; copy or export it again")
+        self.checked[prefix] = content
+
+
 class PackedDataset:
     """A dataset written by :func:`vvtbench.datasets.export.pack`: ``names``, ``ds[name]`` ->
     :class:`PackedSample`."""
 
     def __init__(self, root, path: Path, closer=None):
         self.root, self.path, self._closer = root, path, closer
+        self._chunks = _Chunks(path) if path.is_dir() else None  # HDF5: one file
         self.attrs = {k: _text(v) if isinstance(v, bytes) else v
                       for k, v in root.attrs.items()}
         self.names: list[str] = json.loads(_text(self.attrs["samples"]))
@@ -223,7 +292,7 @@ class PackedDataset:
     def __getitem__(self, name: str) -> PackedSample:
         if name not in self.names:
             raise KeyError(f"{self.path}: no sample {name!r}; samples: {', '.join(self.names)}")
-        return PackedSample(self.root["samples"][name], name, self.path)
+        return PackedSample(self.root["samples"][name], name, self.path, chunks=self._chunks)
 
     def __iter__(self):
         return (self[n] for n in self.names)
