@@ -167,3 +167,42 @@ def test_calibrate_command(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--max-error" in err
     assert not (tmp_path / "c" / "calibration.json").exists()
+
+
+def test_an_object_in_millimetres_is_warned_about_naming_the_unit(tmp_path, capsys):
+    import warnings
+
+    import trimesh
+
+    from vvtbench.cli import main
+    from vvtbench.field.calibrate import load_clicks_csv
+    from vvtbench.field.objects import UnitWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # metres: no warning at all
+        assert resolve_object("box:0.05x0.05x0.05").warnings == []
+        stl = tmp_path / "m.stl"
+        trimesh.creation.box(extents=(0.04, 0.03, 0.02)).export(stl)
+        assert resolve_object(str(stl)).warnings == []
+    with pytest.warns(UnitWarning, match=r"millimetres \(it would be 0\.05 m\)"):
+        box = resolve_object("box:50x50x50")
+    assert len(box.warnings) == 1 and "50 m across" in box.warnings[0]
+    mm = tmp_path / "mm.stl"
+    trimesh.creation.box(extents=(40.0, 30.0, 20.0)).export(mm)
+    with pytest.warns(UnitWarning, match="millimetres.*scale_to"):
+        resolve_object(f"{mm}:mesh=tet")
+    clicks = tmp_path / "mm.csv"
+    clicks.write_text("x,y,z,u,v\n" + "".join(f"{x},{y},{z},{10 * i},{5 * i}\n" for i, (x, y, z)
+                                              in enumerate([(0, 0, 0), (50, 0, 0), (0, 50, 0),
+                                                            (50, 50, 0), (0, 0, 50),
+                                                            (50, 0, 50)])))
+    with pytest.warns(UnitWarning, match="clicked x,y,z.*millimetres"):
+        load_clicks_csv(clicks, resolve_object("box:0.05x0.05x0.05").mesh.points)
+    video = tmp_path / "clip.npy"
+    np.save(video, np.random.default_rng(0).random((2, 60, 80)).astype(np.float32))
+    capsys.readouterr()
+    assert main(["calibrate", str(video), "--object", "box:100x100x100", "-o",
+                 str(tmp_path / "c")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("warning: --object 'box:100x100x100'")
+    assert "millimetres" in err[0]

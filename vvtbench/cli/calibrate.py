@@ -70,13 +70,17 @@ def main_calibrate(argv: list[str] | None = None) -> int:
     from ..io.files import write_json, write_text
     from ..render.camera import Camera
 
+    from .invert import unit_warnings_on_stderr
+
     args = build_parser().parse_args(argv)
     intrinsics = parse_intrinsics(args.intrinsics)
-    obj = resolve_object(args.object)
+    with unit_warnings_on_stderr():  # an object or clicks in millimetres: one line each
+        obj = resolve_object(args.object)
     frame = _first_frame(args.video)
     height, width = frame.shape[:2]
     pts, surface = obj.mesh.points, obj.mesh.surface
-    clicks = load_clicks_csv(args.clicks, pts) if args.clicks is not None else None
+    with unit_warnings_on_stderr():
+        clicks = load_clicks_csv(args.clicks, pts) if args.clicks is not None else None
     cal = None
     if clicks is not None:
         cal = calibrate_camera(clicks.X, clicks.uv, width, height, intrinsics=intrinsics,

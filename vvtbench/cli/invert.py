@@ -10,12 +10,13 @@ input.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
 from .args import nonnegative_float, positive_float, positive_int
 
-__all__ = ["build_parser", "main_invert"]
+__all__ = ["build_parser", "main_invert", "unit_warnings_on_stderr"]
 
 
 def build_parser(prog: str = "vvtbench invert") -> argparse.ArgumentParser:
@@ -57,6 +58,28 @@ def build_parser(prog: str = "vvtbench invert") -> argparse.ArgumentParser:
     return ap
 
 
+@contextlib.contextmanager
+def unit_warnings_on_stderr():
+    """Each :class:`vvtbench.field.objects.UnitWarning` raised inside (an object or clicks
+    that look like millimetres) printed at once as one ``warning: ...`` line on stderr."""
+    import warnings
+
+    from ..field.objects import UnitWarning
+
+    shown = warnings.showwarning
+
+    def show(message, category, *args, **kwargs):
+        if issubclass(category, UnitWarning):
+            print(f"warning: {message}", file=sys.stderr, flush=True)
+        else:
+            shown(message, category, *args, **kwargs)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", UnitWarning)
+        warnings.showwarning = show
+        yield
+
+
 def main_invert(argv: list[str] | None = None) -> int:
     """``vvtbench invert VIDEO --object OBJ --clicks CSV -o OUT``; the exit status."""
     from ..field.calibrate import parse_intrinsics
@@ -81,7 +104,8 @@ def main_invert(argv: list[str] | None = None) -> int:
     from ..solving.sealed import SealedError
 
     try:
-        result = invert(args.video, args.object, args.clicks, args.out, opts)
+        with unit_warnings_on_stderr():
+            result = invert(args.video, args.object, args.clicks, args.out, opts)
     except SealedError as error:
         print(f"error: solver {args.solver}: {error}", file=sys.stderr)
         return 1

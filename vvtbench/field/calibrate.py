@@ -135,9 +135,30 @@ def load_clicks_csv(path: str | Path, points: ArrayLike) -> Clicks:
     if len(set(used)) != len(used):
         dup = sorted({v for v in used if used.count(v) > 1})
         raise CalibrationError(f"{path}: vertex {dup} clicked more than once (one click each)")
+    _check_click_units(path, [x for x, v in zip(X, verts, strict=True) if v < 0], P)
     return Clicks(np.array(X, dtype=np.float64).reshape(-1, 3),
                   np.array(uv, dtype=np.float64).reshape(-1, 2),
                   np.array(verts, dtype=np.int64) if by_vertex else None, path)
+
+
+def _check_click_units(path: str, points: list, mesh_points: NDArray) -> None:
+    """Warn (:class:`vvtbench.field.objects.UnitWarning`) when clicked 3-D points lie far
+    outside the object as if they were in millimetres."""
+    if not points or not len(mesh_points):
+        return
+    import warnings
+
+    from .objects import UnitWarning
+
+    X = np.asarray(points, dtype=np.float64)
+    lo, hi = mesh_points.min(0), mesh_points.max(0)
+    size = float(np.max(hi - lo))
+    reach = float(np.max(np.abs(np.concatenate([X - lo, X - hi])).max(1)))
+    if size > 0 and reach > 100 * size:
+        warnings.warn(f"{path}: clicked x,y,z reach {reach:g} m from an object {size:g} m "
+                      "across: points are read in metres, in the object's frame, and these "
+                      f"look like millimetres (they would reach {reach / 1000:g} m)",
+                      UnitWarning, stacklevel=3)
 
 
 def parse_intrinsics(text: str | Sequence[float] | None

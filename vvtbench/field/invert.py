@@ -372,6 +372,7 @@ def _report_md(video, obj, cal, modes, problem, estimate, opts, fps, wall, info,
                   "`solve/estimate.json`); nothing below is a result.", ""]
     else:
         lines += [f"# Material map of `{Path(str(video)).name}`", ""]
+    lines += [f"**Warning:** {w}" for w in obj.warnings] + ([""] if obj.warnings else [])
     freqs = problem.meta.get("extracted_frequencies_hz", [])
     lines += [
         "| | |", "|---|---|",

@@ -18,11 +18,15 @@ Accepted forms (:func:`resolve_object`):
 * ``path/to/scene.toml`` -- a scene file: its geometry and boundary, never its material.
 
 Every object is in its own frame: metres, lowest corner at the origin, z up. Clicked 3-D
-points (``x,y,z,u,v``) are given in that frame.
+points (``x,y,z,u,v``) are given in that frame. An object more than
+:data:`LARGEST_PLAUSIBLE_M` across is most likely given in millimetres (a 5 cm cube read as
+50 m): :func:`resolve_object` then warns (:class:`UnitWarning`, also kept in
+:attr:`FieldObject.warnings`), naming the unit and the size it would have in metres.
 """
 
 from __future__ import annotations
 
+import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,11 +38,28 @@ from ..fem.voxels import default_voxel_shape
 from ..observe import ObserveError
 from ..samples.reader import sha256_file as _sha256
 
-__all__ = ["SURFACE_SUFFIXES", "FieldObject", "is_block", "resolve_object"]
+__all__ = ["LARGEST_PLAUSIBLE_M", "SURFACE_SUFFIXES", "FieldObject", "UnitWarning", "is_block",
+           "resolve_object", "unit_problem"]
 
 SURFACE_SUFFIXES = (".stl", ".obj", ".ply")
 FORMS = ("box:LxWxH", "plate:LxW", "plate:D:circle", "a .stl/.obj/.ply surface",
          "a scene .toml")
+LARGEST_PLAUSIBLE_M = 10.0
+"""Objects filmed for vibration tomography are centimetres to a metre or two across; one
+larger than this (metres) is taken for a size in millimetres and warned about."""
+
+
+class UnitWarning(UserWarning):
+    """An object (or clicked points) whose size says it is not in metres."""
+
+
+def unit_problem(what: str, size_m: float, hint: str) -> str | None:
+    """The warning for something ``size_m`` (as read, in metres) across, or None when that is
+    a plausible size."""
+    if not (np.isfinite(size_m) and size_m > LARGEST_PLAUSIBLE_M):
+        return None
+    return (f"{what} is {size_m:g} m across: lengths are read in metres, and this looks like "
+            f"millimetres (it would be {size_m / 1000:g} m); {hint}")
 
 
 @dataclass
@@ -62,6 +83,7 @@ class FieldObject:
     inference_shape: tuple[int, ...]
     source_sha256: str | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def is_membrane(self) -> bool:
@@ -125,17 +147,34 @@ def _options(spec: str, items: list[str], allowed: dict[str, tuple[str, ...] | N
 
 def resolve_object(spec: str, *, inference_shape: tuple[int, ...] | None = None
                    ) -> FieldObject:
-    """The :class:`FieldObject` an ``--object`` argument names (module notes).
-
-    Parameters
-    ----------
-    spec : ``box:LxWxH``, ``plate:LxW``, ``plate:D:circle``, a surface mesh file or a scene.
-    inference_shape : voxel grid of the unknowns (default 8x8x8 solids, 20x20 plates).
+    """The :class:`FieldObject` an ``--object`` argument names (module notes); a size that
+    looks like millimetres is warned about (:class:`UnitWarning`, and in ``.warnings``).
 
     Raises
     ------
     ObserveError
         One line naming the argument and the allowed forms.
+    """
+    obj = _resolve(spec, inference_shape)
+    pts = obj.mesh.points
+    size = float(np.max(pts.max(0) - pts.min(0))) if len(pts) else 0.0
+    surface = obj.kind == "mesh"
+    hint = ("give :scale_to=METRES (the largest extent) or export the file in metres"
+            if surface else "give the size in metres")
+    problem = unit_problem(f"--object {str(spec).strip()!r}: the object", size, hint)
+    if problem is not None:
+        obj.warnings.append(problem)
+        _warnings.warn(problem, UnitWarning, stacklevel=2)
+    return obj
+
+
+def _resolve(spec: str, inference_shape: tuple[int, ...] | None) -> FieldObject:
+    """The object ``spec`` names, unchecked for its unit.
+
+    Parameters
+    ----------
+    spec : ``box:LxWxH``, ``plate:LxW``, ``plate:D:circle``, a surface mesh file or a scene.
+    inference_shape : voxel grid of the unknowns (default 8x8x8 solids, 20x20 plates).
     """
     text = str(spec).strip()
     head, _, rest = text.partition(":")
