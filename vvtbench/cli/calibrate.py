@@ -69,7 +69,6 @@ def main_calibrate(argv: list[str] | None = None) -> int:
     from ..field.objects import resolve_object
     from ..io.files import write_json, write_text
     from ..render.camera import Camera
-
     from .invert import unit_warnings_on_stderr
 
     args = build_parser().parse_args(argv)

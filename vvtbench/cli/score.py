@@ -87,7 +87,7 @@ def main_challenge(argv: list[str] | None = None) -> int:
     print(f"{n} instances -> {out / 'problems'} (hand out) and {out / 'truth'} (keep private)")
     print("note: these instances are public (anyone can regenerate them from the repository); "
           "their rows say split_kind=public. For a result of record give a family: "
-          f"`vvtbench challenge FAMILY --n N -o DIR`")
+          "`vvtbench challenge FAMILY --n N -o DIR`")
     _next(out)
     return 0
 
