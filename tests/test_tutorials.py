@@ -48,8 +48,13 @@ def _scores(folder: Path) -> pd.DataFrame:
 
 def test_benchmark_a_solver_runs_as_written(tmp_path):
     _run_page(TUTORIALS / "benchmark-a-solver.md", tmp_path)
-    mine, floor = _scores(tmp_path / "work" / "scores"), _scores(tmp_path / "work" / "floor-scores")
+    mine, floor = _scores(tmp_path / "host" / "scores"), _scores(tmp_path / "host" / "floor-scores")
     assert set(mine["solver"]) == {"onestep"} and set(floor["solver"]) == {"homogeneous"}
+    assert (mine["split_kind"] == "challenge").all()
+    # the host's truth and secret are never inside the participant's (the plug-in's) folder
+    assert (tmp_path / "host" / "challenge" / "truth" / "secret.key").is_file()
+    assert not any("truth" in p.name or p.name == "secret.key"
+                   for p in (tmp_path / "participant").rglob("*"))
     assert (floor["nc_w"].abs() < 1e-9).all()
     assert mine["estimate_sha256"].str.fullmatch("[0-9a-f]{64}").all()
 
