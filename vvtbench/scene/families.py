@@ -17,6 +17,10 @@ Splits never share an instance, by construction:
   from the same stream. Two identical scenes have the same hash, so they can only ever belong
   to the same split, whatever the streams produce.
 
+A *challenge of record* draws from the same distributions with :func:`draw_secret`: its
+streams are keyed by an HMAC of a secret only the host holds, not by the family name, so none
+of its instances can be recomputed from the repository, and no public split uses its streams.
+
 Draws that the mesh checks of :mod:`vvtbench.simulation.simulate` would reject (a defect catching no
 element centroid, a pluck off the body) are re-drawn from the same stream, a bounded number of
 times (``attempts``), so a valid family always resolves every instance.
