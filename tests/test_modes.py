@@ -133,6 +133,42 @@ def test_amplitude_and_frequency_at_0p01_px(sp128: Speckle, bins: float, noise: 
     assert not ms.camera_shake.any()
 
 
+def test_the_reference_is_the_temporal_mean_of_the_record(sp128: Speckle, tmp_path) -> None:
+    """A first pass gives the extractor the mean frame: an array is read twice, a one-shot
+    iterable is kept (here on disk) for the second pass, and both give the same modes."""
+    T, fps = 64, 100.0
+    frames = video(sp128, [(pattern(128, "a"), 0.02, 10 * fps / T)], T, fps)
+    frames += (0.005 * np.ptp(sp128.ref)
+               * np.random.default_rng(3).standard_normal(frames.shape)).astype("f4")
+    a = extract_modes(frames, fps, batch=16)
+    assert a.metadata["motion"]["reference"] == {"kind": "mean", "frames": T}
+    b = extract_modes(iter(list(frames)), fps, batch=16, memory_budget=0, tmpdir=str(tmp_path))
+    assert b.metadata["motion"]["reference"] == {"kind": "mean", "frames": T}
+    assert np.array_equal(a.frequencies_hz, b.frequencies_hz)
+    assert np.array_equal(a.shapes, b.shapes)
+    assert not list(tmp_path.iterdir())  # the kept frames are deleted
+    c = extract_modes(frames, fps, batch=16, reference="first")
+    assert c.metadata["motion"]["reference"] == {"kind": "first", "frames": 1}
+    with pytest.raises(ValueError, match="reference"):
+        extract_modes(frames, fps, reference="median")
+
+
+def test_frame_spool_keeps_the_order_in_ram_and_on_disk(tmp_path) -> None:
+    from vvtbench.video import FrameSpool, mean_frame
+
+    frames = np.random.default_rng(0).random((7, 5, 6)).astype("f4")
+    for budget in (1 << 20, 3 * frames[0].nbytes, 0):
+        with FrameSpool(budget, str(tmp_path), chunk_bytes=2 * frames[0].nbytes) as spool:
+            mean, n = mean_frame(f for f in frames if spool.append(f) is None)
+            assert n == 7 and np.allclose(mean, frames.mean(axis=0))
+            assert spool.on_disk == (budget < frames.nbytes)
+            assert np.array_equal(np.stack(list(spool)), frames)
+            assert np.array_equal(np.stack(list(spool)), frames)  # read again
+        assert not list(tmp_path.iterdir())
+    with pytest.raises(ValueError, match="no frames"):
+        mean_frame([])
+
+
 def test_two_superposed_modes_are_separated(sp128: Speckle) -> None:
     T, fps = 128, 100.0
     df = fps / T

@@ -1,7 +1,10 @@
 """The shipped motion extractors (plug-ins of the ``vvtbench.extractors`` group).
 
-An extractor turns a video into per-pixel displacement fields relative to its first frame.
-Contract (checked by :func:`vvtbench.solving.extractors.validate_extractor_class`)::
+An extractor turns a video into per-pixel displacement fields relative to a reference image:
+:func:`vvtbench.modes.extract_modes` gives it the temporal mean of the record (a first pass
+over the frames; ``reference="first"``: the first frame), so that the reference holds almost
+none of the sensor noise of a single frame.  Contract (checked by
+:func:`vvtbench.solving.extractors.validate_extractor_class`)::
 
     name: str                  # unique, lower-case
     version: str
@@ -18,8 +21,9 @@ and the returned ``Motion`` object has
 * ``confidence`` ``(H, W)`` and ``grid_confidence`` ``(h, w)``: non-negative per-pixel
   reliability of the reference frame (e.g. texture strength), or ``None`` for uniform;
 * ``iter_displacements(frames, batch) -> Iterator[(B, h, w, 2) float32]``: the frames
-  (an iterable of ``(H, W)`` arrays, the reference first), displacement ``[..., 0] = dx``
-  (right), ``[..., 1] = dy`` (down) in full-resolution pixels, in batches, in order;
+  (an iterable of ``(H, W)`` arrays, the record in order), displacement of each relative to
+  the reference, ``[..., 0] = dx`` (right), ``[..., 1] = dy`` (down) in full-resolution
+  pixels, in batches, in order;
 * ``describe() -> dict``: JSON-ready parameters stored in the result's metadata.
 
 This streams: the mode stage stores the batches (:class:`vvtbench.modes.DisplacementStore`)
@@ -97,8 +101,8 @@ class _PhaseStream:
         return self.pm.iter_displacements(frames, batch=batch, full_resolution=False)
 
     def describe(self) -> dict[str, Any]:
-        return {**asdict(self.config), "reference": "first frame",
-                "decimate": self.pm.decimate, "grid_shape": list(self.pm.grid_shape)}
+        return {**asdict(self.config), "decimate": self.pm.decimate,
+                "grid_shape": list(self.pm.grid_shape)}
 
 
 @dataclass
@@ -119,7 +123,7 @@ class FarnebackConfig:
 
 
 class FarnebackExtractor:
-    """Dense optical flow of every frame against the first, OpenCV's Farneback method.
+    """Dense optical flow of every frame against the reference, OpenCV's Farneback method.
 
     Frames are scaled to [0, 255] float32 with the reference's range (no 8-bit
     quantisation: OpenCV accepts float images).  Confidence = the smallest eigenvalue of the
@@ -128,7 +132,7 @@ class FarnebackExtractor:
 
     name = "farneback"
     version = "1"
-    description = "dense optical flow vs the first frame, OpenCV calcOpticalFlowFarneback"
+    description = "dense optical flow vs the reference, OpenCV calcOpticalFlowFarneback"
     Config = FarnebackConfig
 
     def __init__(self, config: FarnebackConfig | None = None) -> None:
@@ -190,5 +194,4 @@ class FarnebackMotion:
             yield np.stack(buf)
 
     def describe(self) -> dict[str, Any]:
-        return {**asdict(self.config), "reference": "first frame",
-                "grid_shape": list(self.grid_shape)}
+        return {**asdict(self.config), "grid_shape": list(self.grid_shape)}

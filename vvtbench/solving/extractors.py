@@ -1,7 +1,8 @@
 """Motion extractor plug-ins: discovery and configuration.
 
-An extractor turns video frames into per-pixel displacement fields relative to the first
-frame (the contract is in :mod:`vvtbench.motion.extractors`).  Extractors are found in the
+An extractor turns video frames into per-pixel displacement fields relative to a reference
+image, the temporal mean of the record in the pipeline (the contract is in
+:mod:`vvtbench.motion.extractors`).  Extractors are found in the
 ``vvtbench.extractors`` entry-point group (like solvers in ``vvtbench.solvers``), and a file
 can be named directly as ``path/to/file.py:ClassName``.  Shipped: ``phase`` (default) and
 ``farneback`` (OpenCV dense optical flow).  Configuration reuses the solvers' helpers

@@ -64,12 +64,14 @@ __all__ = [
     "VideoInfo",
     "VideoStream",
     "VideoWriter",
+    "FrameSpool",
     "average_frames",
     "concat_videos",
     "count_frames",
     "describe_lossy",
     "keyframe_positions",
     "lossy_description",
+    "mean_frame",
     "open_video",
     "probe_video",
     "read_frames",
@@ -546,6 +548,106 @@ def average_frames(frames: Iterable[NDArray], n: int) -> Iterator[NDArray[np.flo
         if k == n:
             yield (acc / n).astype(np.float32)
             acc, k = None, 0
+
+
+def mean_frame(frames: Iterable[ArrayLike]) -> tuple[NDArray[np.float32], int]:
+    """Temporal mean of a stream of ``(H, W)`` frames (float64 sums, one frame in memory)
+    and the number of frames; ``ValueError`` for an empty stream."""
+    acc: NDArray[np.float64] | None = None
+    n = 0
+    for f in frames:
+        a = np.asarray(f)
+        if acc is None:
+            acc = np.zeros(a.shape, np.float64)
+        elif a.shape != acc.shape:
+            raise ValueError(f"frame {n} is {a.shape}, the first was {acc.shape}")
+        acc += a
+        n += 1
+    if acc is None:
+        raise ValueError("the video has no frames")
+    return (acc / n).astype(np.float32), n
+
+
+class FrameSpool:
+    """Frames kept for a second pass over a one-shot stream (context manager).
+
+    ``append`` keeps float32 frames in RAM up to ``memory_budget`` bytes, then moves them to a
+    raw file in a temporary directory under ``tmpdir`` (deleted by :meth:`close`); iterating
+    gives them back in order, reading the file a chunk of frames at a time.
+    """
+
+    def __init__(self, memory_budget: int = 1 << 30, tmpdir: str | None = None,
+                 chunk_bytes: int = 64 << 20) -> None:
+        if memory_budget < 0:
+            raise ValueError(f"memory_budget must be >= 0, got {memory_budget}")
+        self.memory_budget = int(memory_budget)
+        self.tmpdir = tmpdir
+        self.chunk_bytes = int(chunk_bytes)
+        self.shape: tuple[int, ...] | None = None
+        self.n_frames = 0
+        self._ram: list[NDArray[np.float32]] = []
+        self._dir: str | None = None
+        self._file = None
+
+    def __enter__(self) -> FrameSpool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    @property
+    def on_disk(self) -> bool:
+        """Whether the frames live in the temporary file."""
+        return self._file is not None
+
+    def append(self, frame: ArrayLike) -> None:
+        a = np.ascontiguousarray(frame, dtype=np.float32)
+        if self.shape is None:
+            self.shape = a.shape
+        elif a.shape != self.shape:
+            raise ValueError(f"frame {self.n_frames} is {a.shape}, the first was {self.shape}")
+        self.n_frames += 1
+        if self._file is None and (self.n_frames * a.nbytes <= self.memory_budget):
+            self._ram.append(a)
+            return
+        if self._file is None:
+            self._dir = tempfile.mkdtemp(prefix="vvtbench-frames-", dir=self.tmpdir)
+            self._file = open(os.path.join(self._dir, "frames.f32"), "w+b")  # noqa: SIM115
+            for r in self._ram:
+                self._file.write(r.data)
+            self._ram = []
+        self._file.write(a.data)
+
+    def __iter__(self) -> Iterator[NDArray[np.float32]]:
+        if self._file is None:
+            yield from self._ram
+            return
+        self._file.flush()
+        size = int(np.prod(self.shape)) * 4
+        step = max(1, self.chunk_bytes // size)
+        for k0 in range(0, self.n_frames, step):
+            n = min(step, self.n_frames - k0)
+            self._file.seek(k0 * size)
+            buf = np.frombuffer(self._file.read(n * size), np.float32)
+            if buf.size != n * int(np.prod(self.shape)):
+                raise OSError("short read from the frame spool")
+            yield from buf.reshape(n, *self.shape)
+
+    def close(self) -> None:
+        """Release the frames and delete the temporary directory (idempotent)."""
+        self._ram = []
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = None
 
 
 @dataclass
