@@ -16,8 +16,9 @@ __all__ = ["EXTRACTION_REVISION", "LINE_FIT_REVISION", "extraction_revision"]
 #: 4: faint products measured against ``P_i P_j / P_max`` (``product_scaling``); 5: camera-shake
 #: peaks are parents of distortion products (a pure-shake video has no modes); 6: peak-picked
 #: dampings' intervals span the fit without window too; 7: the damping fit's log-power polish
-#: with its analytic Jacobian, at most ``POLISH_EVALUATIONS`` evaluations
-EXTRACTION_REVISION = 7
+#: with its analytic Jacobian, at most ``POLISH_EVALUATIONS`` evaluations; 8: motion against
+#: the temporal mean of the record (not its first frame), the phase refined about its estimate
+EXTRACTION_REVISION = 8
 #: revision of the opt-in line fit (``[extract] line_fit = true``; only its keys change).
 #: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
 #: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)

@@ -59,13 +59,17 @@ class PhaseConfig:
         "choices": ("local", "centre", "midpoint"),
         "help": "phase-to-pixels frequency: 'local' (reference), 'centre' (band centre) or "
                 "'midpoint' (mean of reference and current frame; second-order accurate)"})
+    refine: int = field(default=1, metadata={
+        "ge": 0, "le": 10,
+        "help": "passes solving again with the phases unwrapped, dropped and cleaned of "
+                "outliers about the estimate (not about zero, which pulls noisy motion low)"})
 
 
 class PhaseExtractor:
     """Phase-based motion from a complex steerable pyramid (:class:`PhaseMotion`), default."""
 
     name = "phase"
-    version = "1"
+    version = "2"
     description = "phase-based motion, complex steerable pyramid (Wadhwa/Davis; default)"
     Config = PhaseConfig
 
@@ -82,6 +86,7 @@ class PhaseExtractor:
             outlier_fraction=c.outlier_fraction,
             workers=c.workers,
             frequency=c.frequency,
+            refine=c.refine,
         )
         return _PhaseStream(pm, c)
 

@@ -225,6 +225,24 @@ def phase_difference(
     return (t, idx) if return_slow else t
 
 
+def _sample_index(n_band: int, n_grid: int) -> NDArray[np.intp]:
+    """Working-grid index of each of a band's ``n_band`` samples along an axis (sample ``i``
+    sits at ``i / n_band`` of the frame; the nearest grid sample, exact for the halvings of
+    the pyramid)."""
+    return np.minimum(np.rint(np.arange(n_band) * (n_grid / n_band)).astype(np.intp), n_grid - 1)
+
+
+def _at_samples(d: NDArray[np.float32], shape: tuple[int, int]) -> tuple[NDArray, NDArray]:
+    """``(dx, dy)`` of a working-grid field ``d`` ``(2, B, h, w)`` at the samples of a band of
+    ``shape`` (views for the exact halvings of the pyramid)."""
+    h, w = d.shape[-2:]
+    if h % shape[0] == 0 and w % shape[1] == 0:
+        sy, sx = h // shape[0], w // shape[1]
+        return d[0][:, ::sy, ::sx], d[1][:, ::sy, ::sx]
+    iy, ix = _sample_index(shape[0], h), _sample_index(shape[1], w)
+    return d[0][:, iy][:, :, ix], d[1][:, iy][:, :, ix]
+
+
 def _min_eig(m: NDArray[np.floating]) -> NDArray[np.floating]:
     """Smallest eigenvalue of per-pixel symmetric 2x2 matrices ``(3, ...)``."""
     half_tr = 0.5 * (m[0] + m[2])
@@ -308,6 +326,19 @@ class PhaseMotion:
         ambiguous, which makes the finest scale biased and non-linear under motions of about
         a pixel or more.  The coarser scales (wavelengths >= 8 px, wrapping only beyond
         ~2 px) then carry the estimate.  ``pi`` keeps everything.
+    refine : int, default 1
+        Passes that solve the normal equations again with every band's phase differences
+        unwrapped about the phase the current estimate ``d`` predicts (``r = wrap(dphi +
+        g . d)`` decides the wrapping and the ``max_phase`` dropping) and the outliers taken
+        as the largest unsmoothed displacements about ``d`` (the bands of the first pass are
+        kept: no new transform).  Sensor noise spreads the phase differences symmetrically
+        about their true value, but wrapping into ``(-pi, pi]``, dropping and outlier
+        removal about *zero* cut off more on the side of the motion, which pulls the
+        estimate towards zero: by 0.5 % at a texture-to-noise ratio of 20 and 2.5 % at 5
+        (speckle, 0.1 px, noise-free reference).  About ``d`` the cuts are symmetric and the
+        pull is of second order in the error of ``d``.  With refinement the first estimate
+        removes no outliers (they would pull it); ``0`` gives the first estimate alone, with
+        its outliers about zero.
     workers : int, optional
         Threads: the chunks of a batch are processed concurrently (NumPy and SciPy FFT
         release the GIL); ``-1`` = all CPUs, default 1.  Results do not depend on it.
@@ -346,6 +377,7 @@ class PhaseMotion:
         decimate: bool | None = None,
         ridge: float = 1e-4,
         max_phase: float = np.pi / 2,
+        refine: int = 1,
         workers: int | None = None,
         chunk_frames: int | None = None,
     ) -> None:
@@ -375,6 +407,9 @@ class PhaseMotion:
         if not 0.0 < max_phase <= np.pi:
             raise ValueError(f"max_phase must be in (0, pi], got {max_phase}")
         self.max_phase = float(max_phase)
+        if int(refine) != refine or refine < 0:
+            raise ValueError(f"refine must be an integer >= 0, got {refine!r}")
+        self.refine = int(refine)
         if workers is None:
             workers = 1
         if workers == -1:
@@ -393,6 +428,8 @@ class PhaseMotion:
         self._wgy: list[NDArray[np.float32]] = []  # weight * gy
         self._wgg: list[NDArray[np.float32]] = []  # weight * (gx gx, gx gy, gy gy)
         self._g: list[NDArray[np.float32]] = []  # midpoint only: reference frequency (2, h, w)
+        self._gx: list[NDArray[np.float32]] = []  # frequency used per band (0 where rejected)
+        self._gy: list[NDArray[np.float32]] = []
         m = np.zeros((3, *self.grid_shape), np.float32)
         m_s: NDArray[np.float32] | None = None
         for band, c, grad in self.pyramid.iter_bands(ref, gradient=True, workers=self.workers):
@@ -420,6 +457,8 @@ class PhaseMotion:
             self._cref.append(np.conj(c).astype(np.complex64))
             if frequency == "midpoint":
                 self._g.append(g.astype(np.float32))
+            self._gx.append(np.ascontiguousarray(g[0], dtype=np.float32))
+            self._gy.append(np.ascontiguousarray(g[1], dtype=np.float32))
             self._wgx.append(np.ascontiguousarray(w * g[0], dtype=np.float32))
             self._wgy.append(np.ascontiguousarray(w * g[1], dtype=np.float32))
             self._wgg.append(
@@ -556,7 +595,7 @@ class PhaseMotion:
         return self._rhs(self._check(frames))[0][:2]
 
     def _rhs(
-        self, x: NDArray[np.float32]
+        self, x: NDArray[np.float32], keep: list | None = None
     ) -> tuple[NDArray[np.float32], tuple[NDArray[np.intp], NDArray[np.float32]] | None]:
         """Right-hand side and the samples dropped from the normal matrix.
 
@@ -565,12 +604,77 @@ class PhaseMotion:
         dropped: they add nothing to ``b`` and are returned as ``(flat, wgg)``, flat indices
         into ``(B, h, w)`` (repeats possible, one per orientation) and their ``w g g^T``
         ``(3, n)``, to be taken out of the normal matrix (``None`` if nothing was dropped).
-        Coarser scales (wavelengths of 8 px and more) wrap only beyond ~2 px.
+        Coarser scales (wavelengths of 8 px and more) wrap only beyond ~2 px.  ``keep``, if
+        given, receives every band's phase differences (before any is dropped) and its
+        midpoint frequency change, for :meth:`_rhs_residual`.
         """
-        B = x.shape[0]
-        grid = self.grid_shape
         midpoint = self.frequency == "midpoint"
-        n_ch = 6 if midpoint else 2  # midpoint: b, then K = sum w g dg^T (4 channels)
+
+        def bands():
+            dphi = None
+            for i, item in enumerate(self.pyramid.iter_bands(x, gradient=midpoint, workers=1)):
+                band, c = item[0], item[1]
+                if band.orientation == 0:
+                    dphi = np.empty(c.shape, np.float32)
+                dg = _half_frequency_change(c, item[2], self._g[i]) if midpoint else None
+                c *= self._cref[i]  # c * conj(c_ref): its angle is the phase difference
+                _, slow = phase_difference(c, out=dphi, return_slow=True)
+                if keep is not None:
+                    keep.append((dphi.copy(), None if dg is None else dg.copy()))
+                yield i, band, dphi, dg, slow, dphi  # beyond 0.46 rad: among the slow
+
+        return self._assemble(x.shape[0], bands(), 6 if midpoint else 2)
+
+    def _rhs_residual(
+        self, kept: list, d: NDArray[np.float32]
+    ) -> tuple[NDArray[np.float32], tuple[NDArray[np.intp], NDArray[np.float32]] | None]:
+        """:meth:`_rhs` again, with the phases unwrapped about the motion ``d``.
+
+        Per band sample the phase the estimate ``d`` ``(2, B, h, w)`` (working grid, taken at
+        the band's samples) predicts is ``-g . d`` (``g`` the band's frequency, plus the
+        midpoint frequency change for ``"midpoint"``); the residual ``r = wrap(dphi + g . d)``
+        decides what is dropped (``|r| > max_phase``) and the phase used is ``r - g . d``.
+        The residual's noise is centred on zero, so wrapping and dropping, which cut
+        symmetrically about zero, no longer pull the estimate towards zero motion.
+        """
+        two_pi = np.float32(2.0 * np.pi)
+        midpoint = self.frequency == "midpoint"
+
+        def bands():
+            sampled: dict[tuple[int, int], tuple[NDArray, NDArray]] = {}
+            for i, (band, (dphi, dg)) in enumerate(zip(self.pyramid.bands, kept, strict=True)):
+                if band.shape not in sampled:
+                    sampled[band.shape] = _at_samples(d, band.shape)
+                dx, dy = sampled[band.shape]
+                gx, gy = self._gx[i], self._gy[i]
+                if dg is not None:
+                    dg = dg.copy()
+                    gx, gy = gx + dg[0], gy + dg[1]
+                pred = gx * dx
+                pred += gy * dy  # minus the predicted phase
+                r = dphi + pred
+                drop = np.flatnonzero(np.abs(r) > self.max_phase)  # every |r| > pi among them
+                if drop.size:
+                    rc = r.reshape(-1)[drop]
+                    rc -= two_pi * np.rint(rc / two_pi)
+                    r.reshape(-1)[drop] = rc
+                    drop = drop[np.abs(rc) > self.max_phase]
+                r -= pred
+                yield i, band, r, dg, drop, None
+
+        return self._assemble(d.shape[1], bands(), 6 if midpoint else 2)
+
+    def _assemble(self, B: int, bands, n_ch: int) -> tuple[
+            NDArray[np.float32], tuple[NDArray[np.intp], NDArray[np.float32]] | None]:
+        """Sum the bands' ``-w dphi g`` (and the midpoint channels) onto the working grid.
+
+        ``bands`` yields ``(i, band, dphi, dg, candidates, test)``: band index,
+        :class:`Band`, ``(B, hb, wb)`` phases (changed in place where dropped), the midpoint
+        frequency change or ``None``, flat indices of the samples to drop (at the finest
+        scale) and ``test``: if not ``None``, those among the candidates with ``|test| >
+        max_phase`` are dropped instead.
+        """
+        grid = self.grid_shape
         b = np.zeros((n_ch, B, *grid), np.float32)
         b_s = b
         drop_idx: list[NDArray[np.intp]] = []
@@ -578,18 +682,14 @@ class PhaseMotion:
         levels: list[NDArray[np.float32]] = []  # per coarser scale: its own b
         tmp: NDArray[np.float32] | None = None
         n_or = self.pyramid.n_orientations
-        for i, item in enumerate(self.pyramid.iter_bands(x, gradient=midpoint, workers=1)):
-            band, c = item[0], item[1]
+        for i, band, dphi, dg, cand, test in bands:
             if band.orientation == 0:
                 b_s = b if band.shape == grid else np.zeros((n_ch, B, *band.shape), np.float32)
-                tmp = np.empty(c.shape, np.float32)
-                dphi = np.empty(c.shape, np.float32)
-            dg = _half_frequency_change(c, item[2], self._g[i]) if midpoint else None
-            c *= self._cref[i]  # c * conj(c_ref): its angle is the phase difference
-            _, slow = phase_difference(c, out=dphi, return_slow=True)
-            if slow.size and band.shape == grid:
+                tmp = np.empty(dphi.shape, np.float32)
+            if cand.size and band.shape == grid:
                 flat = dphi.reshape(-1)
-                wrap = slow[np.abs(flat[slow]) > self.max_phase]
+                wrap = cand if test is None else cand[np.abs(test.reshape(-1)[cand])
+                                                      > self.max_phase]
                 if wrap.size:
                     flat[wrap] = 0.0
                     if dg is not None:
@@ -600,7 +700,7 @@ class PhaseMotion:
             b_s[0] -= tmp
             np.multiply(dphi, self._wgy[i], out=tmp)
             b_s[1] -= tmp
-            if dg is not None:
+            if dg is not None and n_ch > 2:
                 for k, wg in enumerate((self._wgx[i], self._wgy[i])):
                     b_s[2 + 2 * k] += wg * dg[0]
                     b_s[3 + 2 * k] += wg * dg[1]
@@ -671,8 +771,40 @@ class PhaseMotion:
     def _displacement(
         self, x: NDArray[np.float32], full_resolution: bool = True
     ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-        b, dropped = self._rhs(x)
+        kept: list | None = [] if self.refine else None
+        b, dropped = self._rhs(x, kept)
         b, k = b[:2], (b[2:] if b.shape[0] > 2 else None)
+        # with refinement the outliers are taken about the first estimate, not about zero
+        d, ms, outliers = self._solve(b, dropped, fraction=0.0 if self.refine else None)
+        if k is not None:  # midpoint: the second-order term of the phase, from d0 = d
+            b -= k[0::2] * d[0]
+            b -= k[1::2] * d[1]
+            b *= ~outliers
+            d = solve2x2(ms, self._smooth(b), self._ridge)
+        for _ in range(self.refine):  # again, phases unwrapped and tested about d
+            b, dropped = self._rhs_residual(kept, d)
+            b, k = b[:2], (b[2:] if b.shape[0] > 2 else None)
+            d0 = d
+            d, ms, outliers = self._solve(b, dropped, centre=d0)
+            if k is not None:
+                b -= k[0::2] * d[0]
+                b -= k[1::2] * d[1]
+                b *= ~outliers
+                d = solve2x2(ms, self._smooth(b), self._ridge)
+        if full_resolution and self.grid_shape != self.shape:
+            d = upsample_periodic(d, self.shape)
+        return np.ascontiguousarray(np.moveaxis(d, 0, -1), dtype=np.float32), outliers
+
+    def _solve(
+        self, b: NDArray[np.float32],
+        dropped: tuple[NDArray[np.intp], NDArray[np.float32]] | None,
+        centre: NDArray[np.float32] | None = None,
+        fraction: float | None = None,
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.bool_]]:
+        """Outlier removal, smoothing and the 2x2 solves of the normal equations with
+        right-hand side ``b`` ``(2, B, h, w)`` (changed in place); returns the displacement
+        ``(2, B, h, w)``, the smoothed normal matrix and the outlier mask.  The outliers are
+        the largest unsmoothed displacements about ``centre`` (default zero)."""
         B = b.shape[1]
         h, w = self.grid_shape
         m = self._m[:, None]
@@ -685,34 +817,29 @@ class PhaseMotion:
             np.maximum(m[0], 0.0, out=m[0])  # round-off
             np.maximum(m[2], 0.0, out=m[2])
         outliers = np.zeros((B, h, w), np.bool_)
-        if self.outlier_fraction > 0:
+        fraction = self.outlier_fraction if fraction is None else fraction
+        if fraction > 0:
             raw = solve2x2(m, b, self._ridge)
+            if centre is not None:
+                raw -= centre
             mag2 = raw[0]
             mag2 *= mag2
             raw[1] *= raw[1]
             mag2 += raw[1]
             mag2 = mag2.reshape(B, -1)
-            thr = np.quantile(mag2, 1.0 - self.outlier_fraction, axis=1)
+            thr = np.quantile(mag2, 1.0 - fraction, axis=1)
             outliers = (mag2 > thr[:, None]).reshape(B, h, w)
             b *= ~outliers
         if self.sigma > 0:
             ms = (
                 self._m_smooth[:, None]
-                if dropped is None and not self.outlier_fraction > 0
+                if dropped is None and not fraction > 0
                 else self._smooth_removed(outliers, dropped)
             )
         else:
             ms = m * ~outliers
         bs = self._smooth(b)
-        d = solve2x2(ms, bs, self._ridge)
-        if k is not None:  # midpoint: the second-order term of the phase, from d0 = d
-            b -= k[0::2] * d[0]
-            b -= k[1::2] * d[1]
-            b *= ~outliers
-            d = solve2x2(ms, self._smooth(b), self._ridge)
-        if full_resolution and self.grid_shape != self.shape:
-            d = upsample_periodic(d, self.shape)
-        return np.ascontiguousarray(np.moveaxis(d, 0, -1), dtype=np.float32), outliers
+        return solve2x2(ms, bs, self._ridge), ms, outliers
 
     def iter_displacements(
         self, frames: Iterable[ArrayLike], batch: int = 32, *, full_resolution: bool = True
