@@ -12,6 +12,20 @@ pyramid's band (:func:`~vvtbench.scoring.efficiency.band_information`), and writ
 
 Usage: ``python benchmarks/bench_efficiency.py [--size 64] [--repeats 48] [--quick]
 [--out benchmarks/efficiency.png]``.
+
+``--ratios`` runs the texture-to-noise sweep instead: at texture-to-noise ratios (the rest
+image's standard deviation over the read noise's) of 20, 5, 2 and 1, a low-contrast speckle
+(contrast 0.2: no clipping even at ratio 1) of ``--size`` (default 128) moved by 0.1 px in 4
+directions, ``--clips`` records of 4 x ``--repeats`` frames each, every extractor with the
+reference it had before (``first``: one noisy frame at rest; ``phase`` without refinement)
+and the one it has now (``mean``: the temporal mean of the record; ``phase`` refined), on the
+test texture seeds ``--seeds`` (1 2 3; the choices were made on seed 0).  Per setting: the
+gain (slope of measured on true motion) and ``eta`` with each record's mean error removed
+(an offset the spectrum removes).  Then the same per 8 px block at ratio 5 against the
+block's own bound and against the bound of the area the extractor pools
+(:func:`vvtbench.scoring.crb.footprint_crb` of its measured motion transfer function).
+Usage: ``python benchmarks/bench_efficiency.py --ratios [--seeds 1 2 3] [--clips 3]
+[--repeats 32] [--size 128]``.
 """
 
 from __future__ import annotations
@@ -21,6 +35,7 @@ import io
 import os
 import platform
 import time
+from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
@@ -47,6 +62,89 @@ def run(name: str, st: EfficiencySetting) -> dict:
     if name == IDEAL:
         return extractor_efficiency(KnownTextureShift, st, config={"block": st.size})
     return extractor_efficiency(name, st)
+
+
+RATIOS = (20.0, 5.0, 2.0, 1.0)
+#: (label, extractor, config, reference): each shipped extractor as it was and as it is
+VARIANTS = (
+    ("phase, before (first frame, no refinement)", "phase", {"refine": 0}, "first"),
+    ("phase, mean reference, no refinement", "phase", {"refine": 0}, "mean"),
+    ("phase, now (mean reference, refined)", "phase", None, "mean"),
+    ("farneback, before (first frame)", "farneback", None, "first"),
+    ("farneback, now (mean reference)", "farneback", None, "mean"),
+    ("known texture (ideal; noise-free reference)", IDEAL, None, "clean"),
+)
+
+
+def run_variant(name: str, config, st: EfficiencySetting) -> dict:
+    if name == IDEAL:
+        return extractor_efficiency(KnownTextureShift, st, config={"block": st.block_px})
+    return extractor_efficiency(name, st, config=config)
+
+
+def pooled(rows: list[dict]) -> dict:
+    """Seeds pooled: gain their mean, eta the mean bound over the mean squared error."""
+    n = len(rows)
+    gains = np.array([r["gain"] for r in rows])
+    etas = np.array([r["eta"] for r in rows])
+    return {
+        "gain": float(gains.mean()),
+        "gain_se": float(gains.std(ddof=1) / np.sqrt(n)) if n > 1 else rows[0]["gain_se"],
+        "eta": float(np.mean([r["crb_px"] ** 2 for r in rows])
+                     / np.mean([r["rmse_px"] ** 2 for r in rows])),
+        "eta_se": float(etas.std(ddof=1) / np.sqrt(n)) if n > 1 else rows[0]["eta_se"],
+        "ms_frame": float(np.mean([r["ms_frame"] for r in rows])),
+    }
+
+
+def ratio_sweep(args: argparse.Namespace) -> None:
+    """The texture-to-noise sweep (module docstring, ``--ratios``)."""
+    print(f"# {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {platform.node()}, "
+          f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; speckle {args.size}^2 grain "
+          f"{args.grain} px contrast 0.2, 0.1 px in 4 directions, {args.clips} records x "
+          f"{4 * args.repeats} frames per seed, seeds {args.seeds}, whole-frame estimate, "
+          "each record's mean error removed")
+    t0 = time.time()
+    table: dict[tuple[str, float], dict] = {}
+    for label, name, config, ref in VARIANTS:
+        for ratio in RATIOS:
+            rows = []
+            for seed in args.seeds:
+                st = EfficiencySetting(amplitude_px=0.1, size=args.size, grain=args.grain,
+                                       contrast=0.2, repeats=args.repeats, clips=args.clips,
+                                       seed=seed, reference=ref, remove_offset=True)
+                rows.append(run_variant(name, config, st.at_ratio(ratio)))
+            table[label, ratio] = p = pooled(rows)
+            print(f"{label}, ratio {ratio:g}: gain {p['gain']:.4f} +- {p['gain_se']:.4f}, eta "
+                  f"{p['eta']:.3f} +- {p['eta_se']:.3f}, {p['ms_frame']:.1f} ms/frame",
+                  flush=True)
+    print(f"# {time.time() - t0:.0f} s")
+    print("\n| extractor | " + " | ".join(f"gain @{r:g}" for r in RATIOS) + " | "
+          + " | ".join(f"eta @{r:g}" for r in RATIOS) + " |")
+    print("|---|" + "---|" * (2 * len(RATIOS)))
+    for label, *_ in VARIANTS:
+        print(f"| {label} | "
+              + " | ".join(f"{table[label, r]['gain']:.3f}" for r in RATIOS) + " | "
+              + " | ".join(f"{table[label, r]['eta']:.2f}" for r in RATIOS) + " |")
+    print("\nPer 8 px block at ratio 5 (seed " f"{args.seeds[0]}): eta against the block's own "
+          "bound and against the bound of the area the extractor pools\n")
+    print("| extractor | eta, block bound | eta, footprint bound | pooled side (px) |")
+    print("|---|---|---|---|")
+    for label, name, config, ref in VARIANTS:
+        if "before" in label or "no refinement" in label:
+            continue
+        st = EfficiencySetting(amplitude_px=0.1, size=args.size, grain=args.grain,
+                               contrast=0.2, repeats=args.repeats, clips=1, block=8,
+                               seed=args.seeds[0], reference=ref,
+                               remove_offset=True).at_ratio(5.0)
+        box = run_variant(name, config, st)
+        if name == IDEAL:
+            print(f"| {label} | {box['eta']:.2f} | (its own 8 px block) | 8 |")
+            continue
+        fp = run_variant(name, config, replace(st, bound="footprint"))
+        print(f"| {label} | {box['eta']:.2f} | {fp['eta']:.2f} | {fp['pooled_px']:.1f} |",
+              flush=True)
+    print(f"# {time.time() - t0:.0f} s in all")
 
 
 def plot(rows: list[dict], names: list[str], out: str, title: str) -> None:
@@ -94,12 +192,25 @@ def plot(rows: list[dict], names: list[str], out: str, title: str) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=64)
-    ap.add_argument("--repeats", type=int, default=48, help="noise draws per direction")
+    ap.add_argument("--size", type=int, default=None, help="frame side (64; --ratios 128)")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help="noise draws per direction (48; --ratios 32)")
     ap.add_argument("--grain", type=float, default=2.0, help="speckle grain (px)")
     ap.add_argument("--quick", action="store_true", help="3 amplitudes, 12-bit 1 %% only")
     ap.add_argument("--out", default="benchmarks/efficiency.png")
+    ap.add_argument("--ratios", action="store_true",
+                    help="the texture-to-noise sweep, old and new references")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3],
+                    help="texture and noise seeds of --ratios (test; 0 is for tuning)")
+    ap.add_argument("--clips", type=int, default=3, help="records per seed in --ratios")
     args = ap.parse_args()
+    if args.ratios:
+        args.size = args.size or 128
+        args.repeats = args.repeats or 32
+        ratio_sweep(args)
+        return
+    args.size = args.size or 64
+    args.repeats = args.repeats or 48
     names = sorted(list_extractors()) + [IDEAL]
     amps, noises, bits_list = AMPLITUDES, NOISES, BITS
     if args.quick:

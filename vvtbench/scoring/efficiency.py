@@ -10,12 +10,26 @@ sensor model (:func:`vvtbench.render.sensor.sensor_dn`: read noise ``noise`` tim
 noise optional, rounding to whole DN at ``bit_depth``), its noise drawn from
 :func:`vvtbench.render.sensor.noise_rng` ``(seed, t)``.  The shifts have magnitude ``amplitude_px``
 along ``directions`` directions ``pi / 8 + 2 pi k / directions``, each filmed ``repeats``
-times with fresh noise.
+times with fresh noise: a record of ``T = directions x repeats`` frames, ``clips`` records
+with independent noise (record ``c`` draws frame ``t``'s from ``(seed, c (T + 1) + t)``).
+:meth:`EfficiencySetting.at_ratio` sets the noise for a texture-to-noise ratio (the rest
+image's standard deviation over the read noise's).
+
+Reference
+---------
+The extractor is prepared, per record, on (``reference``) the noise-free rest image
+(``"clean"``: the known texture the bound assumes), one noisy frame at rest drawn like the
+record's (``"first"``: how extractors were used before the mean reference) or the temporal
+mean of the record (``"mean"``, a first pass: what :func:`vvtbench.modes.extract_modes` gives
+them), and measures every frame.  The truth is the shift relative to the reference's
+position (the mean shift, zero here, for ``"mean"``).  A noisy reference adds an error common
+to all frames of a record, which modal analysis never sees (the spectrum removes the mean):
+with ``remove_offset`` each record's mean error is removed (its RMS is ``offset_px``) and the
+squared errors scaled by ``T / (T - 1)``; what a noisy reference does to the *gain* stays in.
 
 Estimate and bound
 ------------------
-The extractor is prepared on the noise-free rest image (the known texture the bound
-assumes) and measures every frame.  Its estimate of a block's shift is the mean of its
+Its estimate of a block's shift is the mean of its
 displacement field over the grid samples inside the block (``block`` px; ``None`` = the whole
 frame, which, being periodic, has no edges).  The bound is the ruler's
 (:func:`vvtbench.render.crb.block_crb` of :func:`~vvtbench.render.crb.pixel_fisher` with
@@ -25,12 +39,19 @@ give the bias (``mean^2 - var / repeats``, unbiased) and the variance (``ddof = 
 add up to the mean squared error.  Then
 
 * ``eta = mean(sigma_CRB^2) / MSE`` (bias included) and ``eta_variance`` (bias left out);
-* ``eta_se``: its Monte-Carlo standard error from the spread of the per-frame squared errors.
+* ``eta_se``: its Monte-Carlo standard error from the spread of the per-frame squared errors
+  (frames of a record share its reference: with a noisy one this understates it);
+* ``gain``: the least-squares slope of the estimates on the true shifts (1: no amplitude
+  bias), its standard error from the records' slopes (from the frames for one record).
 
 An unbiased estimator has ``eta <= 1``; :class:`KnownTextureShift` (Gauss-Newton on the
-true texture) reaches it.  With a block smaller than the frame a windowed extractor also uses
-pixels just outside the block, so its ``eta`` can exceed 1 by the share of its window that
-spills over; the whole frame has no such spill.
+true texture) reaches it.  The block bound is the bound of the block's own pixels, and an
+extractor that pools the pixels around the block (a smoothing window, the support of its
+filters) holds more information than that: per 8 px block the phase extractor "beats" it
+about 6x.  With ``bound = "footprint"`` a block is compared with the bound of the area the
+extractor pools instead (:func:`vvtbench.scoring.crb.footprint_crb`, the window measured as
+the extractor's response to motion varying across the frame, :func:`motion_transfer`); the
+whole frame, being periodic, is the same either way.
 
 :func:`band_information` says how much of the bound's Fisher information lies in the band
 a steerable pyramid keeps.
@@ -41,7 +62,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -51,14 +72,22 @@ from ..render import crb
 from ..render.sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
 
 __all__ = [
+    "REFERENCES",
     "EfficiencySetting",
     "KnownTextureShift",
     "band_information",
     "extractor_efficiency",
+    "reference_frame",
     "rest_image",
+    "texture_std",
     "true_shifts",
     "iter_frames",
+    "motion_transfer",
 ]
+
+
+#: what the extractor is prepared on (module docstring, "Reference")
+REFERENCES = ("clean", "first", "mean")
 
 
 @dataclass(frozen=True)
@@ -77,6 +106,10 @@ class EfficiencySetting:
     shot_noise: bool = False
     full_well: float = FULL_WELL_ELECTRONS
     seed: int = 0
+    reference: str = "clean"
+    clips: int = 1
+    remove_offset: bool = False
+    bound: str = "block"
 
     def __post_init__(self) -> None:
         if not self.amplitude_px >= 0:
@@ -89,6 +122,12 @@ class EfficiencySetting:
         b = self.size if self.block is None else int(self.block)
         if b < 1 or self.size % b:
             raise ValueError(f"block {self.block} must divide the frame size {self.size}")
+        if self.reference not in REFERENCES:
+            raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
+        if self.bound not in ("block", "footprint"):
+            raise ValueError(f"bound must be 'block' or 'footprint', got {self.bound!r}")
+        if int(self.clips) < 1:
+            raise ValueError(f"clips must be >= 1, got {self.clips}")
 
     @property
     def block_px(self) -> int:
@@ -97,6 +136,18 @@ class EfficiencySetting:
     @property
     def n_frames(self) -> int:
         return self.directions * self.repeats
+
+    def at_ratio(self, ratio: float) -> EfficiencySetting:
+        """This setting with the read noise for a texture-to-noise ratio ``ratio``: the
+        standard deviation of the rest image over that of the noise (:func:`texture_std`)."""
+        if not ratio > 0:
+            raise ValueError(f"ratio must be > 0, got {ratio}")
+        return replace(self, noise=texture_std(self) / float(ratio))
+
+
+def texture_std(setting: EfficiencySetting) -> float:
+    """Standard deviation of the rest image as a fraction of full scale (the ``noise`` unit)."""
+    return float(np.std(rest_image(setting))) / float(2 ** int(setting.bit_depth) - 1)
 
 
 def rest_image(setting: EfficiencySetting) -> NDArray[np.float64]:
@@ -123,25 +174,53 @@ def _shift(spectrum: NDArray[np.complex128], s: NDArray[np.float64]) -> NDArray[
     return np.fft.ifft2(spectrum * np.exp(-1j * (wx * s[0] + wy * s[1]))).real
 
 
-def iter_frames(setting: EfficiencySetting) -> Iterator[NDArray[np.float32]]:
-    """The noisy frames (DN, float32), one at a time (memory independent of their number)."""
+def iter_frames(setting: EfficiencySetting, clip: int = 0) -> Iterator[NDArray[np.float32]]:
+    """The noisy frames (DN, float32) of clip ``clip``, one at a time (memory independent of
+    their number); clip ``c``'s frame ``t`` draws its noise from ``noise_rng(seed, c (T + 1)
+    + t)``, so clip 0 is the same for any ``clips``."""
     dn_max = float(2 ** int(setting.bit_depth) - 1)
     spec = np.fft.fft2(rest_image(setting) / dn_max)
+    base = int(clip) * (setting.n_frames + 1)
     for t, s in enumerate(true_shifts(setting)):
         clean = _shift(spec, s)
         dn = sensor_dn(clean[None], int(setting.bit_depth), setting.noise * dn_max,
-                       setting.shot_noise, setting.full_well, noise_rng(setting.seed, t))
+                       setting.shot_noise, setting.full_well, noise_rng(setting.seed, base + t))
         yield dn.astype(np.float32)
 
 
-def _crb_variance(rest_dn: NDArray[np.float64], setting: EfficiencySetting) -> NDArray:
-    """``(nby, nbx, 2)`` squared per-axis bound (px^2) of each block."""
+def reference_frame(setting: EfficiencySetting, clip: int = 0) -> NDArray[np.float32]:
+    """What the extractor is prepared on in clip ``clip`` (DN, float32): the noise-free rest
+    image (``"clean"``), one noisy frame at rest drawn like the clip's (``"first"``; noise
+    ``noise_rng(seed, c (T + 1) + T)``) or the temporal mean of the clip's frames
+    (``"mean"``, a first pass over them)."""
+    rest = rest_image(setting)
+    if setting.reference == "clean":
+        return rest.astype(np.float32)
+    if setting.reference == "first":
+        dn_max = float(2 ** int(setting.bit_depth) - 1)
+        rng = noise_rng(setting.seed, int(clip) * (setting.n_frames + 1) + setting.n_frames)
+        return sensor_dn(rest[None] / dn_max, int(setting.bit_depth), setting.noise * dn_max,
+                         setting.shot_noise, setting.full_well, rng).astype(np.float32)
+    acc = np.zeros(rest.shape)
+    for f in iter_frames(setting, clip):
+        acc += f
+    return (acc / setting.n_frames).astype(np.float32)
+
+
+def _crb_variance(rest_dn: NDArray[np.float64], setting: EfficiencySetting,
+                  transfer: NDArray[np.float64] | None = None) -> NDArray:
+    """``(nby, nbx, 2)`` squared per-axis bound (px^2) of each block: of the block's own
+    pixels, or (``bound = "footprint"``) of the block pooled by the window of motion
+    transfer function ``transfer`` (:func:`vvtbench.scoring.crb.footprint_crb`)."""
     var = crb.noise_variance_dn2(rest_dn / (2 ** int(setting.bit_depth) - 1), setting.bit_depth,
                                  setting.noise * (2 ** int(setting.bit_depth) - 1),
                                  setting.shot_noise, setting.full_well)
     pad = 2
     jp = crb.pixel_fisher(np.pad(rest_dn, pad, mode="wrap"), np.pad(var, pad, mode="wrap"))
     jp = jp[pad:-pad, pad:-pad]
+    if setting.bound == "footprint":
+        return crb.footprint_crb(jp, setting.block_px, transfer=transfer,
+                                 periodic=True)["std_px"] ** 2
     return crb.block_crb(jp, block=setting.block_px)["std_px"] ** 2
 
 
@@ -178,47 +257,84 @@ def extractor_efficiency(extractor: Any, setting: EfficiencySetting, *,
     Returns
     -------
     dict
-        The setting, ``crb_px`` (RMS bound), ``rmse_px``, ``bias_px``, ``std_px`` (root of
-        the mean bias^2, clipped at 0, and variance), ``bias2_px2`` (unclipped: may be slightly
-        negative from noise; ``rmse^2 = bias2 + std^2``), ``eta``, ``eta_variance``,
-        ``eta_se``, ``n_frames``, ``ms_frame`` (extraction wall time per frame).
+        The setting, ``texture_noise_ratio``, ``crb_px`` (RMS bound), ``rmse_px``,
+        ``bias_px``, ``std_px`` (root of the mean bias^2, clipped at 0, and variance),
+        ``bias2_px2`` (unclipped: may be slightly negative from noise; ``rmse^2 = bias2 +
+        std^2``), ``eta``, ``eta_variance``, ``eta_se``, ``gain`` (least-squares slope of the
+        estimate against the true shift relative to the reference's position) and
+        ``gain_se``, ``offset_px`` (RMS of the clips' mean errors, removed with
+        ``remove_offset``), ``pooled_px`` (with the footprint bound: the side of the area the
+        extractor pools into a block, :func:`vvtbench.scoring.crb.footprint_crb`), ``n_frames``
+        (over all clips), ``ms_frame`` (extraction wall time per frame).
     """
     from ..solving.extractors import make_extractor
 
     ext = make_extractor(extractor, config)
     rest = rest_image(setting)
-    crb_var = _crb_variance(rest, setting)
-    motion = ext.prepare(rest.astype(np.float32))
-    truth = true_shifts(setting)
-    K, R = setting.directions, setting.repeats
+    shifts = true_shifts(setting)
+    K, R, T, C = setting.directions, setting.repeats, setting.n_frames, int(setting.clips)
     nb = setting.size // setting.block_px
     s1 = np.zeros((K, nb, nb, 2))
     s2 = np.zeros((K, nb, nb, 2))
-    frame_mse = np.empty(setting.n_frames)
-    t0, elapsed = 0, 0.0
-    frames = iter_frames(setting)
-    while t0 < setting.n_frames:
-        chunk = [next(frames) for _ in range(min(batch, setting.n_frames - t0))]
-        tic = time.perf_counter()
-        d = np.concatenate(list(motion.iter_displacements(iter(chunk), batch=len(chunk))))
-        elapsed += time.perf_counter() - tic
-        est = _block_means(np.asarray(d), (setting.size, setting.size), setting.block_px)
-        err = est - truth[t0:t0 + len(chunk), None, None, :]
-        k = np.arange(t0, t0 + len(chunk)) % K
+    frame_mse = np.empty(T * C)
+    clip_gain = np.empty(C)
+    offsets = np.empty(C)
+    num = den = 0.0
+    elapsed = 0.0
+    for c in range(C):
+        motion = ext.prepare(reference_frame(setting, c))
+        # the truth relative to the reference's position: the rest, or the clip's mean shift
+        truth = shifts - shifts.mean(axis=0) if setting.reference == "mean" else shifts
+        err = np.empty((T, nb, nb, 2))
+        frames = iter_frames(setting, c)
+        t0 = 0
+        while t0 < T:
+            chunk = [next(frames) for _ in range(min(batch, T - t0))]
+            tic = time.perf_counter()
+            d = np.concatenate(list(motion.iter_displacements(iter(chunk), batch=len(chunk))))
+            elapsed += time.perf_counter() - tic
+            est = _block_means(np.asarray(d), (setting.size, setting.size), setting.block_px)
+            err[t0:t0 + len(chunk)] = est - truth[t0:t0 + len(chunk), None, None, :]
+            t0 += len(chunk)
+        offset = err.mean(axis=0)
+        offsets[c] = math.sqrt(float(np.mean(offset**2)))
+        if setting.remove_offset:  # harmless downstream (the spectrum removes the mean)
+            err = (err - offset) * math.sqrt(T / (T - 1))
+        k = np.arange(T) % K
         np.add.at(s1, k, err)
         np.add.at(s2, k, err**2)
-        frame_mse[t0:t0 + len(chunk)] = np.mean(err**2, axis=(1, 2, 3))
-        t0 += len(chunk)
-    mean = s1 / R
-    var = (s2 - R * mean**2) / (R - 1)
-    bias2 = mean**2 - var / R
-    mse = float(np.mean(s2 / R))
+        frame_mse[c * T:(c + 1) * T] = np.mean(err**2, axis=(1, 2, 3))
+        proj = np.einsum("tijc,tc->t", err, truth) / (nb * nb)
+        n_c, d_c = float(proj.sum()), float(np.sum(truth**2))
+        clip_gain[c] = 1.0 + n_c / d_c if d_c > 0 else math.nan
+        num, den = num + n_c, den + d_c
+    transfer = pooled = None
+    if setting.bound == "footprint":
+        transfer = motion_transfer(ext, setting)
+        pooled = crb.footprint_crb(np.zeros((setting.size, setting.size, 3)), setting.block_px,
+                                   transfer=transfer, periodic=True)["pooled_px"]
+    crb_var = _crb_variance(rest, setting, transfer)
+    n = R * C
+    mean = s1 / n
+    var = (s2 - n * mean**2) / (n - 1)
+    bias2 = mean**2 - var / n
+    mse = float(np.mean(s2 / n))
     bound = float(np.mean(crb_var))
     eta = bound / mse if mse > 0 else math.inf
     v = float(np.mean(var))
+    gain = 1.0 + num / den if den > 0 else math.nan
+    if C > 1:
+        gain_se = float(np.std(clip_gain, ddof=1)) / math.sqrt(C)
+    elif den > 0:  # frames of one clip share its reference: a lower bound of the error
+        gain_se = float(np.std(proj, ddof=1)) * math.sqrt(T) / den
+    else:
+        gain_se = math.nan
+    dn_max = float(2 ** int(setting.bit_depth) - 1)
     return {
         **asdict(setting),
         "extractor": getattr(ext, "name", type(ext).__name__),
+        "texture_noise_ratio": float(np.std(rest)) / (setting.noise * dn_max)
+        if setting.noise > 0 else math.inf,
         "crb_px": math.sqrt(bound),
         "rmse_px": math.sqrt(mse),
         "bias_px": math.sqrt(max(float(np.mean(bias2)), 0.0)),
@@ -228,9 +344,51 @@ def extractor_efficiency(extractor: Any, setting: EfficiencySetting, *,
         "eta_variance": bound / v if v > 0 else math.inf,
         "eta_se": eta * float(np.std(frame_mse, ddof=1)) / math.sqrt(frame_mse.size) / mse
         if mse > 0 else math.nan,
-        "n_frames": setting.n_frames,
-        "ms_frame": 1e3 * elapsed / setting.n_frames,
+        "gain": gain,
+        "gain_se": gain_se,
+        "offset_px": math.sqrt(float(np.mean(offsets**2))),
+        "pooled_px": pooled,
+        "n_frames": T * C,
+        "ms_frame": 1e3 * elapsed / (T * C),
     }
+
+
+def motion_transfer(extractor: Any, setting: EfficiencySetting, *, config: Any = None,
+                    eps_px: float = 0.01) -> NDArray[np.float64]:
+    """An extractor's response to motion that varies across the frame, ``(size // 2 + 1,)``.
+
+    Frames are the noise-free rest image moved by ``dx = +-eps_px cos(2 pi m x / N)`` (to
+    first order, ``I - dx dI/dx`` with the exact spectral derivative), the extractor prepared
+    on the rest image; ``T(m)`` is the projection of the difference of its two ``dx`` fields
+    on that cosine over ``2 eps_px`` (a constant offset of the extractor cancels): 1 for a
+    uniform motion read without bias, falling with ``m`` as the extractor pools pixels (its
+    spatial support is the inverse transform).  Wave numbers its grid cannot hold (from
+    half the grid's samples on) are 0.
+    """
+    from ..extractors import make_extractor
+
+    ext = make_extractor(extractor, config)
+    rest = rest_image(setting)
+    n = setting.size
+    spec = np.fft.fft2(rest)
+    wx = 2 * np.pi * np.fft.fftfreq(n)[None, :]
+    grad_x = np.fft.ifft2(spec * (1j * wx)).real
+    x = np.arange(n)
+    motion = ext.prepare(rest.astype(np.float32))
+    frames = [rest - sign * eps_px * np.cos(2 * np.pi * m * x / n)[None, :] * grad_x
+              for m in range(n // 2 + 1) for sign in (1.0, -1.0)]
+    d = np.concatenate(list(motion.iter_displacements(
+        iter([f.astype(np.float32) for f in frames]), batch=len(frames))))
+    d = (d[0::2, ..., 0].astype(np.float64) - d[1::2, ..., 0]) / 2.0
+    w = d.shape[2]
+    xs = np.arange(w) * n / w
+    out = np.zeros(n // 2 + 1)
+    for m in range(min(n // 2, w // 2) + 1):
+        c = np.cos(2 * np.pi * m * xs / n)
+        if m == w // 2 and m > 0:  # the grid's Nyquist: only half the motion is seen
+            continue
+        out[m] = float(np.mean(d[m].mean(axis=0) * c) / np.mean(c * c)) / eps_px
+    return out
 
 
 def band_information(rest_dn: ArrayLike, n_scales: int = 3) -> dict[str, float]:
