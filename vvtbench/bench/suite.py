@@ -111,6 +111,9 @@ class ExtractOptions(_Strict):
     average: Count | None = Field(None, description="an integer >= 1 (frames)")
     detrend: Literal["mean", "linear", "none"] | None = Field(
         None, description="'mean', 'linear' or 'none'")
+    reference: Literal["mean", "first"] | None = Field(
+        None, description="'mean' or 'first' (what motion is measured against: the record's "
+        "mean frame, the default, or its first frame)")
     shake_threshold: Fraction | None = Field(None, description="a MAC in [0, 1]")
     line_fit: bool | None = Field(None, description="true or false")
     product_roughness: Fraction | None = Field(

@@ -194,6 +194,10 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument(
         "--window", choices=("hann", "none"), default="hann", help="temporal taper of the FFT"
     )
+    ap.add_argument("--reference", choices=("mean", "first"), default="mean",
+                    help="what motion is measured against: the temporal mean of the record "
+                         "(read in a first pass) or its first frame (noisier: amplitudes read "
+                         "low)")
     ap.add_argument("--keep-shake", action="store_true", help="keep camera-shake peaks")
     ap.add_argument(
         "--keep-distortion",
@@ -303,7 +307,8 @@ def main_extract(argv: list[str] | None = None) -> int:
         min_power_ratio=args.min_power_ratio, n_scales=args.scales,
         n_orientations=args.orientations, sigma=args.sigma, batch=args.batch,
         workers=args.workers, average=args.average, roi=args.roi, max_frames=args.max_frames,
-        weighting=args.weighting, window=args.window, keep_camera_shake=args.keep_shake,
+        weighting=args.weighting, window=args.window, reference=args.reference,
+        keep_camera_shake=args.keep_shake,
         reject_distortion=not args.keep_distortion,
         memory_budget=int(args.memory_budget_mb * (1 << 20)), progress=False,
         line_fit=args.line_fit, stability=not args.no_plots,
