@@ -176,6 +176,27 @@ def test_static_shifts_recovered(
         np.testing.assert_allclose(med, true, atol=0.05 * d, err_msg=f"shift {true}")
 
 
+@pytest.mark.parametrize("kw", [{}, {"decimate": False}, {"downsample": False},
+                                {"frequency": "midpoint"}, {"refine": 2}],
+                         ids=["decimated", "full-grid", "no-downsample", "midpoint", "twice"])
+def test_refinement_keeps_exact_shifts_exact(speckle: Speckle, kw: dict) -> None:
+    """Without noise the refined estimate is the first one, on every pyramid layout (coarse
+    bands sampled from the working grid), also for shifts whose finest phases wrap."""
+    shifts = [(0.3, -0.2), (1.2, 0.4)]
+    frames = np.stack([speckle.shift(*s) for s in shifts])
+    refined = PhaseMotion(speckle.ref, **kw)
+    first = PhaseMotion(speckle.ref, **{**kw, "refine": 0})
+    assert refined.refine == kw.get("refine", 1)
+    mask = _interior(refined)
+    for est, est0, true in zip(refined.displacement(frames), first.displacement(frames), shifts,
+                               strict=True):
+        np.testing.assert_allclose(np.median(est[mask], axis=0), true, atol=0.03 * np.hypot(*true))
+        assert np.sqrt(np.mean((est[mask] - true) ** 2)) <= \
+            1.2 * np.sqrt(np.mean((est0[mask] - true) ** 2)) + 1e-4
+    with pytest.raises(ValueError, match="refine"):
+        PhaseMotion(speckle.ref, refine=-1)
+
+
 def test_centre_frequency_fallback_is_roughly_right(speckle: Speckle) -> None:
     """Band-centre conversion is biased by the texture's spectrum (~10-15% here)."""
     pm = PhaseMotion(speckle.ref, frequency="centre")
