@@ -134,12 +134,13 @@ def test_amplitude_and_frequency_at_0p01_px(sp128: Speckle, bins: float, noise: 
     assert not ms.camera_shake.any()
 
 
-def test_the_reference_is_the_temporal_mean_of_the_record(sp128: Speckle, tmp_path) -> None:
+def test_the_reference_is_the_temporal_mean_of_the_record(tmp_path) -> None:
     """A first pass gives the extractor the mean frame: an array is read twice, a one-shot
     iterable is kept (here on disk) for the second pass, and both give the same modes."""
     T, fps = 64, 100.0
-    frames = video(sp128, [(pattern(128, "a"), 0.02, 10 * fps / T)], T, fps)
-    frames += (0.005 * np.ptp(sp128.ref)
+    sp = Speckle(64)
+    frames = video(sp, [(pattern(64, "a"), 0.02, 10 * fps / T)], T, fps)
+    frames += (0.005 * np.ptp(sp.ref)
                * np.random.default_rng(3).standard_normal(frames.shape)).astype("f4")
     a = extract_modes(frames, fps, batch=16)
     assert a.metadata["motion"]["reference"] == {"kind": "mean", "frames": T}
