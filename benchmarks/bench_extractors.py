@@ -4,7 +4,7 @@ Synthetic video: a seeded band-limited periodic speckle image (Gaussian spectrum
 1 px), translated by exact Fourier phase ramps along a diagonal direction by a sinusoid of
 amplitude A (0.001 to 1 px, 16 frames over one period), with white sensor noise of standard
 deviation ``noise`` times the image's intensity range added to every frame.  Each extractor
-(``vvtbench.solving.extractors``) is prepared on the temporal mean of the frames (what
+(``vvtbench.extractors`` entry points) is prepared on the temporal mean of the frames (what
 :func:`vvtbench.modes.extract_modes` gives it; the motion averages to zero over the period)
 and its displacement fields are compared with the true ones over the interior (a 16 px border
 left out):

@@ -365,7 +365,7 @@ def motion_transfer(extractor: Any, setting: EfficiencySetting, *, config: Any =
     spatial support is the inverse transform).  Wave numbers its grid cannot hold (from
     half the grid's samples on) are 0.
     """
-    from ..extractors import make_extractor
+    from ..solving.extractors import make_extractor
 
     ext = make_extractor(extractor, config)
     rest = rest_image(setting)
