@@ -240,3 +240,24 @@ def test_an_old_import_path_still_works_with_a_warning(old, new, name):
     with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
         value = getattr(module, name)
     assert value is getattr(importlib.import_module(new), name)
+
+
+def test_every_import_of_vvtbench_names_a_module_that_exists():
+    """A deferred import of a module that moved or went fails only when its function runs;
+    here it fails at once, wherever it is."""
+    mods = _modules()
+    bad = []
+    for module, (path, is_pkg) in mods.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parts = module.split(".") if is_pkg else module.split(".")[:-1]
+                    parts = parts[: len(parts) - (node.level - 1)]
+                    base = ".".join(parts + ([node.module] if node.module else []))
+                if base.split(".")[0] == "vvtbench" and base not in mods:
+                    bad.append(f"{module}: from {base} import ...")
+            elif isinstance(node, ast.Import):
+                bad += [f"{module}: import {a.name}" for a in node.names
+                        if a.name.split(".")[0] == "vvtbench" and a.name not in mods]
+    assert bad == []
