@@ -415,6 +415,9 @@ def observe(source: Any, options: ObserveOptions | Mapping[str, Any] | None = No
     >>> problem.gamma.shape[0], truth.w.shape == (problem.n_params,)  # doctest: +SKIP
     (4, True)
     """
+    from .solving.plugins import refuse_when_sealed
+
+    refuse_when_sealed("observe()")
     opts = ObserveOptions.resolve(options, **overrides)
     if isinstance(source, RealVideo):
         return _observe_real(source, opts), None

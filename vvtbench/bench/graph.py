@@ -276,9 +276,14 @@ def build_graph(suite: Suite, solvers: list[str], solver_config: dict | None = N
                               solver_name=name, solver_version=version, setup_error=err,
                               reference=reference)
                     if err is None:
+                        # the keys the user gave (suite tables, --set): only the files
+                        # they name are shown to the sandbox, never the plug-in's defaults
+                        named = sorted({**(cfgs.get(spec) or cfgs.get(name) or {}),
+                                        **(extra or {})})
                         sk = add("solve", [name, version, cfg, *([inputs] if inputs else [])],
                                  [obs_key],
-                                 {"solver": spec, "config": cfg}, f"{name}:{scene_label}")
+                                 {"solver": spec, "config": cfg, "named": named},
+                                 f"{name}:{scene_label}")
                         ek = add("evaluate", [EVALUATE_REVISION], [sk, obs_key], {},
                                  f"{name}:{scene_label}")
                         run.solve_key, run.evaluate_key = sk, ek

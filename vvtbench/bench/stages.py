@@ -221,8 +221,9 @@ def _stage_solve(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
     from ..solving.sealed import describe_sealed, solve_sealed
 
     spec, config = task.payload["solver"], task.payload["config"]
+    named = task.payload.get("named", ())  # the keys the user gave: their files are shown
     limits = ctx.get("limits") or {}
-    reference = bool(describe_sealed("solver", spec, config)["uses_truth"])
+    reference = bool(describe_sealed("solver", spec, config, named=named)["uses_truth"])
     if reference:  # only a declared reference is handed the truth
         problem, truth = load_observation(cache, task.deps[0], truth=True)
     else:
@@ -231,7 +232,7 @@ def _stage_solve(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
                                    timeout=limits.get("timeout"),
                                    memory_bytes=limits.get("memory_bytes"),
                                    threads=ctx.get("threads"), secrets=_secrets(cache),
-                                   dest=out)
+                                   dest=out, named=named)
     return {"runtime_s": est.runtime_s or wall, "iterations": len(est.history),
             "reference": info["reference"], "sandbox": info["sandbox"]}
 

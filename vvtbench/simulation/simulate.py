@@ -127,6 +127,9 @@ def build_mesh(scene: Scene) -> Mesh:
 def material_fields(scene: Scene, mesh: Mesh) -> MaterialFields:
     """Per-element material values: base, then defects in order (by element centroid), or
     read from ``material.field_file``."""
+    from ..solving.plugins import refuse_when_sealed
+
+    refuse_when_sealed("a scene's material fields")
     m = scene.material
     n = mesh.n_elements
     drum = scene.geometry.kind == "drum"

@@ -70,6 +70,21 @@ class PluginError(ValueError):
     """A solver cannot be found, loaded or configured; the message says what is allowed."""
 
 
+SEALED_MARK = "VVTBENCH_SEALED"  # set in the environment of every sealed plug-in process
+
+
+def refuse_when_sealed(what: str) -> None:
+    """Raise :class:`PermissionError` inside a sealed plug-in process: ``what`` (making a
+    problem's truth from a scene or a sample) is the evaluator's, never a plug-in's. A guard
+    against the obvious route only: what keeps truth from a plug-in is that the sandbox shows
+    it no scene, sample or truth (docs/explanation/sealed-evaluation.md)."""
+    import os
+
+    if os.environ.get(SEALED_MARK):
+        raise PermissionError(f"{what} is not available to a sealed plug-in: a plug-in gets "
+                              "its problem, never a scene, a sample or their truth")
+
+
 def import_target(target: str, kind: str = "solver"):
     """The object ``target`` names: ``module:Attr`` or ``path/to/file.py:Attr`` (a file is
     imported as a module of its own); ``kind`` names it in errors."""
