@@ -323,6 +323,21 @@ def test_mode_sets_extracted_per_view_elsewhere_give_the_same_problem(samples):
         observe(two, observation="extracted", views=2, modes=sets[:1], **OBSERVE)
 
 
+def test_joined_views_without_modes_are_said_in_words(samples):
+    """As one view without modes is: never a bare error from deep inside the join."""
+    from vvtbench.modes import extract_modes
+    from vvtbench.observe import ObserveError
+
+    _, two = samples
+    s = ds.open_sample(two)
+    sets = [extract_modes(s.view(v).video_path, s.fps) for v in (0, 1)]
+    none = [m.select(np.zeros(len(m), dtype=bool)) for m in sets]
+    with pytest.raises(ObserveError, match=r"^no modes were extracted from the views' videos"):
+        observe(two, observation="extracted", views=2, modes=none, **OBSERVE)
+    with pytest.raises(ObserveError, match=r"^no modes were extracted from the video of view 1 "):
+        observe(two, observation="extracted", views=2, modes=[sets[0], none[1]], **OBSERVE)
+
+
 @pytest.mark.parametrize("solver", ["sensitivity", "vvt"])
 def test_solvers_take_the_two_view_extracted_problem_unchanged(samples, solver):
     from vvtbench.scoring.metrics import invalid_reason

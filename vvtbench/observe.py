@@ -745,8 +745,8 @@ def _with_joint_extracted(problem: InverseProblem, truth: Truth, views: list[_Re
     """The problem observing modes extracted from every view's video and joined
     (:func:`vvtbench.modes.joint.extract_joint`), sampled at each view's visible vertices and
     stacked like ``P``."""
-    from .modes import ModeSet, sample_modes
-    from .modes.joint import extract_joint, frame_range, joint_modes, modal_phasors
+    from .modes import ModeSet, extract_modes, sample_modes
+    from .modes.joint import frame_range, joint_modes, modal_phasors
 
     sources, rates = [], []
     for view in views:
@@ -757,16 +757,24 @@ def _with_joint_extracted(problem: InverseProblem, truth: Truth, views: list[_Re
         sources.append(source)
         rates.append(float(fps))
     offsets = [v.time_offset_s for v in views]
-    if opts.modes:  # one mode set per view, extracted elsewhere: measure their phasors here
+    if opts.modes:  # one mode set per view, extracted elsewhere
         sets = [m if isinstance(m, ModeSet) else ModeSet.load(m) for m in opts.modes]
-        start, stop = frame_range(opts.extract)
-        phasors = [modal_phasors(src, fps, ms, start=start, stop=stop)
-                   for src, fps, ms in zip(sources, rates, sets, strict=True)]
-        joint = joint_modes(sets, phasors, freq_tol=opts.merge_freq_tol / 2,
-                            time_offsets_s=offsets)
-    else:
-        joint = extract_joint(sources, rates[0], time_offsets_s=offsets,
-                              freq_tol=opts.merge_freq_tol / 2, **opts.extract)
+    else:  # as vvtbench.modes.joint.extract_joint does, each view's modes checked first
+        sets = [extract_modes(src, rates[0], **opts.extract) for src in sources]
+    empty = [v for v, ms in enumerate(sets) if len(ms) == 0]
+    if len(empty) == len(sets):
+        raise ObserveError(f"no modes were extracted from the views' videos (none in any of "
+                           f"the {len(sets)} views)")
+    if empty:
+        which = (f"the video of view {empty[0]}" if len(empty) == 1 else
+                 f"the videos of views {', '.join(map(str, empty))}")
+        raise ObserveError(f"no modes were extracted from {which} (of views 0 to "
+                           f"{len(sets) - 1}); joined views need modes in every view")
+    start, stop = frame_range(opts.extract)  # each view's phasors, to join the views
+    phasors = [modal_phasors(src, fps, ms, start=start, stop=stop)
+               for src, fps, ms in zip(sources, rates, sets, strict=True)]
+    joint = joint_modes(sets, phasors, freq_tol=opts.merge_freq_tol / 2,
+                        time_offsets_s=offsets)
     scale = np.asarray(problem.meta["geometry_scale"], dtype=float)
     counts = np.cumsum([0, *problem.meta["n_visible_per_view"]])
     points = problem.mesh.points[problem.visible_nodes] / scale
