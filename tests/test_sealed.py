@@ -711,3 +711,122 @@ def test_a_plugins_output_is_kept_capped_and_shown_on_failure(world, hogs, tmp_p
         solve_sealed(f"{hogs}:ChattyFails", {}, problem)
     assert "about to fail" in error.value.log
 
+
+# --------------------------------------------------------------------------- plug-in authors
+
+SHAPES = '''
+import dataclasses
+import numpy as np
+from vvtbench.api import Estimate
+
+
+@dataclasses.dataclass
+class Config:
+    pass
+
+
+class Long:
+    name = "long"
+    version = "0"
+    description = "one voxel too many"
+    Config = Config
+
+    def __init__(self, config=None):
+        pass
+
+    def solve(self, problem):
+        print("solving", problem.n_params, "voxels")
+        m = problem.n_params + 1
+        return Estimate(w=np.full(m, 9000.0), v=np.full(m, 1000.0))
+
+
+class Talks(Long):
+    name = "talks"
+
+    def solve(self, problem):
+        print("solving", problem.n_params, "voxels")
+        m = problem.n_params
+        return Estimate(w=np.full(m, 9000.0), v=np.full(m, 1000.0))
+
+
+class Fails(Long):
+    name = "fails"
+
+    def solve(self, problem):
+        print("about to fail")
+        raise RuntimeError("it failed")
+'''
+
+
+@pytest.fixture(scope="module")
+def challenge(world, tmp_path_factory):
+    from vvtbench.bench.submission import write_challenge
+
+    root, secret, problem, truth, _, _ = world
+    folder = tmp_path_factory.mktemp("challenge")
+    write_challenge([("one", problem, truth)], folder / "problems", folder / "truth", "c")
+    (folder / "shapes.py").write_text(SHAPES)
+    return folder
+
+
+def test_solve_refuses_a_wrong_shaped_estimate_as_score_would(world, challenge, tmp_path,
+                                                               capsys):
+    from vvtbench.cli import main
+    from vvtbench.scoring.metrics import invalid_reason
+
+    root, secret, problem, truth, _, _ = world
+    out = tmp_path / "sub"
+    assert main(["solve", f"{challenge / 'shapes.py'}:Long", str(challenge / "problems"),
+                 "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    m = problem.n_params + 1
+    reason = invalid_reason(np.ones(m), np.ones(m), problem.n_params)
+    assert f"one: INVALID ESTIMATE, not submitted: {reason}" in err
+    assert "solving" in err and (out / "one" / "solver.log").is_file()
+    assert not (out / "manifest.json").exists()
+
+
+def test_every_problem_failing_is_one_clear_line_and_the_output_is_shown(challenge, tmp_path,
+                                                                        capsys):
+    from vvtbench.cli import main
+
+    out = tmp_path / "sub"
+    assert main(["solve", f"{challenge / 'shapes.py'}:Fails", str(challenge / "problems"),
+                 "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("error: fails solved none of the 1 problems of ") and ".tmp" not in err
+    assert "RuntimeError: it failed" in err and "| about to fail" in err
+    assert "about to fail" in (out / "one" / "solver.log").read_text()
+
+
+def test_solve_verbose_shows_what_the_plugin_printed(world, challenge, tmp_path, capsys):
+    from vvtbench.cli import main
+
+    root, secret, problem, truth, _, _ = world
+    plugin = f"{challenge / 'shapes.py'}:Talks"
+    assert main(["solve", plugin, str(challenge / "problems"), "-o", str(tmp_path / "a")]) == 0
+    assert "| solving" not in capsys.readouterr().out
+    assert "solving" in (tmp_path / "a" / "one" / "solver.log").read_text()
+    assert main(["solve", plugin, str(challenge / "problems"), "-o", str(tmp_path / "b"),
+                 "--verbose"]) == 0
+    assert f"| solving {problem.n_params} voxels" in capsys.readouterr().out
+
+
+def test_an_unsandboxed_solve_is_said_on_the_terminal(challenge, tmp_path, capsys,
+                                                      monkeypatch):
+    from vvtbench.cli import main
+    from vvtbench.solving import sealed
+
+    monkeypatch.setenv("VVTBENCH_SANDBOX", "none")
+    monkeypatch.setattr(sealed, "_WARNED", [])
+    sandbox_kind.cache_clear()
+    try:
+        assert main(["solve", f"{challenge / 'shapes.py'}:Talks", str(challenge / "problems"),
+                     "-o", str(tmp_path / "sub")]) == 0
+    finally:
+        monkeypatch.delenv("VVTBENCH_SANDBOX")
+        sandbox_kind.cache_clear()
+    out, err = capsys.readouterr()
+    assert err.count("warning: plug-ins run WITHOUT A SANDBOX here (VVTBENCH_SANDBOX=none)") == 1
+    assert "[UNSANDBOXED" in out.strip().splitlines()[-1]

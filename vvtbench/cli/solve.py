@@ -99,8 +99,14 @@ def build_solve_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=positive_float, default=None,
                    help="seconds the solver may run (default 3600), then it is stopped")
     p.add_argument("--memory-gb", type=positive_float, default=None,
-                   help="address-space limit of the solver's process in GB (default 75 %% of "
-                   "the machine's memory)")
+                   help="memory the solver may hold in GB, all its processes and its /dev/shm "
+                   "together (default 75 %% of the machine's memory)")
+    p.add_argument("--disk-gb", type=positive_float, default=None,
+                   help="disk the solver may fill in GB: its /tmp, its output and what it "
+                   "prints (default half the free space of the temporary folder)")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="show what the solver printed (it is also kept: solver.log in OUTPUT, "
+                   "or OUTPUT/ID/solver.log for a challenge's problems)")
     return p
 
 
@@ -118,6 +124,45 @@ def _field_score(metrics: dict, field: str) -> str:
         return f"NC {field} {nc:.3f}{cov}"
     return (f"{field}: constant truth, false contrast "
             f"{metrics[f'false_contrast_{field}']:.3f}{cov}")
+
+
+SHOWN_LINES = 20  # lines of a failed plug-in's output shown on the terminal
+
+
+def _show_output(output: str, where: Path | None, failed: bool, verbose: bool,
+                 indent: str = "") -> None:
+    """What the plug-in printed: all that was kept with ``verbose``, its last
+    :data:`SHOWN_LINES` lines when it failed; ``where`` is the file that keeps it."""
+    lines = output.splitlines()
+    if not lines or not (failed or verbose):
+        return
+    shown = lines if verbose else lines[-SHOWN_LINES:]
+    kept = f"; all it printed that was kept: {where}" if where is not None else ""
+    head = ("what it printed" if len(shown) == len(lines)
+            else f"the last {len(shown)} lines it printed")
+    stream = sys.stderr if failed else sys.stdout
+    print(f"{indent}--- {head}{kept} ---", file=stream)
+    for line in shown:
+        print(f"{indent}| {line}", file=stream)
+
+
+def _keep_output(folder: Path, output: str) -> Path | None:
+    """``folder/solver.log``: what the plug-in printed (the kept tail), or None."""
+    if not output:
+        return None
+    from ..io.files import write_text
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        write_text(folder / "solver.log", output)
+    except OSError:
+        return None
+    return folder / "solver.log"
+
+
+def _sandbox_note(sinfo: dict) -> str:
+    return " [UNSANDBOXED: the solver could read any file you can]" \
+        if sinfo.get("sandbox") == "none" else ""
 
 
 def _check_output(out: Path, target: Path) -> str | None:
@@ -211,17 +256,23 @@ def main_solve(argv: list[str] | None = None) -> int:
               f"{problem.meta['clicks_rms_px']:.3f} px")
     t_setup = time.perf_counter() - t0
     memory = (int(args.memory_gb * 2**30) if args.memory_gb else default_memory_bytes())
+    disk = int(args.disk_gb * 2**30) if args.disk_gb else None
     secrets = [out, *([target] if target.is_dir() else [])]
     try:
         estimate, wall, sinfo = solve_sealed(args.solver, overrides, problem, truth=truth,
                                              timeout=timeout, memory_bytes=memory,
-                                             secrets=secrets)
+                                             secrets=secrets, disk_bytes=disk)
     except SealedError as error:
         print(f"error: {name} failed on {target}: {one_line(str(error))}", file=sys.stderr)
+        _show_output(error.output, _keep_output(out, error.output), True, args.verbose)
         return 1
+    _show_output(sinfo["log"], None, False, args.verbose)
     out.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=".solve-", dir=out))
     try:  # everything is written aside, then moved into place: never a half-written folder
+        from ..io.files import write_text
+
+        write_text(stage / "solver.log", sinfo["log"])  # empty too: never an earlier one
         ev = _write_solve(stage, args, estimate, wall, sinfo, problem, truth, info, observation,
                           t_setup, target)
         _publish(stage, out, invalid=bool(ev.get("invalid")))
@@ -237,7 +288,7 @@ def main_solve(argv: list[str] | None = None) -> int:
     score = ", ".join(_field_score(ev["metrics"], f) for f in "wv")
     print(f"{name}{' (reference: reads the truth)' if sinfo['reference'] else ''} on {target} "
           f"({observation} modes, {problem.n_modes}): {len(estimate.history)} iterations, "
-          f"{estimate.runtime_s:.2f} s; {score} -> {out}")
+          f"{estimate.runtime_s:.2f} s; {score} -> {out}{_sandbox_note(sinfo)}")
     print("  NC: normalized correlation of the estimated and true fields per voxel (1 = same "
           "pattern, 0 = none); details in docs/metrics.md. Next: open "
           f"{out / 'slices.png'}, or compare solvers with `vvtbench run`.")
@@ -308,6 +359,7 @@ def _solve_problems(args, desc: dict, overrides: dict, problems: Path, out: Path
     """Every problem of a challenge's problems folder, solved sealed, into a submission."""
     from ..bench.child import default_memory_bytes
     from ..bench.submission import SubmissionError, read_manifest, write_submission
+    from ..scoring.metrics import invalid_reason
     from ..solving.problem import InverseProblem
     from ..solving.sealed import SealedError, solve_sealed
 
@@ -320,21 +372,40 @@ def _solve_problems(args, desc: dict, overrides: dict, problems: Path, out: Path
     except SubmissionError as error:
         return _fail(error)
     memory = int(args.memory_gb * 2**30) if args.memory_gb else default_memory_bytes()
-    estimates, failed = {}, []
+    disk = int(args.disk_gb * 2**30) if args.disk_gb else None
+    estimates, failed, sandbox = {}, [], set()
     for instance in sorted(man["instances"]):
         problem = InverseProblem.load(problems / instance)
         try:
-            est, _, _ = solve_sealed(args.solver, overrides, problem, timeout=timeout,
-                                     memory_bytes=memory, secrets=[out])
+            est, _, sinfo = solve_sealed(args.solver, overrides, problem, timeout=timeout,
+                                         memory_bytes=memory, secrets=[out], disk_bytes=disk)
         except SealedError as error:
             failed.append(instance)
             print(f"  {instance}: {one_line(str(error))}", file=sys.stderr)
+            _show_output(error.output, _keep_output(out / instance, error.output), True,
+                         args.verbose, "    ")
+            continue
+        sandbox.add(sinfo["sandbox"])
+        kept = _keep_output(out / instance, sinfo["log"])
+        reason = invalid_reason(est.w, est.v, problem.n_params)
+        if reason is not None:  # the reason `score` would give: refused here, not submitted
+            failed.append(instance)
+            print(f"  {instance}: INVALID ESTIMATE, not submitted: {reason}", file=sys.stderr)
+            _show_output(sinfo["log"], kept, True, args.verbose, "    ")
             continue
         estimates[instance] = est
         print(f"  {instance}: {len(est.history)} iterations, {est.runtime_s:.2f} s")
+        _show_output(sinfo["log"], kept, False, args.verbose, "    ")
+    n = len(man["instances"])
+    if not estimates:
+        print(f"error: {desc['name']} solved none of the {n} problems of {problems} (each "
+              f"one's error is above): no submission was written", file=sys.stderr)
+        return 1
     write_submission(estimates, problems, out, desc["name"], desc["version"])
-    print(f"{len(estimates)} of {len(man['instances'])} problems solved by {desc['name']} -> "
-          f"{out} (a submission: score it with `vvtbench score {out} --truth TRUTH -o DIR`)")
+    note = _sandbox_note({"sandbox": "none"}) if "none" in sandbox else ""
+    print(f"{len(estimates)} of {n} problems solved by {desc['name']} -> "
+          f"{out} (a submission: score it with `vvtbench score {out} --truth TRUTH -o DIR`)"
+          f"{note}")
     return 1 if failed else 0
 
 
