@@ -711,3 +711,22 @@ def test_the_resolution_figure_draws_exactly_the_rows_its_table_averages(tmp_pat
     monkeypatch.setattr(plots, "plot_intrinsic_resolution", capture)
     lb.curve_figures(pd.DataFrame(rows), "t", tmp_path, tmp_path, "figures", styles=None)
     assert seen == {("s", "true"): {"w": 2, "v": 3}}
+def test_unsandboxed_rows_are_marked_on_the_board(tmp_path):
+    """A row a plug-in produced without a sandbox (sandbox = none) could have read the truth:
+    the page says so first and marks its solver wherever it is shown."""
+    def loose(rows):
+        for r in rows:
+            r["sandbox"] = "none" if r["solver"] == "b" else "bwrap"
+
+    md, page, manifest = _board(_instances_table(tmp_path, loose), tmp_path / "lb")
+    assert "UNSANDBOXED: 10 of the runs (b) ran without a sandbox" in md.split("## Summary")[0]
+    assert "UNSANDBOXED" in page.split("<h2>Summary")[0]
+    assert any(ln.startswith("| base |") and "| b (unsandboxed) |" in ln
+               for ln in md.splitlines())
+    assert not any("a (unsandboxed)" in ln for ln in md.splitlines())
+    rec = {r["solver"]: r for r in manifest["tracks"][0]["ranking"]}
+    assert rec["b"]["unsandboxed"] is True and rec["a"]["unsandboxed"] is False
+    assert 'class="loose' in page
+    (tmp_path / "sealed").mkdir()
+    md, _, _ = _board(_instances_table(tmp_path / "sealed"), tmp_path / "lb2")
+    assert "UNSANDBOXED" not in md and "(unsandboxed)" not in md

@@ -95,6 +95,9 @@ SCORE_SENTENCE = (
 NOT_RECOMPUTED = (
     "Scores not recomputed: this table was given without its run's cache, so its scores are "
     "shown as written, not recomputed from the estimates and the truth.")
+UNSANDBOXED = ("UNSANDBOXED: {n} of the runs ({solvers}) ran without a sandbox: the plug-in "
+               "could read every file its user could, truth included. Their rows are marked "
+               "'(unsandboxed)'; trust those scores only as far as the plug-in's code.")
 RECOMPUTED = ("Scores recomputed: every scored row was recomputed from the estimate and the "
               "truth in the run's cache and agreed with the table.")
 
@@ -152,6 +155,10 @@ def ranking(df, seed: int = SEED) -> list[tuple[str, str, object]]:
     st = track_statistics(df, metrics=metrics, means=means, seed=seed)
     if st.empty:
         return []
+    loose = set(map(tuple, df.loc[_unsandboxed(df), ["track", "observation", "variation",
+                                                     "solver"]].to_numpy().tolist()))
+    st["unsandboxed"] = [tuple(k) in loose for k in
+                         st[["track", "observation", "variation", "solver"]].to_numpy().tolist()]
     few = st.n < MIN_VALID_FRACTION * st.runs
     too_few = st.nc_w_n < MIN_RANK_N
     st = st.assign(_unranked=st.reference | ~np.isfinite(st.nc_w_mean.astype(float)) | few
@@ -235,6 +242,19 @@ def _runtime_cell(r) -> str:
             f"{_seconds(r['runtime_q75_s'])})")
 
 
+def _unsandboxed(df):
+    """The rows a plug-in produced without a sandbox (column ``sandbox`` = ``none``)."""
+    if "sandbox" not in df.columns:
+        return np.zeros(len(df), dtype=bool)
+    return (df["sandbox"].astype(str) == "none").to_numpy()
+
+
+def _solver_label(r) -> str:
+    """A table's solver cell: its name, marked as a reference and when it ran unsandboxed."""
+    label = f"{r['solver']} (reference)" if r["reference"] else str(r["solver"])
+    return label + (" (unsandboxed)" if r.get("unsandboxed", False) else "")
+
+
 def _rank_label(r) -> str:
     if r["reference"]:
         return "ref"
@@ -251,7 +271,7 @@ def _ranking_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
     head += ["n", "failed", "invalid"]
     rows, last = [], None
     for _, r in t.iterrows():
-        label = f"{r['solver']} (reference)" if r["reference"] else str(r["solver"])
+        label = _solver_label(r)
         if r["note"]:
             label += f" -- {r['note']}"
         cells = [str(r["variation"]), _rank_label(r), label]
@@ -259,6 +279,7 @@ def _ranking_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
                           r[f"{m}_n"], r["n"]) for m, _ in RANK_METRICS]
         cells += [str(int(r["n"])), str(int(r["failed"])), str(int(r["invalid"]))]
         cls = " ".join(filter(None, ["ref" if r["reference"] else "",
+                                     "loose" if r.get("unsandboxed", False) else "",
                                      "group" if r["variation"] != last else ""]))
         last = r["variation"]
         rows.append((cells, cls))
@@ -275,7 +296,7 @@ def _detail_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
     head += [*[label for _, label in MEAN_COLUMNS + optional], "runtime s: median (IQR)"]
     rows, last = [], None
     for _, r in t.iterrows():
-        label = f"{r['solver']} (reference)" if r["reference"] else str(r["solver"])
+        label = _solver_label(r)
         cells = [str(r["variation"]), label]
         cells += [ci_cell(r[f"{m}_median"], r[f"{m}_median_ci_low"], r[f"{m}_median_ci_high"],
                           r[f"{m}_n"], r["n"]) for m, _ in RANK_METRICS]
@@ -284,6 +305,7 @@ def _detail_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
                          if f"{c}_mean" in r else "–")
         cells.append(_runtime_cell(r))
         cls = " ".join(filter(None, ["ref" if r["reference"] else "",
+                                     "loose" if r.get("unsandboxed", False) else "",
                                      "group" if r["variation"] != last else ""]))
         last = r["variation"]
         rows.append((cells, cls))
@@ -580,7 +602,7 @@ def summary(df, groups: list | None = None) -> list[dict]:
     groups = ranking(df) if groups is None else groups
     cells = (pd.concat([t for _, _, t in groups], ignore_index=True) if groups else None)
     keys = ["solver", "observation", "variation", "nc_w_mean", "nc_w_mean_ci_low",
-            "nc_w_mean_ci_high", "nc_w_n"]
+            "nc_w_mean_ci_high", "nc_w_n", "unsandboxed"]
     counts = df.groupby("track", sort=False).status.agg(
         runs="size", failed=lambda s: int((s == "error").sum()),
         invalid=lambda s: int((s == "invalid").sum()))
@@ -602,7 +624,8 @@ def summary(df, groups: list | None = None) -> list[dict]:
 def _fmt_best(b) -> str:
     if b is None:
         return "–"
-    return (f"{b['solver']} ({b['observation']} modes, {b['variation']}): "
+    loose = " (unsandboxed)" if b.get("unsandboxed", False) else ""
+    return (f"{b['solver']}{loose} ({b['observation']} modes, {b['variation']}): "
             + ci_cell(b["nc_w_mean"], b["nc_w_mean_ci_low"], b["nc_w_mean_ci_high"],
                       int(b["nc_w_n"]))
             + f", n={int(b['nc_w_n'])}")
@@ -614,7 +637,8 @@ td,th{border:1px solid #ccc;padding:3px 6px;text-align:right;overflow-wrap:break
 th{background:#eee}table.wide th,table.dataframe th,table.dataframe td{overflow-wrap:anywhere}
 td.l,th.l{text-align:left}p.trust{background:#fff6d8;padding:.4em}
 tr.group td{border-top:2px solid #888}
-tr.ref td{color:#666;font-style:italic;background:#f7f7f7}.scroll{overflow-x:auto}
+tr.ref td{color:#666;font-style:italic;background:#f7f7f7}
+tr.loose td{background:#fde8e8}.scroll{overflow-x:auto}
 img{max-width:100%;display:block;margin:.3em 0 1em;border:1px solid #eee}
 nav a{margin-right:.8em}.note{color:#555;font-size:.9em;max-width:75em}
 figure{margin:0}figcaption{font-size:.85em;color:#444}"""
@@ -793,6 +817,10 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
     n_failed = int((df.status == "error").sum())
     n_invalid = int((df.status == "invalid").sum())
     trust = RECOMPUTED if run_dir is not None else NOT_RECOMPUTED
+    loose = _unsandboxed(df)
+    if loose.any():
+        names = ", ".join(dict.fromkeys(df.loc[loose, "solver"].astype(str)))
+        trust += " " + UNSANDBOXED.format(n=int(loose.sum()), solvers=names)
     intro = (f"{len(df)} runs ({n_failed} failed, {n_invalid} invalid: counted, never "
              f"ranked or scored) of {df.solver.nunique()} solvers on {len(tracks)} tracks, "
              f"from {results}, by vvtbench {__version__}. {SCORE_SENTENCE} Solvers are "
