@@ -588,6 +588,27 @@ def test_a_plugin_default_that_names_a_cached_truth_is_not_shown(tmp_path, monke
         describe_sealed("solver", f"{plugin}:Default", {"truth": str(cached)})
 
 
+def test_a_named_file_is_refused_in_vvtbench_data_only(tmp_path):
+    from vvtbench.solving.plugins import PluginError
+    from vvtbench.solving.sealed import config_files
+
+    (tmp_path / "project" / "weights").mkdir(parents=True)
+    (tmp_path / "project" / "results.csv").write_text("a\n")  # a user's own table
+    mine = tmp_path / "project" / "weights" / "w.npz"
+    mine.write_bytes(b"x")
+    assert config_files({"weights": str(mine)}) == {str(mine): mine}
+    assert config_files({"weights": str(mine)}, named=[]) == {}  # a default: never shown
+    (tmp_path / "run" / "x").mkdir(parents=True)
+    (tmp_path / "run" / "run.json").write_text("{}")
+    theirs = tmp_path / "run" / "x" / "w.npz"
+    theirs.write_bytes(b"x")
+    with pytest.raises(PluginError, match=r"config weights=.*lies in .*run, a vvtbench data "
+                                          r"folder \(it holds run.json\)"):
+        config_files({"weights": str(theirs)})
+    with pytest.raises(PluginError, match="lies in .*, which the plug-in must not see"):
+        config_files({"weights": str(mine)}, secrets=[tmp_path / "project"])
+
+
 # --------------------------------------------------------------------------- limits
 
 HOGS = '''
@@ -679,11 +700,14 @@ def hogs(tmp_path_factory):
 def test_tmpfs_memory_is_bounded_and_counted(world, hogs):
     """The sandbox's / and /dev are read-only; /dev/shm holds at most 1/8 of the limit, which
     the processes' own limit leaves room for."""
+    from vvtbench.solving.sealed import _bwrap_sizes
+
     root, secret, problem, truth, _, _ = world
     limit = 1 << 30
     est, _, _ = solve_sealed(f"{hogs}:Tmpfs", {}, problem, memory_bytes=limit)
     assert est.extra["/x"] == 0 and est.extra["/dev/x"] == 0
-    assert 0 < est.extra["/dev/shm/x"] <= limit // 8
+    assert est.extra["/dev/shm/x"] <= limit // 8
+    assert est.extra["/dev/shm/x"] > 0 or not _bwrap_sizes()  # read-only where unbounded
 
 
 def test_processes_are_counted_together_against_the_memory_limit(world, hogs):

@@ -126,6 +126,17 @@ def warn_unsandboxed() -> None:
               "(docs/explanation/sealed-evaluation.md)", file=sys.stderr)
 
 
+@cache
+def _bwrap_sizes() -> bool:
+    """Whether this bubblewrap bounds the size of a tmpfs (``--size``, bubblewrap 0.7)."""
+    try:
+        out = subprocess.run([shutil.which("bwrap") or "bwrap", "--help"], capture_output=True,
+                             text=True, timeout=20)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return "--size" in out.stdout + out.stderr
+
+
 def _package_roots() -> list[Path]:
     """The folders of vvtbench's own packages (``vvtbench/``, the shipped ``solvers/``), never
     the folder that holds them (a source checkout's root holds ``scenes/``, ``runs/``...)."""
@@ -159,10 +170,12 @@ def _inside(path: Path, root: Path) -> bool:
 
 
 # What vvtbench writes that a plug-in must never read: a folder holding one of these files is
-# a sample, a dataset, a challenge, a submission, a run, a cache entry or truth.
-_DATA_MARKERS = ("truth.npz", "truth.json", "truth.zarr", "truth", "run.json", "task.json",
-                 "results.parquet", "results.csv", "checkpoint.json", ".zattrs", ".zgroup",
-                 "zarr.json")
+# a sample, a challenge's truth, a run or a cache entry ...
+_DATA_MARKERS = ("truth.npz", "truth.json", "truth.zarr", "truth", "run.json", "task.json")
+# ... and, inside a plug-in's package, also one holding results, a partial sample or a Zarr
+# store (names too common to refuse a user's file for an ancestor holding them)
+_PACKAGE_MARKERS = ("results.parquet", "results.csv", "checkpoint.json", ".zattrs", ".zgroup",
+                    "zarr.json")
 _DATA_NAMES = ("truth", "truth.zarr", "cache", "runs")
 _SCENE_KEYS = {"geometry", "material", "defects", "excitation", "camera", "boundary", "vary",
                "tracks", "base", "simulation"}
@@ -170,13 +183,14 @@ _CODE_SUFFIXES = (".py", ".pyi", ".pyc", ".pyd", ".so")  # truth.py is code, not
 _MAX_SHOWN = 20000  # entries of a plug-in's package walked for data
 
 
-def data_folder(path: Path) -> str | None:
+def data_folder(path: Path, package: bool = False) -> str | None:
     """What the folder ``path`` is when it holds vvtbench data a plug-in must not read -- a
     sample, dataset, challenge or submission (a ``manifest.json`` of a vvtbench format), a run
-    or its cache, a cache entry, truth -- or None."""
+    or its cache, a cache entry, truth; with ``package`` (a folder inside a plug-in's package)
+    also results, a partial sample or a Zarr store -- or None."""
     if path.name in _DATA_NAMES:
         return f"a {path.name!r} folder"
-    for marker in _DATA_MARKERS:
+    for marker in _DATA_MARKERS + (_PACKAGE_MARKERS if package else ()):
         if os.path.lexists(path / marker):
             return f"a vvtbench data folder (it holds {marker})"
     manifest = path / "manifest.json"
@@ -280,7 +294,7 @@ def _hidden_in(root: Path) -> list[Path]:
                               "the data it ships), not a project folder")
         for name in list(dirs):
             sub = Path(folder) / name
-            if not sub.is_symlink() and data_folder(sub) is not None:
+            if not sub.is_symlink() and data_folder(sub, package=True) is not None:
                 hidden.append(sub)
                 dirs.remove(name)
         hidden += [Path(folder) / f for f in files
@@ -293,10 +307,12 @@ def _bwrap_argv(work: Path, inputs: Mapping[str, Path], code: Sequence[Path],
                 shm_bytes: int = SHM_MAX) -> list[str]:
     argv = [shutil.which("bwrap") or "bwrap", "--unshare-all", "--die-with-parent",
             "--new-session", "--dev", "/dev", "--proc", "/proc",
-            # memory the plug-in can fill without holding it: a bounded /dev/shm; / and /dev
-            # are made read-only below (both are tmpfs, i.e. memory, in a bwrap sandbox)
-            "--size", str(int(shm_bytes)), "--tmpfs", "/dev/shm",
             "--bind", str(work / "scratch"), "/tmp"]  # on disk, measured: _disk_used
+    # memory the plug-in could fill without holding it: / and /dev (tmpfs in a bwrap sandbox)
+    # are made read-only below; /dev/shm is a bounded tmpfs, or read-only too where bwrap
+    # cannot bound one (before 0.7)
+    if _bwrap_sizes():
+        argv += ["--size", str(int(shm_bytes)), "--tmpfs", "/dev/shm"]
     for p in _SYSTEM:
         if os.path.islink(p):
             argv += ["--symlink", os.readlink(p), p]
