@@ -74,10 +74,13 @@ import types
 from dataclasses import dataclass
 from pathlib import Path
 
+import sys
+
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).parent))  # its package folder: what the sandbox shows
 from truth_search import leaves, truth_in
-from vvtbench.solving.problem import Estimate
+from vvtbench.api import Estimate
 
 TARGETS = Path(__file__).with_name("peek_targets.npz")
 
@@ -89,7 +92,8 @@ class Config:
 
 def search(problem):
     """Every path reachable from the problem that holds a true material, a true 3-D mode
-    or a secret string; the targets sit beside this file (the test wrote them there)."""
+    or a secret string; the targets sit beside this file in its package (the test wrote
+    them there)."""
     found = list(leaves(problem))
     hits = []
     with np.load(TARGETS) as z:
@@ -221,8 +225,13 @@ def test_no_truth_reaches_a_solver_through_run_or_solve(micro, tmp_path):
     targets = {"secrets": np.array(json.dumps(secrets))}
     for i, t in enumerate(truths):
         targets |= {f"t{i}_w": t.w, f"t{i}_v": t.v, f"t{i}_u": t.modes_3d}
-    np.savez(tmp_path / "peek_targets.npz", **targets)
-    plugin = tmp_path / "peek_solver.py"
+    package = tmp_path / "peek"  # a plug-in shown with its package: its helper and data
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "truth_search.py").write_text(
+        (Path(__file__).with_name("truth_search.py")).read_text())
+    np.savez(package / "peek_targets.npz", **targets)
+    plugin = package / "peek_solver.py"
     plugin.write_text(PEEK)
     df = run_suite(str(suite_file), [f"{plugin}:Peek", f"{plugin}:PeekReference"], out,
                    progress=False)
