@@ -230,7 +230,7 @@ def test_draws_do_not_depend_on_the_blas_kernel(kernel):
     """Another CPU is emulated by OpenBLAS's kernel choice (OPENBLAS_CORETYPE): the drawn
     scenes must be the same bits, or an instance changes."""
     cases = _KERNEL_SENSITIVE[kernel]
-    code = ("import json, sys; from vvtbench.families import draw; "
+    code = ("import json, sys; from vvtbench.scene.families import draw; "
             "print(json.dumps([draw(f, s, i).to_toml_dict() for f, s, i in "
             f"{cases!r}]))")
     env = {**os.environ, "OPENBLAS_CORETYPE": kernel}

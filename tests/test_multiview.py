@@ -178,9 +178,9 @@ def test_a_single_view_sample_of_the_frozen_release_regenerates_value_by_value(t
     frozen ones only where the floating-point arithmetic is (docs/dataset.md, "Same answer on
     every machine"): the frozen modes' signs predate the canonical ones and another CPU's BLAS
     rounds otherwise, so bytes are not compared."""
-    from vvtbench.generate_jobs import generate_instance
-    from vvtbench.release import load_release, read_sums
-    from vvtbench.sample_compare import compare_samples
+    from vvtbench.datasets.release import load_release, read_sums
+    from vvtbench.samples.compare import compare_samples
+    from vvtbench.samples.jobs import generate_instance
 
     release = load_release("vvtbench-v1")
     rel = "cube_defects-modes/val/cube_defects-val-00000"

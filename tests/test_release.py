@@ -13,7 +13,7 @@ import pytest
 
 from vvtbench.cli import main
 from vvtbench.datasets.release import ReleaseError, check_environment_file, load_release, read_sums
-from vvtbench.sample_compare import TOLERANCES
+from vvtbench.samples.compare import TOLERANCES
 
 TINY = """
 name = "tiny-release"

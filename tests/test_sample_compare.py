@@ -1,4 +1,4 @@
-"""Samples compared value by value (vvtbench.sample_compare): rounding, a mode's sign and the
+"""Samples compared value by value (vvtbench.samples.compare): rounding, a mode's sign and the
 basis of a repeated eigenvalue pass; a changed value, a sign that only some arrays share, a
 changed text and a changed image fail with the file named."""
 
@@ -14,15 +14,15 @@ import zarr
 
 from vvtbench import dataset as ds
 from vvtbench import generate as gen
-from vvtbench.io import write_json
-from vvtbench.sample_compare import (
+from vvtbench.io.files import write_json
+from vvtbench.samples.compare import (
     LINEAR_IN_MODES,
     TOLERANCES,
     SampleComparison,
     _compare_counts,
     compare_samples,
 )
-from vvtbench.scene import parse_scene
+from vvtbench.scene.scene import parse_scene
 
 BOX = {"name": "box", "seed": 5,
        "geometry": {"kind": "box", "size": [0.05, 0.04, 0.06], "cells": [3, 3, 3]},

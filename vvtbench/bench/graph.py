@@ -24,8 +24,7 @@ from .suite import (
 
 STAGES = ("generate", "extract", "observe", "solve", "evaluate")
 #: seconds the sealed import describing a solver plug-in has at least, whatever the time limit:
-#: the child's own start-up is not counted (vvtbench.sealed), but the plug-in's imports (numpy,
-#: scipy, what it needs) take seconds on a loaded machine
+#: starting a child and importing numpy takes seconds on a loaded machine
 DESCRIBE_FLOOR = 30.0
 # Bump when a stage's output format or meaning changes (part of every task key).
 CACHE_FORMAT = 3  # 3: extraction scores and true-mode match; 2: samples are the contract, no pickle

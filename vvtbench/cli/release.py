@@ -177,7 +177,7 @@ def _print_problems(folder: Path, problems: list[str], against: str) -> None:
 def _note_environment(rel) -> None:
     """Say on stderr where this Python differs from the release's lock file (a rebuild is then
     expected to match value by value, not byte for byte)."""
-    from ..release import environment_differences
+    from ..datasets.release import environment_differences
 
     if rel.environment_path is None or not rel.environment_path.is_file():
         return
@@ -190,7 +190,7 @@ def _note_environment(rel) -> None:
 
 def _verify_rebuild(args, rel, folder: Path, expected: dict, wanted: list, keep: tuple) -> int:
     """``verify FOLDER --against COPY``: COPY byte for byte, then FOLDER value by value."""
-    from ..release import compare_rebuild, verify_copy
+    from ..datasets.release import compare_rebuild, verify_copy
 
     copy = args.against
     if not copy.is_dir():

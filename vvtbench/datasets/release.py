@@ -30,7 +30,7 @@ a sample byte for byte; the TOML records the sha256 of that list (``files_sha256
   byte for byte: every file present with its sha256, none extra;
 * :func:`compare_rebuild` (``vvtbench release verify REBUILD --against COPY``) checks a
   rebuild value by value against a copy of the frozen files (which must verify byte for byte):
-  each sample with :func:`vvtbench.sample_compare.compare_samples`, within the release's
+  each sample with :func:`vvtbench.samples.compare.compare_samples`, within the release's
   ``[tolerances]`` (:meth:`Release.tolerances`).
 
 A copy of the frozen files matches them byte for byte. A rebuild draws the same instances on
@@ -105,11 +105,11 @@ class Release:
         return None if self.environment is None else self.source.parent / self.environment
 
     def tolerances(self):
-        """The :class:`vvtbench.sample_compare.Tolerances` a rebuild is held to: the
+        """The :class:`vvtbench.samples.compare.Tolerances` a rebuild is held to: the
         definition's ``[tolerances]`` over the defaults."""
         from dataclasses import replace
 
-        from .sample_compare import TOLERANCES
+        from ..samples.compare import TOLERANCES
 
         return replace(TOLERANCES, **self.tolerance_table)
 
@@ -167,7 +167,7 @@ def load_release(name_or_path: str | Path) -> Release:
                           dict(splits)))
     if not parts:
         raise ReleaseError(f"{path}: key 'parts': a release needs at least one part")
-    from .sample_compare import TOLERANCES
+    from ..samples.compare import TOLERANCES
 
     tolerances = doc.get("tolerances") or {}
     known = TOLERANCES.to_dict()
@@ -436,11 +436,11 @@ def compare_rebuild(rebuilt: str | Path, reference: str | Path, expected: dict[s
                     ) -> RebuildComparison:
     """The rebuild ``rebuilt`` against ``reference``, a copy of the frozen files (check it with
     :func:`verify_copy` first), for every entry of the frozen list ``expected``: a sample by
-    its values (:func:`vvtbench.sample_compare.compare_samples`, ``tolerances`` or the
+    its values (:func:`vvtbench.samples.compare.compare_samples`, ``tolerances`` or the
     defaults; byte for byte when its manifest is the frozen one), any other file by its
     bytes. ``progress`` is called with each sample folder."""
-    from .dataset import DatasetError, open_sample
-    from .sample_compare import TOLERANCES, compare_samples
+    from ..samples.compare import TOLERANCES, compare_samples
+    from ..samples.reader import DatasetError, open_sample
 
     tol = TOLERANCES if tolerances is None else tolerances
     rebuilt, reference = Path(rebuilt), Path(reference)

@@ -21,7 +21,7 @@ Properties
 * Reproducible: the same scene (and seed) gives byte-identical files on one machine (ffmpeg
   bit-exact flags, no timestamps, per-frame seeded noise, BLAS on one thread, canonical sign
   and order of modes); on another CPU or with other library versions the values agree to the
-  tolerances of :mod:`vvtbench.sample_compare`, not byte for byte.
+  tolerances of :mod:`vvtbench.samples.compare`, not byte for byte.
 
 Scene specs and overrides: :func:`vvtbench.scene.scene.with_overrides`; worker jobs:
 :mod:`vvtbench.samples.jobs`; progress: :mod:`vvtbench.samples.progress`; the sensor noise model:

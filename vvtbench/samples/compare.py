@@ -145,7 +145,7 @@ def compare_samples(frozen: str | Path, rebuilt: str | Path, tol: Tolerances = T
     rules); ``frozen`` is the reference (scales, signs). The samples named in ``verify`` are
     first checked against their own manifests (every file hashed: the comparison trusts the
     manifests' sha256 for the files whose bytes are equal)."""
-    from .dataset import DatasetError, open_sample
+    from .reader import DatasetError, open_sample
 
     a, b = Path(frozen), Path(rebuilt)
     out = SampleComparison(a, b)
@@ -426,7 +426,7 @@ def _read_image(path: Path) -> np.ndarray:
 
 
 def _frames(path: Path) -> Iterator[np.ndarray]:
-    from .video import probe_video, read_frames
+    from ..video.files import probe_video, read_frames
 
     info = probe_video(path)
     bpp = 2 if info.high_depth else 1
