@@ -16,5 +16,5 @@ setup(
     package_data={"vvtbench.scenes": ["*.toml", "meshes/*.npz"],
                   "vvtbench.scenes.suites": ["*.toml"],
                   "vvtbench.scenes.families": ["*.toml"], "solvers": ["weights/*.npz"],
-                  "vvtbench.releases": ["*.toml", "*.sha256"]},
+                  "vvtbench.releases": ["*.toml", "*.sha256", "*.lock"]},
 )

@@ -593,10 +593,10 @@ def test_modes_only_sample(tmp_path):
 
     from vvtbench.scene.scene import load_scene
 
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time (every thread of this process): load does not count
     path = gen.generate(load_scene("jello_cube_defect_top"), tmp_path, video=False,
                         progress=False)
-    elapsed = time.perf_counter() - t0
+    cpu = time.process_time() - t0
     s = ds.open_sample(path)
     names = {p.name for p in path.iterdir()}
     assert names == {"scene.toml", "camera.json", "truth.json", "truth.zarr", "rest.png",
@@ -615,7 +615,8 @@ def test_modes_only_sample(tmp_path):
         assert s.require(name).size > 0
     assert np.isfinite(s["voxels/stiffness"]).all()
     assert s["observation/visible"].sum() > 0
-    assert elapsed < 20  # about 1-2 s on 2 cores; generous for loaded CI machines
+    # no transient, no video: about 2 s of CPU (the speed itself: benchmarks/bench_generate.py)
+    assert cpu < 60
 
 
 @pytest.mark.parametrize("rate", ["2000", "1200", "30000/1001"])

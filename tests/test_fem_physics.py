@@ -13,6 +13,7 @@ import pytest
 import scipy.linalg as sla
 from scipy.special import jn_zeros
 
+from vvtbench.fem import modal
 from vvtbench.fem.assembly import ParametricModel
 from vvtbench.fem.mesh import box_mesh, drum_mesh, tets_to_mesh
 from vvtbench.fem.modal import eigenmodes
@@ -199,6 +200,41 @@ def test_repeated_eigenvalues_agree_across_solvers(cube_system, cube_dense, meth
         overlap = ref.vectors[:, g].T @ (M @ modes.vectors[:, g])
         sv = np.linalg.svd(overlap, compute_uv=False)
         np.testing.assert_allclose(sv, 1.0, atol=1e-6, err_msg=f"cluster {g.tolist()}")
+
+
+@pytest.mark.parametrize("method", ["block", "arpack"])
+def test_canonical_modes_are_the_same_vectors_whatever_the_solver(cube_system, cube_dense,
+                                                                   method):
+    """Each solver returns its own basis of a repeated eigenvalue and its own signs; the
+    canonical ones (sign by the largest entry, a cluster's basis by the probe vectors) agree
+    vector by vector, as they must between machines."""
+    K, M = cube_system
+    lam = cube_dense.eigenvalues
+    edges = np.flatnonzero(np.diff(lam) > 1e-6 * lam[1:]) + 1
+    k = int(edges[edges <= 20].max())  # no cluster cut in two
+    modes = eigenmodes(K, M, k, method=method)
+    ref = cube_dense.vectors[:, :k]
+    err = np.abs(modes.vectors - ref).max(axis=0) / np.abs(ref).max(axis=0)
+    assert err.max() < 1e-6, err
+
+
+def test_a_mode_sign_is_canonical_with_mirror_ties():
+    rng = np.random.default_rng(1)
+    half = rng.standard_normal((40, 6))
+    half[0] = 10.0  # the largest magnitude, reached twice with opposite signs (a mirror pair)
+    phi = np.vstack([half, -half[::-1]])
+    canon = modal.canonical_signs(phi)
+    assert np.all(canon[0] > 0)  # the first of the tied entries decides
+    for flipped in (-phi, phi * np.where(np.arange(6) % 2, -1.0, 1.0)):
+        noisy = flipped * (1 + 1e-13 * rng.standard_normal(flipped.shape))  # rounding
+        np.testing.assert_allclose(modal.canonical_signs(noisy), canon, rtol=1e-12)
+
+
+def test_probe_vectors_are_fixed_numbers():
+    p = modal.probe_vectors(5, 2)
+    assert p.shape == (5, 2) and np.all((p >= -1) & (p < 1))
+    np.testing.assert_array_equal(p, modal.probe_vectors(9, 3)[:5, :2])
+    assert p[0, 0] == modal.probe_vectors(1, 1)[0, 0]
 
 
 # --------------------------------------------------------------------------- 7: ParametricModel

@@ -4,12 +4,16 @@ byte, a missing, an extra or a linked file, or an edited list, fails with the fi
 from __future__ import annotations
 
 import os
+import platform
 import shutil
+import subprocess
+import sys
 
 import pytest
 
 from vvtbench.cli import main
-from vvtbench.datasets.release import load_release, read_sums
+from vvtbench.datasets.release import ReleaseError, check_environment_file, load_release, read_sums
+from vvtbench.samples.compare import TOLERANCES
 
 TINY = """
 name = "tiny-release"
@@ -47,6 +51,54 @@ def test_the_shipped_release_is_well_formed():
     assert rel.n_instances() > 0 and {p.family for p in rel.parts} == {
         "cube_defects", "drum_defects", "bunny_defects"}
     assert any(not p.video for p in rel.parts) and any(p.video for p in rel.parts)
+    check_environment_file(rel)  # its lock file, as recorded
+    lock = rel.environment_path.read_text()
+    assert "numpy==" in lock and "scipy==" in lock and "scikit-sparse==" in lock
+    assert rel.tolerances() == TOLERANCES  # the documented ones (docs/dataset.md)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[tolerances]\nrtol = 1e-3\n", "tolerances.rtol"),
+    ("[tolerances]\ndn = 0.5\n", "tolerances.dn"),
+    ('environment = "../x.lock"\n', "key 'environment'"),
+])
+def test_bad_tolerances_and_environments_are_refused(tmp_path, text, match):
+    head, parts = TINY.split("[[parts]]", 1)
+    definition = tmp_path / "bad.toml"
+    definition.write_text(head + text + "[[parts]]" + parts)
+    with pytest.raises(ReleaseError, match=match):
+        load_release(definition)
+
+
+@pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64"),
+                    reason="OpenBLAS kernel names are x86-64 ones")
+def test_a_rebuild_on_another_cpu_verifies_value_by_value(built, tmp_path, capsys):
+    """A rebuild with another BLAS kernel (OPENBLAS_CORETYPE emulates another CPU) matches the
+    frozen files value by value against a copy of them; a value beyond the tolerances, or a
+    reference that is not the frozen files, fails with the file named."""
+    from test_sample_compare import _edit, _remanifest
+
+    root, definition, out = built
+    rebuild = tmp_path / "rebuild"
+    env = {**os.environ, "OPENBLAS_CORETYPE": "Prescott"}
+    subprocess.run([sys.executable, "-m", "vvtbench.cli", "release", "build", str(definition),
+                    "-o", str(rebuild), "--part", "cubes"], env=env, check=True,
+                   capture_output=True)
+    capsys.readouterr()
+    assert main(["release", "verify", str(rebuild), "--release", str(definition), "--against",
+                 str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "match tiny-release value by value (3 samples:" in said and "rtol_f64 1e-08" in said
+    sample = next((rebuild / "cubes" / "train").iterdir())
+    _edit(sample, "modes/eigenvalues", lambda x: x * (1 + 1e-6))
+    _remanifest(sample)
+    assert main(["release", "verify", str(rebuild), "--release", str(definition), "--against",
+                 str(out)]) == 1
+    err = capsys.readouterr().err
+    assert f"cubes/train/{sample.name}/truth.zarr/modes/eigenvalues: values differ by" in err
+    assert main(["release", "verify", str(out), "--release", str(definition), "--against",
+                 str(rebuild)]) == 1  # the reference must be the frozen files
+    assert "the copy to compare with must be the frozen files" in capsys.readouterr().err
 
 
 def test_a_copy_verifies_byte_for_byte(built, tmp_path, capsys):

@@ -24,8 +24,14 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=positive_int, default=1, help="local processes")
     b.add_argument("--scheduler", default=None, help="a Dask scheduler address")
     v = sub.add_parser("verify", help="check a copy against the release's frozen file list, "
-                       "byte for byte")
+                       "byte for byte; or, with --against COPY, a rebuild against a copy, "
+                       "value by value")
     v.add_argument("folder", type=Path, help="the copy (the folder `build` wrote)")
+    v.add_argument("--against", type=Path, default=None, metavar="COPY",
+                   help="FOLDER is a rebuild (on this machine): check COPY, a copy of the "
+                   "frozen files, byte for byte, then FOLDER against it value by value within "
+                   "the release's tolerances (docs/dataset.md, 'Same answer on every "
+                   "machine')")
     v.add_argument("--release", default=None,
                    help="the release (default: the one named in FOLDER/release.toml)")
     v.add_argument("--part", action="append", default=None,
@@ -74,6 +80,7 @@ def _build(args, main) -> int:
     except (ReleaseError, OutputError) as error:
         return _fail(error)
     write_text(out / "release.toml", rel.source.read_text())
+    _note_environment(rel)
     t0 = time.perf_counter()
     for part in parts:
         for split, n in part.splits.items():
@@ -104,7 +111,14 @@ def _build(args, main) -> int:
 
 
 def _verify(args) -> int:
-    from ..datasets.release import ReleaseError, list_digest, load_release, read_sums, verify_copy
+    from ..datasets.release import (
+        ReleaseError,
+        check_environment_file,
+        list_digest,
+        load_release,
+        read_sums,
+        verify_copy,
+    )
 
     folder = args.folder
     if not folder.is_dir():
@@ -119,6 +133,7 @@ def _verify(args) -> int:
         if rel.files_sha256 and list_digest(rel.sums_path) != rel.files_sha256:
             raise ReleaseError(f"{rel.sums_path}: its sha256 is not the files_sha256 recorded "
                                f"in {rel.source} (the list was edited)")
+        check_environment_file(rel)
         expected = read_sums(rel.sums_path)
     except ReleaseError as error:
         return _fail(error)
@@ -131,20 +146,71 @@ def _verify(args) -> int:
     keep = tuple(f"{p}/" for p in wanted)
     if args.part:
         expected = {k: v for k, v in expected.items() if k.startswith(keep)}
+    if args.against is not None:
+        return _verify_rebuild(args, rel, folder, expected, wanted, keep)
     problems = verify_copy(folder, expected)
     unbuilt = tuple(f"{p.name}/" for p in rel.parts if p.name not in frozen)
     problems = [p for p in problems if not p.startswith(unbuilt)]  # not frozen: not checked
     if args.part:  # the other parts' files are not this check's business
         problems = [p for p in problems if p.startswith(keep)]
     if problems:
-        print(f"{folder}: {len(problems)} problem(s) against {rel.sums_path}", file=sys.stderr)
-        for p in problems[:50]:
-            print(f"  {p}", file=sys.stderr)
-        if len(problems) > 50:
-            print(f"  ... and {len(problems) - 50} more", file=sys.stderr)
+        _print_problems(folder, problems, str(rel.sums_path))
+        if any(p.endswith("manifest.json: sha256 differs (changed or damaged)")
+               for p in problems):
+            print(f"(a rebuild rather than a copy? its bytes match only on a machine that "
+                  f"rounds alike; compare its values: vvtbench release verify {folder} "
+                  "--against COPY, COPY a copy of the frozen files)", file=sys.stderr)
         return 1
     print(f"{folder}: {len(expected)} files of {', '.join(wanted)} match {rel.name} byte for "
           "byte")
+    return 0
+
+
+def _print_problems(folder: Path, problems: list[str], against: str) -> None:
+    print(f"{folder}: {len(problems)} problem(s) against {against}", file=sys.stderr)
+    for p in problems[:50]:
+        print(f"  {p}", file=sys.stderr)
+    if len(problems) > 50:
+        print(f"  ... and {len(problems) - 50} more", file=sys.stderr)
+
+
+def _note_environment(rel) -> None:
+    """Say on stderr where this Python differs from the release's lock file (a rebuild is then
+    expected to match value by value, not byte for byte)."""
+    from ..datasets.release import environment_differences
+
+    if rel.environment_path is None or not rel.environment_path.is_file():
+        return
+    diff = environment_differences(rel.environment_path)
+    if diff:
+        shown = "; ".join(diff[:5]) + (f"; and {len(diff) - 5} more" if len(diff) > 5 else "")
+        print(f"note: this environment differs from {rel.environment_path.name} in "
+              f"{len(diff)} package(s): {shown}", file=sys.stderr)
+
+
+def _verify_rebuild(args, rel, folder: Path, expected: dict, wanted: list, keep: tuple) -> int:
+    """``verify FOLDER --against COPY``: COPY byte for byte, then FOLDER value by value."""
+    from ..datasets.release import compare_rebuild, verify_copy
+
+    copy = args.against
+    if not copy.is_dir():
+        return _fail(f"{copy}: no such folder")
+    unbuilt = tuple(f"{p.name}/" for p in rel.parts if p.name not in wanted)
+    problems = [p for p in verify_copy(copy, expected) if not p.startswith(unbuilt)]
+    if args.part:
+        problems = [p for p in problems if p.startswith(keep)]
+    if problems:
+        _print_problems(copy, problems, f"{rel.sums_path} (the copy to compare with must be "
+                                        "the frozen files)")
+        return 1
+    _note_environment(rel)
+    tol = rel.tolerances()
+    result = compare_rebuild(folder, copy, expected, tol)
+    if result.problems:
+        _print_problems(folder, result.problems, f"{copy}, value by value ({result.summary()})")
+        return 1
+    print(f"{folder}: {', '.join(wanted)} match {rel.name} value by value ({result.summary()}; "
+          f"tolerances: {', '.join(f'{k} {v:g}' for k, v in tol.to_dict().items())})")
     return 0
 
 

@@ -27,11 +27,17 @@ a sample byte for byte; the TOML records the sha256 of that list (``files_sha256
   listing only the files the build wrote (:func:`build_sums`); DIR must be new, empty or a
   build of the same release (:func:`vvtbench.io.outputs.claim_output`);
 * :func:`verify_copy` (``vvtbench release verify DIR``) checks a copy against the frozen list
-  byte for byte: every file present with its sha256, none extra.
+  byte for byte: every file present with its sha256, none extra;
+* :func:`compare_rebuild` (``vvtbench release verify REBUILD --against COPY``) checks a
+  rebuild value by value against a copy of the frozen files (which must verify byte for byte):
+  each sample with :func:`vvtbench.samples.compare.compare_samples`, within the release's
+  ``[tolerances]`` (:meth:`Release.tolerances`).
 
-A rebuild on another machine, or with another number of workers, draws the same instances and
-matches the frozen files to floating-point rounding (eigen-solves use threaded BLAS), not byte
-for byte; a copy of the frozen files matches exactly.
+A copy of the frozen files matches them byte for byte. A rebuild draws the same instances on
+every machine, and matches the frozen files byte for byte only where the floating-point
+arithmetic is the same (the CPU's BLAS kernels, the library versions of the release's lock
+file ``releases/<name>.lock``); elsewhere it matches them value by value within the
+tolerances (docs/dataset.md, "Same answer on every machine").
 """
 
 from __future__ import annotations
@@ -45,7 +51,8 @@ from pathlib import Path
 
 from ..samples.reader import sha256_file as _sha256
 
-__all__ = ["RELEASES_DIR", "Release", "ReleaseError", "build_sums", "file_sums",
+__all__ = ["RELEASES_DIR", "RebuildComparison", "Release", "ReleaseError", "build_sums",
+           "check_environment_file", "compare_rebuild", "environment_differences", "file_sums",
            "is_earlier_build", "load_release", "read_sums", "release_sums", "verify_copy",
            "write_sums"]
 
@@ -82,11 +89,29 @@ class Release:
     files_sha256: str | None
     source: Path
     extra: dict = field(default_factory=dict)
+    environment: str | None = None
+    environment_sha256: str | None = None
+    tolerance_table: dict = field(default_factory=dict)
 
     @property
     def sums_path(self) -> Path:
         """The frozen file list beside the definition."""
         return self.source.with_suffix(".sha256")
+
+    @property
+    def environment_path(self) -> Path | None:
+        """The lock file of the environment the release was built in (beside the definition),
+        or None when the definition names none."""
+        return None if self.environment is None else self.source.parent / self.environment
+
+    def tolerances(self):
+        """The :class:`vvtbench.samples.compare.Tolerances` a rebuild is held to: the
+        definition's ``[tolerances]`` over the defaults."""
+        from dataclasses import replace
+
+        from ..samples.compare import TOLERANCES
+
+        return replace(TOLERANCES, **self.tolerance_table)
 
     def part(self, name: str) -> Part:
         for p in self.parts:
@@ -142,6 +167,20 @@ def load_release(name_or_path: str | Path) -> Release:
                           dict(splits)))
     if not parts:
         raise ReleaseError(f"{path}: key 'parts': a release needs at least one part")
+    from ..samples.compare import TOLERANCES
+
+    tolerances = doc.get("tolerances") or {}
+    known = TOLERANCES.to_dict()
+    for key, value in tolerances.items() if isinstance(tolerances, dict) else [(None, None)]:
+        if key not in known or isinstance(value, bool) or not isinstance(value, int | float) \
+                or not value >= 0 or (isinstance(known[key], int) and not isinstance(value, int)):
+            raise ReleaseError(f"{path}: key 'tolerances.{key}': allowed keys "
+                               f"{', '.join(known)}, each a number >= 0 (dn: an integer)")
+    environment = doc.get("environment")
+    if environment is not None and (not isinstance(environment, str) or "/" in environment
+                                    or environment.startswith(".")):
+        raise ReleaseError(f"{path}: key 'environment': the name of a lock file beside the "
+                           "definition")
     if len({p.name for p in parts}) != len(parts):
         raise ReleaseError(f"{path}: key 'parts': part names must be unique")
     return Release(name=need(doc, "name", str, ""), vvtbench=need(doc, "vvtbench", str, ""),
@@ -151,7 +190,10 @@ def load_release(name_or_path: str | Path) -> Release:
                    files_sha256=doc.get("files_sha256"), source=path,
                    extra={k: v for k, v in doc.items() if k not in (
                        "name", "vvtbench", "description", "license", "observation", "parts",
-                       "files_sha256")})
+                       "files_sha256", "environment", "environment_sha256", "tolerances")},
+                   environment=environment,
+                   environment_sha256=doc.get("environment_sha256"),
+                   tolerance_table=dict(tolerances))
 
 
 def _files(root: Path, exclude: tuple[str, ...] = (SUMS, DEFINITION)) -> Iterator[Path]:
@@ -322,6 +364,114 @@ def verify_copy(root: str | Path, expected: dict[str, str],
     return problems
 
 
+def environment_differences(lock: Path) -> list[str]:
+    """``name version (lock: version)`` for each package the lock file ``lock`` pins
+    (``name==version`` lines) that this Python has at another version or not at all."""
+    from importlib import metadata
+
+    out = []
+    for line in Path(lock).read_text().splitlines():
+        name, sep, version = line.split("#")[0].strip().partition("==")
+        if not sep:
+            continue
+        try:
+            have = metadata.version(name.strip())
+        except metadata.PackageNotFoundError:
+            have = None
+        if have != version.strip():
+            out.append(f"{name.strip()} {have or 'not installed'} (lock: {version.strip()})")
+    return out
+
+
+def check_environment_file(rel: Release) -> None:
+    """ReleaseError when the definition names a lock file that is missing or not the one its
+    ``environment_sha256`` records."""
+    path = rel.environment_path
+    if path is None:
+        return
+    if not path.is_file():
+        raise ReleaseError(f"{rel.source}: key 'environment': no file {path}")
+    if rel.environment_sha256 and _sha256(path) != rel.environment_sha256:
+        raise ReleaseError(f"{path}: its sha256 is not the environment_sha256 recorded in "
+                           f"{rel.source} (the lock file was edited)")
+
+
 def list_digest(path: Path) -> str:
     """The sha256 of a frozen file list (recorded in the release definition)."""
     return _sha256(path)
+
+
+@dataclass
+class RebuildComparison:
+    """What :func:`compare_rebuild` found."""
+
+    problems: list[str] = field(default_factory=list)
+    samples: int = 0
+    byte_identical: int = 0
+    """Samples whose manifest (and so every file) is the frozen one."""
+    within: int = 0
+    """Samples whose bytes differ and whose values agree within the tolerances."""
+    worst: dict[str, float] = field(default_factory=dict)
+    """The largest difference per compared item over every sample."""
+    flipped: int = 0
+    """Modes of opposite sign, over every sample."""
+
+    def summary(self) -> str:
+        floats = [v for k, v in self.worst.items() if not k.endswith(" (DN)")]
+        dn = [v for k, v in self.worst.items() if k.endswith(" (DN)")]
+        text = (f"{self.samples} samples: {self.byte_identical} byte for byte, {self.within} "
+                f"within the tolerances, {self.samples - self.byte_identical - self.within} "
+                "not")
+        if floats:
+            text += f"; largest relative difference {max(floats):.1e}"
+        if dn:
+            text += f", largest image difference {max(dn):g} DN"
+        if self.flipped:
+            text += f"; {self.flipped} mode(s) of opposite sign"
+        return text
+
+
+def compare_rebuild(rebuilt: str | Path, reference: str | Path, expected: dict[str, str],
+                    tolerances=None, progress: Callable[[str], None] | None = None
+                    ) -> RebuildComparison:
+    """The rebuild ``rebuilt`` against ``reference``, a copy of the frozen files (check it with
+    :func:`verify_copy` first), for every entry of the frozen list ``expected``: a sample by
+    its values (:func:`vvtbench.samples.compare.compare_samples`, ``tolerances`` or the
+    defaults; byte for byte when its manifest is the frozen one), any other file by its
+    bytes. ``progress`` is called with each sample folder."""
+    from ..samples.compare import TOLERANCES, compare_samples
+    from ..samples.reader import DatasetError, open_sample
+
+    tol = TOLERANCES if tolerances is None else tolerances
+    rebuilt, reference = Path(rebuilt), Path(reference)
+    out = RebuildComparison()
+    for rel, digest in expected.items():
+        if not rel.endswith("/manifest.json"):
+            f = rebuilt / rel
+            if not f.is_file() or f.is_symlink():
+                out.problems.append(f"{rel}: missing from the rebuild")
+            elif _sha256(f) != digest:
+                out.problems.append(f"{rel}: differs (compared byte for byte)")
+            continue
+        folder = rel[: -len("/manifest.json")]
+        out.samples += 1
+        if progress:
+            progress(folder)
+        if not (rebuilt / rel).is_file():
+            out.problems.append(f"{folder}: missing from the rebuild")
+            continue
+        if _sha256(rebuilt / rel) == digest:
+            try:
+                damaged = open_sample(rebuilt / folder, verify=False).verify()
+            except DatasetError as error:
+                damaged = [str(error)]
+            out.problems += [f"{folder}/{p}" for p in damaged]
+            out.byte_identical += not damaged
+            continue
+        c = compare_samples(reference / folder, rebuilt / folder, tol, verify=("rebuilt",))
+        out.problems += [f"{folder}/{p}" for p in c.problems]
+        out.within += c.ok
+        out.flipped += len(c.flipped)
+        for k, v in c.worst.items():
+            out.worst[k] = max(out.worst.get(k, 0.0), v)
+    return out

@@ -1,17 +1,36 @@
 """Generalized eigenmodes K phi = lambda M phi by shift-invert Lanczos.
 
-Modes are mass-normalized (Phi^T M Phi = I), sorted by frequency, deterministic (seeded start
-vector, sign fixed so the largest entry is positive), and M-orthonormal inside clusters of
-repeated eigenvalues, which symmetric objects such as cubes have.
+Modes are mass-normalized (Phi^T M Phi = I), sorted by frequency and canonical, so that two
+machines whose floating-point results differ in the last bits give the same modes to rounding
+(not modes that differ by a sign or a rotation):
+
+* **sign:** the entry of largest magnitude is positive; entries within ``SIGN_RTOL`` of the
+  largest count as tied (mirror-symmetric modes have several), and the first of them in DOF
+  order decides;
+* **repeated eigenvalues:** a cluster (eigenvalues equal to ``cluster_rtol``, which symmetric
+  objects such as square cubes and drums have) gets the M-orthonormal basis of its subspace
+  nearest to the M-projections of fixed probe vectors (:func:`probe_vectors`, a hash of the DOF
+  index: no random generator), in probe order; any basis the eigen-solver returns for the same
+  subspace gives the same one.
+
+:func:`single_threaded` runs code with one BLAS and OpenMP thread, so that results do not
+depend on the number of cores (the data generator runs inside it).
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+SIGN_RTOL = 1e-6
+"""Entries within this relative distance of a mode's largest magnitude tie for its sign: far
+above the 1e-12 by which the same mode differs between machines, far below the spread of
+distinct entries of a mode."""
 
 
 @dataclass(frozen=True)
@@ -121,10 +140,10 @@ def eigenmodes(
         v0 = np.random.default_rng(seed).standard_normal(n)
         ncv = min(n - 1, max(2 * k + 1, k + 32))
         lam, phi = spla.eigsh(K, k=k, M=M, sigma=sigma, OPinv=op, v0=v0, ncv=ncv, tol=tol)
-    order = np.argsort(lam)
+    order = np.argsort(lam, kind="stable")
     lam, phi = lam[order], phi[:, order]
     phi = _orthonormalize_clusters(lam, phi, M, cluster_rtol)
-    return Modes(lam, _fix_signs(phi))
+    return Modes(lam, canonical_signs(phi))
 
 
 def _m_orthonormalize(block, basis, M, drop=1e-10):
@@ -201,6 +220,8 @@ def _dense(K: sp.spmatrix, M: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _orthonormalize_clusters(lam, phi, M, rtol):
+    """Each cluster of eigenvalues equal to ``rtol`` made M-orthonormal (Loewdin) and, when it
+    has several modes, turned to its canonical basis (the module's docstring)."""
     scale = max(np.abs(lam).max(), 1e-300)
     edges = np.flatnonzero(np.diff(lam) > rtol * np.maximum(np.abs(lam[1:]), 1e-3 * scale)) + 1
     out = phi.copy()
@@ -208,15 +229,51 @@ def _orthonormalize_clusters(lam, phi, M, rtol):
         block = phi[:, group]
         gram = block.T @ (M @ block)
         w, v = np.linalg.eigh((gram + gram.T) / 2)
-        out[:, group] = block @ (v / np.sqrt(w)) @ v.T
+        block = block @ (v / np.sqrt(w)) @ v.T
+        if len(group) > 1:
+            c = block.T @ (M @ probe_vectors(block.shape[0], len(group)))
+            u, _, vt = np.linalg.svd(c)
+            block = block @ (u @ vt)  # the basis nearest to the probes' projections
+        out[:, group] = block
     return out
 
 
-def _fix_signs(phi: np.ndarray) -> np.ndarray:
-    idx = np.argmax(np.abs(phi), axis=0)
-    signs = np.sign(phi[idx, np.arange(phi.shape[1])])
+def probe_vectors(n: int, m: int) -> np.ndarray:
+    """``(n, m)`` fixed vectors with entries in [-1, 1), from the SplitMix64 hash of (row,
+    column): the same on every machine and with every NumPy version."""
+    i = np.arange(n, dtype=np.uint64)[:, None]
+    j = np.arange(1, m + 1, dtype=np.uint64)[None, :]
+    x = i * np.uint64(0x9E3779B97F4A7C15) + j * np.uint64(0xD1B54A32D192ED03)  # wraps mod 2^64
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    x = x ^ (x >> np.uint64(31))
+    return (x >> np.uint64(11)).astype(np.float64) * 2.0**-52 - 1.0
+
+
+def canonical_signs(phi: np.ndarray, rtol: float = SIGN_RTOL) -> np.ndarray:
+    """``phi`` with each column's sign fixed: its entry of largest magnitude positive, the
+    first one (lowest row) among entries within ``rtol`` of the largest."""
+    mag = np.abs(phi)
+    if mag.size == 0:
+        return phi.copy()
+    first = np.argmax(mag >= (1.0 - rtol) * mag.max(axis=0), axis=0)
+    signs = np.sign(phi[first, np.arange(phi.shape[1])])
     signs[signs == 0] = 1
     return phi * signs
+
+
+@contextlib.contextmanager
+def single_threaded() -> Iterator[None]:
+    """Run the block with one BLAS and one OpenMP thread in every library that uses them
+    (NumPy's, SciPy's and CHOLMOD's OpenBLAS), so that sums are taken in one order whatever the
+    number of cores. The libraries are loaded first: a limit reaches only those loaded."""
+    import scipy.linalg  # noqa: F401 - loads SciPy's BLAS
+    from threadpoolctl import threadpool_limits
+
+    with contextlib.suppress(ImportError):
+        import sksparse.cholmod  # type: ignore[import-not-found]  # noqa: F401
+    with threadpool_limits(limits=1):
+        yield
 
 
 def cluster_frequencies(frequencies: np.ndarray, rtol: float = 1e-6) -> list[np.ndarray]:

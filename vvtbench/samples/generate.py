@@ -18,8 +18,10 @@ Properties
   at the end; an existing sample is replaced only with ``overwrite=True``.
 * Resumable: each finished video segment is recorded in ``.NAME.partial/checkpoint.json``; a
   rerun with the same scene and options continues after the last finished segment.
-* Reproducible: the same scene (and seed) gives byte-identical files (ffmpeg bit-exact flags,
-  no timestamps, per-frame seeded noise).
+* Reproducible: the same scene (and seed) gives byte-identical files on one machine (ffmpeg
+  bit-exact flags, no timestamps, per-frame seeded noise, BLAS on one thread, canonical sign
+  and order of modes); on another CPU or with other library versions the values agree to the
+  tolerances of :mod:`vvtbench.samples.compare`, not byte for byte.
 
 Scene specs and overrides: :func:`vvtbench.scene.scene.with_overrides`; worker jobs:
 :mod:`vvtbench.samples.jobs`; progress: :mod:`vvtbench.samples.progress`; the sensor noise model:
@@ -41,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
+from ..fem.modal import single_threaded
 from ..fem.voxels import default_voxel_shape
 from ..io.files import open_new, write_json
 from ..render.sensor import FULL_WELL_ELECTRONS, noise_rng, sensor_dn
@@ -277,7 +280,8 @@ def generate(
         _write_json_sorted(checkpoint, state)
     bar = StageProgress(progress, callback, scene.name)
     try:
-        _generate_into(scene, scene_text, partial, opts, state, checkpoint, bar)
+        with single_threaded():  # the same sums on 2 cores and on 64 (docs/dataset.md)
+            _generate_into(scene, scene_text, partial, opts, state, checkpoint, bar)
     finally:
         bar.close()
     shutil.rmtree(partial / "segments", ignore_errors=True)

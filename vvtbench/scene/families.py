@@ -25,6 +25,15 @@ Draws that the mesh checks of :mod:`vvtbench.simulation.simulate` would reject (
 element centroid, a pluck off the body) are re-drawn from the same stream, a bounded number of
 times (``attempts``), so a valid family always resolves every instance.
 
+Because the content hash decides the split, a drawn value that differed in its last bit
+between machines would give another instance, not a rounded one. The draw therefore uses only
+arithmetic that is the same everywhere: IEEE operations element by element and vector lengths
+by :func:`length3` (exact pure-Python arithmetic), never a BLAS kernel, whose sums differ
+between CPUs. The C library's ``exp``, ``log``, ``sin`` and ``cos`` remain: glibc gives the
+same bits on every x86-64 CPU with FMA instructions, but its code for CPUs without them rounds
+about one result in a thousand the other way (9 of the 900 modes-only instances of
+``vvtbench-v1`` are drawn differently there; docs/dataset.md, "Same answer on every machine").
+
 >>> scene = draw("cube_defects", "test", 42)
 >>> scene.name
 'cube_defects-test-00042'
@@ -418,14 +427,29 @@ def _set(d: dict, dotted: str, value) -> None:
         node[parts[-1]] = value
 
 
+def _fma(a: float, b: float, c: float) -> float:
+    """``a * b + c`` rounded once (exactly, as a fused multiply-add does)."""
+    from fractions import Fraction
+
+    return float(Fraction(a) * Fraction(b) + Fraction(c))
+
+
+def length3(v) -> float:
+    """The length of a 3-vector as ``sqrt(fma(z, z, fma(y, y, x * x)))``, exactly: the same
+    bits on every machine. (This is how the BLAS of the machine ``vvtbench-v1`` was drawn on
+    summed it; a draw with another rounding would hash to other instances.)"""
+    x, y, z = (float(c) for c in v)
+    return math.sqrt(_fma(z, z, _fma(y, y, x * x)))
+
+
 def _cone(rng, axis: np.ndarray, max_deg: float) -> np.ndarray:
     """A unit vector uniform over the spherical cap of half-angle ``max_deg`` around ``axis``."""
-    a = axis / np.linalg.norm(axis)
+    a = axis / length3(axis)
     cos_t = 1.0 - rng.uniform() * (1.0 - math.cos(math.radians(max_deg)))
     phi = rng.uniform(0.0, 2 * math.pi)
     helper = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
     e1 = np.cross(a, helper)
-    e1 /= np.linalg.norm(e1)
+    e1 /= length3(e1)
     e2 = np.cross(a, e1)
     sin_t = math.sqrt(max(0.0, 1.0 - cos_t**2))
     return cos_t * a + sin_t * (math.cos(phi) * e1 + math.sin(phi) * e2)
@@ -538,9 +562,9 @@ def _draw_once(fam: Family, rng: np.random.Generator, attempts: int) -> dict:
         if ex.direction is not None:
             for _attempt in range(attempts):
                 v = np.array([c.sample(rng) for c in ex.direction], dtype=float)
-                if np.linalg.norm(v) > 1e-3 * max(1.0, float(np.abs(v).max())):
+                if length3(v) > 1e-3 * max(1.0, float(np.abs(v).max())):
                     break
-            exd["direction"] = [float(x) for x in v / np.linalg.norm(v)]
+            exd["direction"] = [float(x) for x in v / length3(v)]
         if ex.at is not None:
             radius = float(exd.get("radius", 0.0))
             pts = mesh.points
@@ -559,7 +583,7 @@ def _draw_once(fam: Family, rng: np.random.Generator, attempts: int) -> dict:
     if fam.camera is not None:
         cam = data["camera"]
         look = np.asarray(cam["look_at"], dtype=float)
-        dist = float(np.linalg.norm(base_view)) * float(fam.camera.distance_scale.sample(rng))
+        dist = length3(base_view) * float(fam.camera.distance_scale.sample(rng))
         dist *= float(stretch.max())
         direction = _cone(rng, base_view, float(fam.camera.cone_deg.sample(rng)))
         cam["position"] = [float(x) for x in look + dist * direction]

@@ -12,6 +12,7 @@ This is the simulation backend: it reads only the scene (pure data) and returns 
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -22,7 +23,7 @@ import numpy as np
 
 from ..fem.assembly import ParametricModel
 from ..fem.mesh import Mesh, box_mesh, drum_mesh, load_surface, tet_mesh
-from ..fem.modal import Factorization, Modes, eigenmodes
+from ..fem.modal import Factorization, Modes, eigenmodes, single_threaded
 from ..fem.transient import damping_ratios, modal_coordinates, modal_damping, newmark_response
 from ..scene.scene import Chirp, ForceFile, Impulse, Scene, SceneError
 
@@ -476,9 +477,24 @@ def frame_times(scene: Scene) -> np.ndarray:
     return np.arange(n) / scene.simulation.fps
 
 
+def _single_threaded(fn):
+    """``fn`` run with one BLAS and OpenMP thread (:func:`vvtbench.fem.modal.single_threaded`):
+    a scene simulated here, inside ``generate`` or anywhere else, gives the same bits whatever
+    the number of cores."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with single_threaded():
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+@_single_threaded
 def simulate(scene: Scene, transient: bool = True, method: str | None = None) -> SimulationResult:
     """Mesh, materials, the lowest ``simulation.n_modes`` modes and (optionally) the transient
-    response at every surface node, sampled at the scene's frame rate."""
+    response at every surface node, sampled at the scene's frame rate. BLAS and OpenMP run on
+    one thread, so the result does not depend on the number of cores."""
     timings: dict[str, float] = {}
     transient = transient and scene.excitation.kind != "none"
     if scene.geometry.kind != "mesh":
