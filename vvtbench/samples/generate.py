@@ -180,6 +180,8 @@ class _Options:
     segment_frames: int
     preview_frames: int
     video: bool = True
+    #: render the video's frames (False: the filmed truth without the video files)
+    frames: bool = True
 
     def to_dict(self) -> dict:
         return {
@@ -197,6 +199,7 @@ def generate(
     out_dir: str | Path,
     *,
     video: bool = True,
+    frames: bool = True,
     progress: bool = True,
     overwrite: bool = False,
     consumer_crf: int | None = None,
@@ -216,6 +219,12 @@ def generate(
     video : render the video (default). False writes a *modes-only* sample: the truth
         without ``video.*``, ``preview.mp4``, ``transient/*`` and ``image/modes``, and without
         running the transient simulation (docs/dataset.md, "Modes-only samples").
+    frames : with ``video``, render the frames (default). False writes the truth of the filmed
+        sample, every array and file as rendering would write it (transient, image-space
+        modes, the Cramér-Rao ruler from the rest render), without the video files and
+        ``preview.mp4``: the manifest lists them under ``withheld``. What a merge of run
+        shards regenerates to score estimates against (docs/suites.md, "Running a suite in
+        shards"); minutes of rendering saved per sample.
     progress : show progress bars per stage.
     overwrite : replace an existing sample folder (otherwise an error).
     consumer_crf : if given (default: the scene's ``render.consumer_crf``), the video is 8-bit
@@ -245,7 +254,7 @@ def generate(
     opts = _Options(
         consumer_crf, float(full_well),
         tuple(int(n) for n in (voxel_shape or default_voxel_shape(scene))),
-        int(segment_frames), int(preview_frames), bool(video),
+        int(segment_frames), int(preview_frames), bool(video), bool(frames) or not video,
     )
     out_dir = Path(out_dir)
     final = out_dir / scene.name
@@ -268,7 +277,8 @@ def generate(
     scene_text = _scene_toml(scene)
     fingerprint = hashlib.sha256(
         json.dumps({"scene": scene_text, "options": opts.to_dict(), "vvtbench": __version__,
-                    "format": FORMAT_VERSION, "extra": extra_json or {}},
+                    "format": FORMAT_VERSION, "extra": extra_json or {},
+                    **({} if opts.frames else {"frames": False})},
                    sort_keys=True).encode()
     ).hexdigest()
     checkpoint = partial / "checkpoint.json"
@@ -291,7 +301,7 @@ def generate(
             raise DatasetError(f"extra_json: {file_name!r} is not allowed (allowed: a file "
                                "name that is not one of the sample's own files)")
         _write_json_sorted(partial / file_name, data)
-    _write_manifest(partial, scene)
+    _write_manifest(partial, scene, withheld=[] if opts.frames else _withheld(partial))
     if final.exists():
         trash = out_dir / f".{scene.name}.old"
         shutil.rmtree(trash, ignore_errors=True)
@@ -385,10 +395,10 @@ def _generate_into(scene: Scene, scene_text: str, work: Path, opts: _Options, st
     views = []
     for v, camera in enumerate(ctx.cameras):
         with scene_renderer(scene, ctx.rest, ctx.tris, camera) as renderer:
-            if opts.video:
+            if opts.video and opts.frames:
                 _render_video(ctx, renderer, state, checkpoint, bar, v)
             views.append(_rest_views(ctx, renderer, v))
-            if opts.video and v == 0:
+            if opts.video and opts.frames and v == 0:
                 _preview(ctx, renderer, work / "preview.mp4", 0.0, bar)
     bar.stage("ground truth", 4 + 2 * len(views))
     truth = _write_truth(ctx, views, bar)
@@ -829,7 +839,15 @@ def _preview(ctx: _Context, renderer, path: Path, peak_px: float, bar: StageProg
 PREVIEW_PEAK_PX = 8.0  # magnified peak image motion of preview.mp4 (px)
 
 
-def _write_manifest(work: Path, scene: Scene) -> None:
+def _withheld(work: Path) -> list[str]:
+    """The files ``truth.json`` names that a sample generated without frames does not hold:
+    every view's video and ``preview.mp4``."""
+    info = json.loads((work / "truth.json").read_text())
+    names = [info["video"]["file"], *(v.get("video_file") for v in info.get("views") or [])]
+    return sorted({str(n) for n in names if n} | {"preview.mp4"})
+
+
+def _write_manifest(work: Path, scene: Scene, withheld: list[str] | None = None) -> None:
     files = {}
     for p in sorted(work.rglob("*")):
         if p.is_file():
@@ -845,4 +863,5 @@ def _write_manifest(work: Path, scene: Scene) -> None:
         "scene": scene.name,
         "seed": scene.seed,
         "files": files,
+        **({"withheld": list(withheld)} if withheld else {}),
     })

@@ -217,6 +217,11 @@ class Sample(SampleView):
         if not self.has_video:
             raise DatasetError(f"{self.path}: modes-only sample (generated without video): "
                                "it has no frames; generate it with video to read frames")
+        name = self.info["video"]["file"]
+        if name in (self.manifest.get("withheld") or []) and not (self.path / name).exists():
+            raise DatasetError(f"{self.path}: its video {name} was not rendered (the truth of a "
+                               "filmed sample generated without frames); generate it again "
+                               "with its frames")
         n = self.n_frames
         stop = n if stop is None else min(stop, n)
         if not 0 <= start <= stop:
@@ -379,10 +384,12 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
         wanted = [*CHECKED_FILES, *(str(v.get("camera")) for v in views),
                   *(rel for rel in listed if rel.startswith("truth.zarr/"))]
         extra = [rel for rel in on_disk if rel.startswith("truth.zarr/") and rel not in listed]
-    if video_file is not None:
+    withheld = manifest.get("withheld") if isinstance(manifest.get("withheld"), list) else []
+    if video_file is not None and not _withheld_here(path, str(video_file), withheld):
         problems += _check_video(path, str(video_file), video, listed, full)
     for entry in views:
-        if entry.get("video_file") is not None:
+        if entry.get("video_file") is not None and not _withheld_here(
+                path, str(entry["video_file"]), withheld):
             problems += _check_video(path, str(entry["video_file"]), {**video, **{
                 k: entry.get(k) for k in ("height", "width")}}, listed, full,
                 folder=str(entry.get("folder", "")))
@@ -391,6 +398,12 @@ def check_sample(path: str | Path, manifest: dict, info: dict, *,
     problems += [f"{rel}: not in the manifest" for rel in extra]
     problems += _check_ruler(info, listed)
     return problems
+
+
+def _withheld_here(path: Path, name: str, withheld: list) -> bool:
+    """A video the manifest lists as withheld (a sample generated without frames) and that
+    is indeed absent: not a problem. Present, it is checked like any video."""
+    return name in withheld and not (path / name).exists()
 
 
 #: The arrays of the Cramér-Rao ruler (docs/dataset.md) a sample with ``truth.json`` ``crb``
