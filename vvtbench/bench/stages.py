@@ -120,10 +120,19 @@ def _stage_observe(cache: Path, task: Task, out: Path, deps: dict) -> dict:
         scored = opts.modes[:1] if opts.views > 1 else opts.modes  # view 0: the sample's truth
         truth.meta["extraction"] = extraction_scores(opened, scored,
                                                      (p.get("extract") or {}).get("fmax"))
+    _relative_source(truth, sample)
     problem.save(out)
     truth.save(out)
     return {"n_modes": problem.n_modes, "n_params": problem.n_params,
             "meta": {k: v for k, v in problem.meta.items() if k != "camera"}}
+
+
+def _relative_source(truth, gen_key: str) -> None:
+    """The truth names its sample relative to the run folder (``cache/generate/KEY/sample``),
+    so an observation is the same bytes whichever folder the run has (the sha256 that results
+    rows carry, compared when shards are merged)."""
+    if isinstance(truth.meta.get("source"), str):
+        truth.meta["source"] = f"cache/{gen_key}/sample"
 
 
 def _field_observe(cache: Path, task: Task, out: Path) -> dict:
@@ -160,10 +169,12 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
     else:
         spec = str(opened.path / "scene.toml")
     obj = resolve_object(spec, inference_shape=shape)
-    if settings.object == "stl":  # recorded as the task folder's file, not its temporary path
-        import dataclasses
+    import dataclasses
 
+    if settings.object == "stl":  # recorded as the task folder's file, not its temporary path
         obj = dataclasses.replace(obj, spec=f"object.stl:mesh={settings.mesh}")
+    else:  # and the scene relative to the run folder, wherever it is
+        obj = dataclasses.replace(obj, spec=f"cache/{sample}/sample/scene.toml")
     true_camera = opened.camera
     width, height = int(true_camera.width), int(true_camera.height)
     vertices, X, uv = simulate_clicks(obj.mesh.points, obj.mesh.surface, obj.corner_nodes(),
@@ -185,6 +196,7 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
                              "camera_error_px": camera_error}
     truth.meta["extraction"] = extraction_scores(opened, tuple(modes),
                                                  (p.get("extract") or {}).get("fmax"))
+    _relative_source(truth, sample)
     problem.save(out)
     truth.save(out)
     return {"n_modes": problem.n_modes, "n_params": problem.n_params,
