@@ -27,12 +27,23 @@ def _stage_generate(cache: Path, task: Task, out: Path, deps: dict) -> dict:
 
     scene = parse_scene(task.payload["scene"], task.payload["scene"]["name"])
     video = bool(task.payload.get("video", True))
+    # a filmed sample whose video no task of the run reads (its extractions come from a run
+    # shard): the truth alone, its videos recorded as withheld (see execute_task)
+    frames = bool(task.payload.get("frames", True))
     # generate() is itself atomic and resumable inside its own folder
     work = cache / "generate" / "_work" / task.key.split("/")[1]
-    path = generate(scene, work, progress=False, overwrite=True, video=video)
+    path = generate(scene, work, progress=False, overwrite=True, video=video, frames=frames)
     shutil.move(str(path), str(out / "sample"))
     shutil.rmtree(work, ignore_errors=True)
+    if video and not frames:
+        return {"sample": "sample", "video": video, "frames": False,
+                WITHHELD: dict(task.payload.get("withheld") or {})}
     return {"sample": "sample", "video": video}
+
+
+#: the result key of a generate task run without frames: ``{name: {"sha256", "bytes"}}`` of
+#: the video files the sample would hold (recorded by the run that rendered them)
+WITHHELD = "withheld"
 
 
 def sample_path(cache: Path, gen_key: str) -> Path:
@@ -359,6 +370,25 @@ def _scored_inputs_changed(cache: Path, task: Task, result: dict) -> str | None:
     return None
 
 
+def _withheld_record(withheld: dict | None, files: dict[str, str]) -> dict:
+    """The videos a sample generated without frames withholds, as a pruned record
+    (:mod:`.prune`): listed in ``files`` with the sha256 the rendering run recorded and
+    excused as absent, so a later run that needs them renders them and checks them against
+    it. Updates ``files``; returns the ``task.json`` entries to add."""
+    from .pruned import PRUNED
+
+    entries = []
+    for name, e in sorted((withheld or {}).items()):
+        if name in files or not isinstance(e, dict) or not isinstance(e.get("sha256"), str):
+            continue
+        files[name] = e["sha256"]
+        entries.append({"name": name, "bytes": e.get("bytes"), "sha256": e["sha256"]})
+    if not entries:
+        return {}
+    return {PRUNED: {"at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                     "files": entries, "why": "regenerated without frames"}}
+
+
 def _tmp_name(key: str) -> str:
     return f"{key}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
@@ -439,10 +469,12 @@ def execute_task(cache: str, task: Task, threads: int | None = None,
         else:
             result = STAGE_FUNCS[task.stage](cache, task, tmp, {})
         seconds = time.perf_counter() - t0
+        files = file_hashes(tmp)
+        record = _withheld_record(result.pop(WITHHELD, None), files)
         write_json(tmp / "task.json", {"stage": task.stage, "key": task.key,
                                         "deps": task.deps, "payload": task.payload,
                                         "result": result, "seconds": seconds,
-                                        "vvtbench": __version__, "files": file_hashes(tmp)})
+                                        "vvtbench": __version__, "files": files, **record})
         if final.exists() and force:  # the intact output it replaces goes only now
             trash = cache / f"{_tmp_name(task.key)}.stale"
             os.replace(final, trash)
