@@ -235,6 +235,7 @@ def test_no_truth_reaches_a_solver_through_run_or_solve(micro, tmp_path):
     plugin.write_text(PEEK)
     df = run_suite(str(suite_file), [f"{plugin}:Peek", f"{plugin}:PeekReference"], out,
                    progress=False)
+    df = df[df.solver.isin(["peek", "peekref"])]  # the table keeps the other solvers' rows
     assert len(df) == 4 and (df.status == "ok").all(), df[["solver", "observation", "error"]]
     assert df.set_index("solver").reference.to_dict() == {"peek": False, "peekref": True}
     reports = [json.loads((out / Path(p).parent / "task.json").read_text())["deps"][0]

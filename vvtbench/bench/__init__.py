@@ -31,13 +31,16 @@ on a file system the workers share).
 Modules: :mod:`.suite` (the suite file and its model), :mod:`.graph` (tasks, runs, keys),
 :mod:`.stages` (the stage bodies, :func:`execute_task`), :mod:`.executors` (in process, pool,
 Dask), :mod:`.prune` (videos deleted once read, ``run --prune-videos``), :mod:`.results` (the
-results table and its check), :mod:`.runner` (:func:`run_suite`).
+results table and its check), :mod:`.runner` (:func:`run_suite`), :mod:`.shards` (a suite in
+N shards of whole instances, ``run --shard K/N``, and their result sets) and :mod:`.merge`
+(:func:`merge_shards`: the shards into one table, every score recomputed).
 """
 
 from ..io.files import jsonable, write_json
 from ..solving.plugins import solver_setup
 from .executors import execute_graph, make_executor
 from .graph import CACHE_FORMAT, STAGES, Run, Task, build_graph, content_hash
+from .merge import merge_shards
 from .results import (
     COLUMNS,
     METRIC_COLUMNS,
@@ -48,6 +51,7 @@ from .results import (
     write_results,
 )
 from .runner import run_suite
+from .shards import ShardError, ShardSpec
 from .stages import (
     STAGE_FUNCS,
     execute_task,
@@ -79,9 +83,10 @@ __all__ = [
     "CACHE_FORMAT", "COLUMNS", "EXTRACT_KEYS", "INFERENCE_KEYS", "METRIC_COLUMNS", "OBSERVATIONS",
     "REQUIRED", "SCENE_SECTIONS", "STAGES", "STAGE_FUNCS", "SUITES_DIR", "load_observation",
     "observe_options", "sample_path",
-    "ExtractOptions", "InferenceOptions", "Run", "Suite", "SuiteError", "SuiteFile", "Task",
+    "ExtractOptions", "InferenceOptions", "Run", "ShardError", "ShardSpec", "Suite",
+    "SuiteError", "SuiteFile", "Task",
     "Track", "TrackFile", "Variation", "apply_overrides", "build_graph",
     "check_results", "content_hash", "execute_graph", "execute_task",
-    "find_suite", "jsonable", "load_suite", "make_executor", "parse_suite",
+    "find_suite", "jsonable", "load_suite", "make_executor", "merge_shards", "parse_suite",
     "read_results", "results_table", "run_suite", "solver_setup", "write_json", "write_results",
 ]

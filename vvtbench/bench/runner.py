@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import sys
@@ -12,10 +13,21 @@ from .._version import __version__
 from ..io.files import write_json
 from ..io.lock import RunLock
 from .child import DEFAULT_TIMEOUT, default_memory_bytes
-from .executors import execute_graph, make_executor
-from .graph import STAGES, build_graph
+from .executors import Interrupted, execute_graph, make_executor
+from .graph import STAGES, Run, build_graph
 from .prune import VideoPlan
-from .results import results_table, write_results
+from .results import read_results, results_table, write_results
+from .shards import (
+    Shard,
+    ShardError,
+    ShardSpec,
+    default_shard_dir,
+    export_shard,
+    read_shard,
+    seed_cache,
+    select_shard,
+    shard_meta,
+)
 from .suite import Suite, SuiteError, load_suite
 
 
@@ -51,7 +63,9 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
               solver_config: dict | None = None, progress: bool = True,
               until: str = "evaluate", threads: int | None = None,
               timeout: float | None = None, memory_gb: float | None = None,
-              wait: bool = False, prune_videos: bool = False):
+              wait: bool = False, prune_videos: bool = False,
+              shard: str | ShardSpec | None = None, shard_dir: str | Path | None = None,
+              retry_errors: bool = False):
     """Run a suite; return the results table (a pandas DataFrame).
 
     ``solvers``: names or ``path/file.py:Class`` (default: the suite's ``solvers``);
@@ -76,6 +90,16 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
     files and bytes. With or without it, a sample whose pruned video a task needs again is
     rendered again and its videos checked against the recorded sha256
     (``df.attrs["rerendered"]``).
+
+    The table replaces the one in ``OUT`` but keeps that table's rows of solvers this run
+    does not name when they are current (:func:`add_previous_rows`): a run of one new solver
+    adds its rows to the table of a run of the others (``df.attrs["kept"]``).
+
+    ``shard="K/N"``: run only shard K of the N shards of the suite (:mod:`.shards`: whole
+    instances, the same on every machine) and write its result set to ``shard_dir`` (default
+    ``shards/SUITE/K-of-N``) instead of ``OUT/results.*``; the cache of ``OUT`` is seeded
+    from a result set found there. A shard that is complete is not run again (unless
+    ``retry_errors`` and it has failed tasks): ``df.attrs["shard"]["nothing_to_do"]``.
     """
     if prune_videos and until not in ("observe", "evaluate"):
         raise SuiteError(f"prune_videos with until={until!r} is not allowed (allowed: until "
@@ -93,6 +117,23 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
                     else default_memory_bytes(workers if scheduler is None else 1))
     limits = {"timeout": float(timeout), "memory_bytes": memory_bytes}
     tasks, runs = build_graph(suite, solvers, solver_config, until, timeout=float(timeout))
+    selection = found = None
+    if shard is not None:
+        if until != "evaluate":
+            raise SuiteError(f"shard with until={until!r} is not allowed (allowed: until "
+                             "'evaluate': a shard's result set is its rows)")
+        spec = ShardSpec.parse(shard)
+        selection = select_shard(tasks, runs, spec)
+        tasks, runs = selection.tasks, selection.runs
+        shard_dir = Path(shard_dir) if shard_dir is not None else default_shard_dir(suite, spec)
+        found = _found_shard(shard_dir, suite, spec)
+        if found is not None and found.complete and set(found.tasks) == set(tasks) and not (
+                retry_errors and found.meta["counts"].get("tasks_failed")):
+            df = found.rows
+            df.attrs["shard"] = {"spec": str(spec), "dir": str(shard_dir),
+                                 "nothing_to_do": True, "meta": found.meta}
+            df.attrs["stats"] = {}
+            return df
     out_dir.mkdir(parents=True, exist_ok=True)
     lock = RunLock(out_dir, wait=wait,
                    on_wait=lambda msg: print(msg, file=sys.stderr, flush=True))
@@ -102,12 +143,20 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         _remove_stale_temporaries(cache)
         if threads is None and workers > 1 and scheduler is None:
             threads = max(1, (os.cpu_count() or 1) // workers)
+        seeded = None
+        if found is not None and set(found.tasks) & set(tasks):
+            seeded = seed_cache(cache, tasks, [found])
         videos = VideoPlan.build(tasks, cache, prune=prune_videos)
         executor = make_executor(workers, scheduler)
         t0 = time.perf_counter()
         try:
             results = execute_graph(tasks, cache, executor, progress, threads, limits,
                                     videos=videos)
+        except Interrupted:
+            if selection is not None:  # what is finished is kept in the shard's folder
+                _write_shard(shard_dir, cache, selection, suite, solvers, solver_config,
+                             limits)
+            raise
         finally:
             executor.close()
         wall = time.perf_counter() - t0
@@ -129,8 +178,15 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
             else:
                 st["cached"] += 1
         df = results_table(runs, results) if until == "evaluate" else None
+        shard_doc = None
+        if selection is not None:
+            shard_doc = _write_shard(shard_dir, cache, selection, suite, solvers,
+                                     solver_config, limits, results)
+        elif df is not None:
+            df, kept = add_previous_rows(out_dir, df, runs, suite)
+            df.attrs["kept"] = kept
+            write_table(df, out_dir)
         if df is not None:
-            write_results(df, out_dir)
             df.attrs["stats"] = stats
             df.attrs["wall_s"] = wall
             df.attrs["recomputed"] = recomputed
@@ -139,6 +195,10 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
             df.attrs["prune_errors"] = list(videos.errors)
             if len(df) == 0:
                 df.attrs["no_rows"] = no_rows_reason(suite, solvers)
+            if shard_doc is not None:
+                df.attrs["shard"] = {"spec": str(selection.spec), "dir": str(shard_dir),
+                                     "nothing_to_do": False, "meta": shard_doc,
+                                     "seeded": seeded}
         write_json(out_dir / "run.json", {
             "suite": suite.name, "suite_source": suite.source, "solvers": solvers,
             "tracks": [t.name for t in suite.tracks],
@@ -154,8 +214,132 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
             "prune_videos": prune_videos,
             "pruned": dict(videos.freed) if prune_videos else None,
             "rerendered": videos.rerendered, "prune_errors": videos.errors,
+            **({"shard": {"spec": str(selection.spec), "dir": str(shard_dir),
+                          "rows": len(runs), "seeded": seeded}} if selection else {}),
         })
     if df is None:
         return {"stats": stats, "wall_s": wall, "results": results, "tasks": tasks,
                 "recomputed": recomputed, "rerendered": videos.rerendered}
     return df
+
+
+def _found_shard(shard_dir: Path, suite: Suite, spec: ShardSpec) -> Shard | None:
+    """The result set already in ``shard_dir`` (None when there is none); one of another
+    suite or shard is refused rather than replaced."""
+    if not (shard_dir / "shard.json").is_file():
+        if shard_dir.exists() and (not shard_dir.is_dir() or any(shard_dir.iterdir())):
+            raise ShardError(f"{shard_dir}: exists and is not a shard folder (no shard.json); "
+                             "give an empty or new folder (--shard-dir)")
+        return None
+    found = read_shard(shard_dir)
+    if found.meta["suite"]["name"] != suite.name or found.spec != spec:
+        raise ShardError(f"{shard_dir}: holds shard {found.spec} of suite "
+                         f"{found.meta['suite']['name']!r}, not shard {spec} of {suite.name!r}; "
+                         "give another folder (--shard-dir)")
+    return found
+
+
+def _write_shard(shard_dir: Path, cache: Path, selection, suite: Suite, solvers: list[str],
+                 solver_config: dict | None, limits: dict, results: dict | None = None
+                 ) -> dict:
+    """The shard's result set, written under a lock of its own (one writer per folder)."""
+    from .shards import cache_statuses
+
+    statuses = cache_statuses(cache, selection.tasks)
+    for k, r in (results or {}).items():  # this run's word on what failed or was skipped
+        if r.get("status") in ("error", "skipped") and statuses.get(k, {}).get(
+                "status") != "ok":
+            statuses[k] = r
+    meta = shard_meta(suite, solvers, selection.runs, solver_config or {}, limits)
+    shard_dir.parent.mkdir(parents=True, exist_ok=True)
+    with RunLock(shard_dir.parent, name=f".{shard_dir.name}.lock", remove=True):
+        return export_shard(shard_dir, cache, selection, meta, statuses)
+
+
+def _instance(row) -> tuple:
+    return (row["track"], row["scene"], int(row["seed"]), row["observation"],
+            row["dataset_revision"])
+
+
+def add_previous_rows(out_dir: Path, df, runs: list[Run], suite: Suite):
+    """``df`` with the rows of the table already in ``out_dir`` (written by a run of the same
+    suite file, ``run.json``) whose solvers ``df`` does not hold, when they are current: by
+    this vvtbench, on an instance this suite still has (same samples), and (scored rows)
+    whose evaluation is in the cache and scores an observation this run made. Returns
+    ``(table, {"kept": {solver: n}, "dropped": {solver: n}})``; rows of one instance stay
+    together, the solvers already there first. The table of another suite is replaced."""
+    import pandas as pd
+
+    kept: dict[str, int] = {}
+    dropped: dict[str, int] = {}
+    path = Path(out_dir) / "results.parquet"
+    if not path.is_file() or len(df) == 0 or not _same_suite(Path(out_dir), suite):
+        return df, {"kept": kept, "dropped": dropped}
+    try:
+        old = read_results(path)
+    except Exception:  # noqa: BLE001 -- an unreadable table is replaced, as before
+        return df, {"kept": kept, "dropped": dropped}
+    if "solver" not in old.columns or len(old) == 0:
+        return df, {"kept": kept, "dropped": dropped}
+    now = set(df["solver"])
+    others = old[~old["solver"].isin(now)]
+    if others.empty:
+        return df, {"kept": kept, "dropped": dropped}
+    position: dict[tuple, int] = {}
+    for i, r in enumerate(runs):
+        position.setdefault((r.track, r.scene, int(r.seed), r.observation,
+                             r.dataset_revision), i)
+    observed = {r.observe_key for r in runs}
+    keep = []
+    for i, row in others.iterrows():
+        ok = row.get("vvtbench_version") == __version__ and _instance(row) in position
+        if ok and row["status"] in ("ok", "invalid"):
+            ok = _evaluation_current(Path(out_dir), row.get("estimate_path"), observed)
+        (kept if ok else dropped)[row["solver"]] = (kept if ok else dropped).get(
+            row["solver"], 0) + 1
+        if ok:
+            keep.append(i)
+    if not keep:
+        return df, {"kept": kept, "dropped": dropped}
+    both = pd.concat([others.loc[keep], df], ignore_index=True)
+    order = sorted(range(len(both)), key=lambda j: (position.get(_instance(both.iloc[j]),
+                                                                 len(runs)), j))
+    both = both.iloc[order].reset_index(drop=True)
+    for c in df.columns:  # the dtypes of a fresh table
+        if str(both[c].dtype) != str(df[c].dtype):
+            try:
+                both[c] = both[c].astype(df[c].dtype)
+            except (TypeError, ValueError):
+                pass
+    both = both[list(df.columns)]
+    return both, {"kept": kept, "dropped": dropped}
+
+
+def _same_suite(out_dir: Path, suite: Suite) -> bool:
+    """The run folder's last run (``run.json``) ran the suite file ``suite`` came from."""
+    try:
+        last = json.loads((out_dir / "run.json").read_text())
+        return (last.get("suite") == suite.name and Path(str(last.get("suite_source"))).resolve()
+                == Path(suite.source).resolve())
+    except (OSError, ValueError, AttributeError, TypeError):
+        return False
+
+
+def _evaluation_current(run_dir: Path, path, observed: set) -> bool:
+    """A scored row's evaluation is in the cache, intact, and scores one of ``observed``."""
+    from .stages import verify_cached
+
+    if not isinstance(path, str) or not path.startswith("cache/evaluate/"):
+        return False
+    folder = run_dir / Path(path).parent
+    try:
+        info = json.loads((folder / "task.json").read_text())
+        deps = info["deps"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return len(deps) == 2 and deps[1] in observed and verify_cached(folder, info) is None
+
+
+def write_table(df, out_dir: Path) -> None:
+    """``OUT/results.parquet`` and ``OUT/results.csv``."""
+    write_results(df, out_dir)

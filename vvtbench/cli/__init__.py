@@ -1,9 +1,9 @@
 """The ``vvtbench`` command: every argparse parser and command of vvtbench lives in this package.
 
 One module per command group: :mod:`.simulate` (``simulate``, ``scenes``), :mod:`.generate`,
-:mod:`.extract`, :mod:`.run` (``run``, ``check-results``), :mod:`.solve` (``solvers``,
-``solve``), :mod:`.leaderboard`, :mod:`.export` and :mod:`.verify`. Library modules hold no
-parsers.
+:mod:`.extract`, :mod:`.run` (``run``, ``merge-shards``, ``check-results``), :mod:`.solve`
+(``solvers``, ``solve``), :mod:`.leaderboard`, :mod:`.export` and :mod:`.verify`. Library
+modules hold no parsers.
 
 Errors. :func:`main` turns every error a user can fix (the project's error types, bad
 option values, missing or unreadable files) into one line on stderr, ``error: ...``, and exit
@@ -71,6 +71,12 @@ def _run(argv: list[str]) -> int:
     from .run import main_run
 
     return main_run(argv)
+
+
+def _merge_shards(argv: list[str]) -> int:
+    from .run import main_merge_shards
+
+    return main_merge_shards(argv)
 
 
 def _check_results(argv: list[str]) -> int:
@@ -156,6 +162,8 @@ DELEGATED = {
                 "motion, spectrum and image-space modes of a video (see `extract --help`)"),
     "run": (_run,
             "run a suite: generate -> extract -> solve -> evaluate, cached (see `run --help`)"),
+    "merge-shards": (_merge_shards, "merge the shards of a suite (`run --shard K/N`) into one "
+                                    "table, every score recomputed (see `merge-shards --help`)"),
     "check-results": (_check_results, "validate a results table (Parquet/CSV) against the schema"),
     "leaderboard": (_leaderboard, "Markdown + static HTML leaderboard from a results table"),
     "export": (_export, "pack generated samples into one zarr/hdf5 dataset with a dataset card"),
