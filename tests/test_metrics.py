@@ -112,3 +112,18 @@ def test_stated_uncertainty_is_saved_with_the_estimate_and_scored_by_coverage(tm
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(ValueError, match="no standard deviation"):
         plot_uncertainty(tmp_path / "none.png", problem, (est.w, est.v), (None, None))
+
+
+@pytest.mark.parametrize("std,why", [
+    (np.array([0.1, -0.2, 0.1]), "w_std is negative in 1 of 3 voxels"),
+    (np.array([0.1, np.nan, 0.1]), "w_std is not finite in 1 of 3 voxels"),
+    (np.array([0.1, 0.1]), "w_std has shape (2,), the problem has 3 parameters"),
+])
+def test_a_stated_uncertainty_that_is_not_one_makes_the_estimate_invalid(std, why):
+    """A negative or NaN standard deviation would count as covering the truth; it is refused
+    like a negative stiffness, on every path (run, solve, check-results, score)."""
+    from vvtbench.scoring.metrics import invalid_reason
+
+    assert invalid_reason(np.ones(3), np.ones(3), 3) is None
+    assert invalid_reason(np.ones(3), np.ones(3), 3, w_std=np.full(3, 0.1)) is None
+    assert invalid_reason(np.ones(3), np.ones(3), 3, w_std=std) == why

@@ -85,7 +85,7 @@ def rescore(run_dir: str | Path, df=None,
                             f"{'read' if solved.get('reference') else 'did not read'} the truth")
         problem, truth = load_observation(cache, observe_key, truth=True)
         w, v, std = load_estimate_arrays(cache / solve_key / "estimate.npz")
-        reason = invalid_reason(w, v, problem.n_params)
+        reason = invalid_reason(w, v, problem.n_params, std.get("w_std"), std.get("v_std"))
         if (reason is None) != (row["status"] == "ok"):
             problems.append(f"{where}: status {row['status']!r} but the estimate is "
                             f"{'valid' if reason is None else 'invalid: ' + reason}")

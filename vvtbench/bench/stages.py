@@ -304,7 +304,7 @@ def write_evaluation(out: Path, problem, truth, w, v, modes: bool = True,
     from ..scoring.metrics import evaluate, invalid_reason
 
     out = Path(out)
-    reason = invalid_reason(w, v, problem.n_params)
+    reason = invalid_reason(w, v, problem.n_params, w_std, v_std)
     fields = {"w_true": problem.to_grid(truth.w), "v_true": problem.to_grid(truth.v)}
     if reason is not None:
         write_npz(out / "fields.npz", fields)

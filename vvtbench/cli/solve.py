@@ -387,7 +387,8 @@ def _solve_problems(args, desc: dict, overrides: dict, problems: Path, out: Path
             continue
         sandbox.add(sinfo["sandbox"])
         kept = _keep_output(out / instance, sinfo["log"])
-        reason = invalid_reason(est.w, est.v, problem.n_params)
+        reason = invalid_reason(est.w, est.v, problem.n_params, *(
+            est.extra.get(k) if isinstance(est.extra, dict) else None for k in ("w_std", "v_std")))
         if reason is not None:  # the reason `score` would give: refused here, not submitted
             failed.append(instance)
             print(f"  {instance}: INVALID ESTIMATE, not submitted: {reason}", file=sys.stderr)

@@ -141,10 +141,18 @@ def mode_match(problem, w: np.ndarray, v: np.ndarray, n_extra: int = 10, modes=N
     }
 
 
-def invalid_reason(w: np.ndarray, v: np.ndarray, n_params: int) -> str | None:
+def invalid_reason(w: np.ndarray, v: np.ndarray, n_params: int,
+                   w_std: np.ndarray | None = None,
+                   v_std: np.ndarray | None = None) -> str | None:
     """Why an estimate cannot be scored (wrong shape, a non-finite value, E or rho not
-    positive in some voxel), or None when it is valid. An invalid estimate is never scored on
-    a subset of voxels."""
+    positive in some voxel; a stated standard deviation of the wrong shape, not finite or
+    negative), or None when it is valid. An invalid estimate is never scored on a subset of
+    voxels, and a stated uncertainty that is not one never reaches the coverage score.
+
+    >>> import numpy as np
+    >>> invalid_reason(np.ones(3), np.ones(3), 3, w_std=np.array([0.1, -0.1, 0.1]))
+    'w_std is negative in 1 of 3 voxels'
+    """
     for name, x in (("w", w), ("v", v)):
         x = np.asarray(x)
         if x.shape != (n_params,):
@@ -154,6 +162,17 @@ def invalid_reason(w: np.ndarray, v: np.ndarray, n_params: int) -> str | None:
             return f"{name} is not finite in {int(bad.sum())} of {n_params} voxels"
         if (x <= 0).any():
             return f"{name} is not positive in {int((x <= 0).sum())} of {n_params} voxels"
+    for name, x in (("w_std", w_std), ("v_std", v_std)):
+        if x is None:
+            continue
+        x = np.asarray(x)
+        if x.shape != (n_params,):
+            return f"{name} has shape {x.shape}, the problem has {n_params} parameters"
+        bad = ~np.isfinite(x)
+        if bad.any():
+            return f"{name} is not finite in {int(bad.sum())} of {n_params} voxels"
+        if (x < 0).any():
+            return f"{name} is negative in {int((x < 0).sum())} of {n_params} voxels"
     return None
 
 
