@@ -360,7 +360,8 @@ def modes_from_displacements(
         raise ValueError(f"identifier must be 'peaks', 'auto', 'era' or 'plscf', got "
                          f"{identifier!r}")
     if identifier != "peaks":
-        from .poles import decide_identifier, pole_modes, scan_poles
+        from .poles import (DECAY_EXCITATIONS, FORCED_EXCITATIONS, decide_identifier,
+                            pole_modes, scan_poles)
         from .reduce import block_channels
 
         popts = dict(pole_options or {})
@@ -369,7 +370,8 @@ def modes_from_displacements(
         lo_band = (max(band[0], min_bin * float(fps) / _n_frames(disp)), band[1])
         channels = None
         if identifier == "auto":
-            if excitation is not None:
+            if excitation is not None and str(excitation).lower() in (
+                    *DECAY_EXCITATIONS, *FORCED_EXCITATIONS):
                 used, reason = decide_identifier(excitation=excitation)
             else:
                 channels = block_channels(disp, weights=sw_, block=int(popts.get("block", 8)),

@@ -361,7 +361,28 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
                  metadata=meta, **arr)
     drop = np.zeros(K, bool)
     rejected = []
+    if reject_products and K > 1:
+        # first: a product is named as one whatever else it fails (camera-shake modes are
+        # parents too: the extractor's error on a translation makes harmonics of it)
+        from .products import find_pole_products
+
+        popts = {"bin_hz": df, **(product_options or {})}
+        kept, products = find_pole_products(
+            ms.frequencies_hz, ms.damping, ms.amplitudes_px, Z, fps=float(fps),
+            frequency_std_hz=np.asarray(fstd), damping_std=np.array(
+                [c.damping_std for c in clusters]), weights=w, decay=scan.method == "era",
+            roughness=np.asarray(rough), **popts)
+        for d in products:
+            k = d.pop("index")
+            drop[k] = True
+            rejected.append({"bin": int(ms.peak_bins[k]),
+                             "frequency_hz": float(ms.frequencies_hz[k]),
+                             "amplitude_px": float(ms.amplitudes_px[k]),
+                             "roughness": float(rough[k]), **d})
+        ms.metadata["products"] = {"options": popts, "tested": int(K)}
     for k in range(K):
+        if drop[k]:
+            continue
         if ms.camera_shake[k] and not keep_camera_shake:
             drop[k] = True
             rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
@@ -371,25 +392,6 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
             drop[k] = True
             rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
                 ms.frequencies_hz[k]), "roughness": float(rough[k]), "reason": "incoherent"})
-    if reject_products and K > 1:
-        from .products import find_pole_products
-
-        zfields = Z
-        kept, products = find_pole_products(
-            ms.frequencies_hz, ms.damping, ms.amplitudes_px, zfields, fps=float(fps),
-            frequency_std_hz=np.asarray(fstd), damping_std=np.array(
-                [c.damping_std for c in clusters]), weights=w, decay=scan.method == "era",
-            **(product_options or {}))
-        for d in products:
-            k = d.pop("index")
-            if drop[k]:
-                continue
-            drop[k] = True
-            rejected.append({"bin": int(ms.peak_bins[k]),
-                             "frequency_hz": float(ms.frequencies_hz[k]),
-                             "amplitude_px": float(ms.amplitudes_px[k]), **d})
-        ms.metadata["products"] = {"options": dict(product_options or {}),
-                                   "tested": int(K)}
     ms.metadata["rejected"] = rejected
     return ms.select(~drop)
 
