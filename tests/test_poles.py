@@ -263,6 +263,20 @@ def test_product_tests_on_fields():
     kept, _ = find_pole_products(f, [0.01, 0.008, 0.03], [1.0, 0.5, 0.01], fields, fps=500.0,
                                  bin_hz=1 / 3)
     assert kept.all()
+    # a smooth mode of its own that its would-be parents' monomials half explain (smooth
+    # fields of an object span much of each other): kept; the smooth product itself is not
+    unit = lambda x: x / np.linalg.norm(x)  # noqa: E731
+    half = unit(smooth) + unit(own * np.exp(1.3j))
+    assert 0.3 < explained_fraction(half, np.stack([p1, p2]), [1, 1]) < 0.8
+    rough = [0.0, 0.0, 0.05]
+    kept, _ = find_pole_products(f, [0.01, 0.008, 0.0088], [1.0, 0.5, 0.01],
+                                 np.stack([p1, p2, half]), fps=500.0, bin_hz=1 / 3,
+                                 roughness=rough, min_phase_coherence=-1.0)
+    assert kept.all()
+    kept, out = find_pole_products(f, [0.01, 0.008, 0.0088], [1.0, 0.5, 0.01],
+                                   np.stack([p1, p2, smooth]), fps=500.0, bin_hz=1 / 3,
+                                   roughness=rough)
+    assert kept.tolist() == [True, True, False] and out[0]["test"] == "explained"
     # 7 x 113 Hz folded at 1000 fps shows at 209 Hz, its phase mirrored
     h = texture(rng, n) * p1 ** 7
     kept, out = find_pole_products([113.0, 47.0, 209.0], [0.0, 0.0, 0.0], [1.0, 0.8, 0.01],
