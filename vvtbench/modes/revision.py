@@ -7,7 +7,7 @@ changes, and say why here and in CHANGELOG.md ("Cache revisions").
 
 from __future__ import annotations
 
-__all__ = ["EXTRACTION_REVISION", "LINE_FIT_REVISION", "extraction_revision"]
+__all__ = ["EXTRACTION_REVISION", "LINE_FIT_REVISION", "POLE_REVISION", "extraction_revision"]
 
 #: revision of the mode extraction and of its scoring (part of the extract and observe keys
 #: of extracted tracks only: true-mode tracks keep their cache). 2: shoulder modes, recall
@@ -23,10 +23,17 @@ EXTRACTION_REVISION = 8
 #: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
 #: up to ``2 radius`` bins wide (the 3-bin bound clipped the damping of heavily damped modes)
 LINE_FIT_REVISION = 3
+#: revision of the pole-based identifiers (``[extract] identifier`` other than ``"peaks"``;
+#: only their keys change). 1: ERA / pLSCF over block-averaged channels, stabilisation and
+#: clustering, shapes by projection, products by frequency, decay, phase and shape
+POLE_REVISION = 1
 
 
 def extraction_revision(extract_opts: dict) -> int | list[int]:
     """The revision part of the extract and observe keys of extracted tracks."""
+    out = [EXTRACTION_REVISION]
     if extract_opts.get("line_fit"):
-        return [EXTRACTION_REVISION, LINE_FIT_REVISION]
-    return EXTRACTION_REVISION
+        out.append(LINE_FIT_REVISION)
+    if extract_opts.get("identifier", "peaks") != "peaks":
+        out.append(["poles", POLE_REVISION])
+    return out if len(out) > 1 else EXTRACTION_REVISION
