@@ -139,6 +139,11 @@ def test_decide_identifier_from_excitation_or_envelope():
     used, why = decide_identifier(np.exp(-t)[:, None] * np.cos(70 * t)[:, None])
     assert used == "era" and "free decay" in why
     assert decide_identifier(np.cos(70 * t)[:, None])[0] == "peaks"
+    # a pluck that does not decay within the record (undamped): the peak picker
+    used, why = decide_identifier(np.cos(70 * t)[:, None], excitation="pluck")
+    assert used == "peaks" and "pluck" in why
+    assert decide_identifier(np.exp(-t)[:, None] * np.cos(70 * t)[:, None],
+                             excitation="force")[0] == "peaks"
 
 
 def _damped_record(seed=4, n=N, T=1500, fps=500.0, noise=1e-4):
@@ -283,3 +288,34 @@ def test_product_tests_on_fields():
                                    np.stack([p1, p2, np.conj(h)]), fps=1000.0, bin_hz=1.0,
                                    decay=False)
     assert kept.tolist() == [True, True, False] and out[0]["product"] == "7 x 113.0 Hz"
+
+
+# --------------------------------------------------------------------------- clips
+@pytest.mark.parametrize("zeta", [0.0, 0.01])
+def test_clean_two_mode_clip_gives_its_two_modes_and_at_most_one_more(zeta):
+    """A speckle warped by two smooth modes (47 Hz at 0.002 px, 113 Hz at 0.001 px, 1000 fps):
+    ringing on (the peak picker, chosen by the envelope) or decaying (ERA)."""
+    from test_modes import Speckle, pattern
+
+    from vvtbench.modes import extract_modes
+
+    n, T, fps = 48, 500, 1000.0
+    sp = Speckle(n, seed=5)
+    t = np.arange(T) / fps
+    frames = np.empty((T, n, n), np.float32)
+    pa, pb = pattern(n, "a"), pattern(n, "b")
+    for k in range(T):
+        d = sum(a * p * np.exp(-zeta * 2 * np.pi * f * t[k]) * np.cos(2 * np.pi * f * t[k])
+                for p, a, f in ((pa, 0.002, 47.0), (pb, 0.001, 113.0)))
+        frames[k] = sp.warp(d[..., 0], d[..., 1])
+    ms = extract_modes(frames, fps, identifier="auto",
+                       pole_options={"max_order": 40, "n_components": 16, "block_rows": 10})
+    assert ms.identifier["used"] == ("era" if zeta else "peaks"), ms.identifier
+    f = ms.frequencies_hz
+    assert all(np.any(np.abs(f - x) < 1.0) for x in (47.0, 113.0)), f
+    assert len(ms) <= 3, f
+    if zeta:  # the noise-level poles at about 2 x 47 and 47 + 113 Hz do not settle
+        assert all(r["reason"] in ("unstable", "faint", "product")
+                   for r in ms.metadata["rejected"])
+        for x in (47.0, 113.0):
+            assert ms.damping[np.argmin(np.abs(f - x))] == pytest.approx(zeta, rel=0.1)

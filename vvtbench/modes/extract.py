@@ -360,8 +360,7 @@ def modes_from_displacements(
         raise ValueError(f"identifier must be 'peaks', 'auto', 'era' or 'plscf', got "
                          f"{identifier!r}")
     if identifier != "peaks":
-        from .poles import (DECAY_EXCITATIONS, FORCED_EXCITATIONS, decide_identifier,
-                            pole_modes, scan_poles)
+        from .poles import FORCED_EXCITATIONS, decide_identifier, pole_modes, scan_poles
         from .reduce import block_channels
 
         popts = dict(pole_options or {})
@@ -370,13 +369,12 @@ def modes_from_displacements(
         lo_band = (max(band[0], min_bin * float(fps) / _n_frames(disp)), band[1])
         channels = None
         if identifier == "auto":
-            if excitation is not None and str(excitation).lower() in (
-                    *DECAY_EXCITATIONS, *FORCED_EXCITATIONS):
+            if excitation is not None and str(excitation).lower() in FORCED_EXCITATIONS:
                 used, reason = decide_identifier(excitation=excitation)
             else:
                 channels = block_channels(disp, weights=sw_, block=int(popts.get("block", 8)),
                                           block_bytes=block_bytes)
-                used, reason = decide_identifier(channels.data)
+                used, reason = decide_identifier(channels.data, excitation=excitation)
         else:
             used, reason = identifier, "asked for"
         record = {"requested": identifier, "used": used, "reason": reason,
@@ -393,7 +391,8 @@ def modes_from_displacements(
                               keep_camera_shake=keep_camera_shake,
                               reject_products=pole_products and reject_distortion,
                               product_options=product_options, max_roughness=max_roughness,
-                              rough_sigma_px=rough_sigma_px, block_bytes=block_bytes)
+                              rough_sigma_px=rough_sigma_px, min_power_ratio=min_power_ratio,
+                              block_bytes=block_bytes)
         metadata = {**dict(metadata or {}), "identifier": record}
     else:
         metadata = {**dict(metadata or {}),

@@ -77,12 +77,16 @@ class PoleScan:
 def decide_identifier(channels: ArrayLike | None = None, *, excitation: str | None = None,
                       n_segments: int = 8, decay_ratio: float = 4.0) -> tuple[str, str]:
     """Which identifier a record needs, and why: ``("era", reason)`` for a free decay,
-    ``("peaks", reason)`` for a driven record.
+    ``("peaks", reason)`` for a driven record or one that does not decay.
 
-    A known ``excitation`` decides (:data:`DECAY_EXCITATIONS`, :data:`FORCED_EXCITATIONS`).
-    Otherwise the envelope of the motion does: the record (``(T, m)`` reduced channels) is cut
-    into ``n_segments``; a free decay has its largest energy in the first segment and at least
-    ``decay_ratio`` times more there than in the last.
+    A driven ``excitation`` (:data:`FORCED_EXCITATIONS`) decides alone.  Otherwise the
+    envelope of the motion does: the record (``(T, m)`` reduced channels) is cut into
+    ``n_segments``; a free decay has its largest energy in the first segment and at least
+    ``decay_ratio`` times more there than in the last.  A pluck (:data:`DECAY_EXCITATIONS`)
+    whose motion barely decays within the record (an undamped object) goes to the peak
+    picker: its lines are narrower than a bin, where the picker is at its best (on an
+    undamped ``cube_defects`` val video ERA finds half the modes the picker does).  Without
+    a record a decay-type excitation gives ERA.
 
     >>> t = np.arange(4000) / 1000.0
     >>> decay = (np.exp(-3 * t) * np.cos(60 * t))[:, None]
@@ -91,13 +95,12 @@ def decide_identifier(channels: ArrayLike | None = None, *, excitation: str | No
     >>> decide_identifier(excitation="force")
     ('peaks', "excitation 'force': a driven record")
     """
-    if excitation is not None:
-        kind = str(excitation).lower()
+    kind = None if excitation is None else str(excitation).lower()
+    if kind in FORCED_EXCITATIONS:
+        return "peaks", f"excitation {kind!r}: a driven record"
+    if channels is None:
         if kind in DECAY_EXCITATIONS:
             return "era", f"excitation {kind!r}: a free decay"
-        if kind in FORCED_EXCITATIONS:
-            return "peaks", f"excitation {kind!r}: a driven record"
-    if channels is None:
         return "peaks", "no excitation given and no record to read it from"
     y = np.asarray(channels, dtype=np.float64)
     y = y.reshape(y.shape[0], -1)
@@ -108,9 +111,13 @@ def decide_identifier(channels: ArrayLike | None = None, *, excitation: str | No
         return "peaks", "record too short to read its envelope"
     e = np.array([float(np.sum(y[i * seg:(i + 1) * seg] ** 2)) for i in range(n)])
     ratio = e[0] / max(e[-1], 1e-300)
+    said = f"excitation {kind!r}, " if kind is not None else ""
     if int(np.argmax(e)) == 0 and ratio >= decay_ratio:
-        return "era", (f"envelope: energy falls {ratio:.3g}x from the first to the last "
+        return "era", (f"{said}envelope: energy falls {ratio:.3g}x from the first to the last "
                        f"eighth of the record (a free decay)")
+    if kind in DECAY_EXCITATIONS:
+        return "peaks", (f"{said}but the envelope falls only {ratio:.3g}x over the record: "
+                         "lines narrower than a bin, the peak picker's")
     return "peaks", (f"envelope: energy peaks in segment {int(np.argmax(e)) + 1} of {n} and "
                      f"falls {ratio:.3g}x (a driven record)")
 
@@ -275,6 +282,7 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
                shake_threshold: float = 0.9, keep_camera_shake: bool = False,
                reject_products: bool = True, product_options: dict[str, Any] | None = None,
                max_roughness: float = 0.3, rough_sigma_px: float = 2.0,
+               min_power_ratio: float = 1e-6, max_frequency_spread_bins: float = 0.3,
                block_bytes: int = 64 << 20) -> Any:
     """A :class:`.ModeSet` from the clusters of a scan (step 4 of the module docstring).
 
@@ -283,6 +291,12 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
     the cluster's median damping +- twice its spread over the orders (at least 2 % of it),
     ``frequency_std_hz`` the spread of its frequency.  Products of stronger modes are
     recognised by :func:`.products.find_pole_products` and rejected (reason ``"product"``).
+    A mode is also rejected when its power (amplitude squared) is below ``min_power_ratio``
+    of the strongest (reason ``"faint"``, the peak picker's ``min_power_ratio``), when its
+    frequency varies over the orders by more than ``max_frequency_spread_bins`` DFT bins
+    (reason ``"unstable"``: a pole the data do not pin down, such as a noise-level product
+    whose decay and frequency the scan cannot settle), as camera shake and when incoherent
+    (rougher than ``max_roughness``).
     """
     from ..motion.phase import upsample_periodic
     from .lines import peak_gain
@@ -380,10 +394,21 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
                              "amplitude_px": float(ms.amplitudes_px[k]),
                              "roughness": float(rough[k]), **d})
         ms.metadata["products"] = {"options": popts, "tested": int(K)}
+    amp2 = np.asarray(ms.amplitudes_px, np.float64) ** 2
+    top = float(amp2.max()) if K else 0.0
     for k in range(K):
         if drop[k]:
             continue
-        if ms.camera_shake[k] and not keep_camera_shake:
+        if amp2[k] < min_power_ratio * top:
+            drop[k] = True
+            rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
+                ms.frequencies_hz[k]), "power_ratio": float(amp2[k] / top), "reason": "faint"})
+        elif fstd[k] > max_frequency_spread_bins * df:
+            drop[k] = True
+            rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
+                ms.frequencies_hz[k]), "frequency_std_hz": float(fstd[k]),
+                "reason": "unstable"})
+        elif ms.camera_shake[k] and not keep_camera_shake:
             drop[k] = True
             rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
                 ms.frequencies_hz[k]), "shake_mac": float(ms.shake_mac[k]),
