@@ -379,9 +379,17 @@ def modes_from_displacements(
             used, reason = identifier, "asked for"
         record = {"requested": identifier, "used": used, "reason": reason,
                   "excitation": excitation}
+        scan = None
         if used != "peaks":
-            scan = scan_poles(disp, fps, method=used, weights=sw_, band=lo_band,
-                              channels=channels, **popts)
+            try:
+                scan = scan_poles(disp, fps, method=used, weights=sw_, band=lo_band,
+                                  channels=channels, **popts)
+            except ValueError as error:
+                if identifier != "auto" or "too short" not in str(error):
+                    raise
+                used, reason = "peaks", f"{reason}; but {error}"
+                record.update(used=used, reason=reason)
+        if scan is not None:
             meta = {**dict(metadata or {}), "identifier": record, "min_bin": int(min_bin),
                     "weighted": weights is not None}
             return pole_modes(disp, fps, scan, band=lo_band, weights=weights,

@@ -184,15 +184,23 @@ def scan_poles(store: DisplacementStore | ArrayLike, fps: float, *, method: str 
     Yr, V, q, info = _reduce(st, float(fps), w, int(block), band, float(oversampling),
                              int(n_components), decimation, channels)
     dt = q / float(fps)
-    orders = list(range(int(order_step), int(max_order) + 1, int(order_step)))
+    Tq, r = Yr.shape
     if method == "era":
-        p = block_rows
-        if p is not None and Yr.shape[0] - p < 2 * max(orders):
-            p = None
+        p = int(block_rows) if block_rows is not None else 20
+        # the largest order the record carries: the Hankel matrix needs (p - 1) r rows and
+        # q = T' - p columns above it
+        top = min(int(max_order), (p - 1) * r, (Tq - p - 1) // 2)
+        top -= top % int(order_step)
+        if top < 2 * int(order_step):
+            raise ValueError(f"the record is too short for ERA: {Tq} frames after averaging "
+                             f"{q} at a time, {r} channels (need orders up to at least "
+                             f"{2 * int(order_step)})")
+        orders = list(range(int(order_step), top + 1, int(order_step)))
         poles = era_orders(Yr, dt, orders, block_rows=p)
     else:
         from .plscf import half_spectra, lscf_orders
 
+        orders = list(range(int(order_step), int(max_order) + 1, int(order_step)))
         refs = np.arange(min(4, Yr.shape[1]))
         n_lags = int(min(Yr.shape[0] // 2, max(256, 8 * max(orders))))
         Sh = half_spectra(Yr, refs, n_lags)
