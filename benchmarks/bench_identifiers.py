@@ -75,17 +75,21 @@ def damping_within(score: dict, tolerance: float = 0.1) -> int:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("samples", type=Path, nargs="+")
-    ap.add_argument("--baseline", default="paper:damping",
-                    help="SUITE:TRACK whose [extract] options the peak picker uses")
+    ap.add_argument("--baseline", nargs="+", default=["paper:damping"],
+                    help="SUITE:TRACK whose [extract] options the peak picker uses (several: "
+                    "one peak-picker run each; a suite without tracks: SUITE:)")
     ap.add_argument("--identifiers", nargs="+", default=["era", "auto"])
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
     args = ap.parse_args()
-    suite_name, _, track_name = args.baseline.partition(":")
-    suite = load_suite(suite_name)
-    track = next((t for t in suite.tracks if t.name == track_name), None)
-    picker = extract_options(suite, "extracted", track.extract if track else None)[0]
-    picker = {k: v for k, v in picker.items() if k in PICKER_KEYS}
-    runs = [("peaks", picker)] + [(i, {}) for i in args.identifiers]
+    runs = []
+    for spec in args.baseline:
+        suite_name, _, track_name = spec.partition(":")
+        suite = load_suite(suite_name)
+        track = next((t for t in suite.tracks if t.name == track_name), None)
+        picker = extract_options(suite, "extracted", track.extract if track else None)[0]
+        picker = {k: v for k, v in picker.items() if k in PICKER_KEYS}
+        runs.append((f"peaks[{spec}]" if len(args.baseline) > 1 else "peaks", picker))
+    runs += [(i, {}) for i in args.identifiers]
     rows = []
     for path in args.samples:
         sample = open_sample(path)
@@ -103,10 +107,11 @@ def main() -> None:
                 sw = None if o.pop("weighting", "noise") == "confidence" else nw
                 fmax = o.pop("fmax", FMAX)
                 t0 = time.perf_counter()
+                ident = "peaks" if name.startswith("peaks") else name
                 ms = modes_from_displacements(
                     store, sample.fps, weights=cw, spectrum_weights=sw, fmax=fmax,
                     output_shape=tuple(motion.shape), confidence=motion.confidence,
-                    identifier=name, excitation=excitation if name == "auto" else None, **o)
+                    identifier=ident, excitation=excitation if ident == "auto" else None, **o)
                 t = time.perf_counter() - t0
                 sc = score_sample_extraction(sample, ms, fmax, amplitudes=amps)
                 row = {"sample": sample.scene.name, "identifier": name,
