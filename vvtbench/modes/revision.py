@@ -17,7 +17,10 @@ __all__ = ["EXTRACTION_REVISION", "LINE_FIT_REVISION", "POLE_REVISION", "extract
 #: peaks are parents of distortion products (a pure-shake video has no modes); 6: peak-picked
 #: dampings' intervals span the fit without window too; 7: the damping fit's log-power polish
 #: with its analytic Jacobian, at most ``POLISH_EVALUATIONS`` evaluations; 8: motion against
-#: the temporal mean of the record (not its first frame), the phase refined about its estimate
+#: the temporal mean of the record (not its first frame), the phase refined about its
+#: estimate, the identifier (peak picker, ERA, pLSCF; ``identifier``, ``auto`` choosing from
+#: the excitation or the envelope) recorded in every mode set, and the opt-in product test's
+#: harmonics to the 7th
 EXTRACTION_REVISION = 8
 #: revision of the opt-in line fit (``[extract] line_fit = true``; only its keys change).
 #: 2: lines the residual search added are dropped when rough (``added_roughness``); 3: lines
@@ -29,11 +32,11 @@ LINE_FIT_REVISION = 3
 POLE_REVISION = 1
 
 
-def extraction_revision(extract_opts: dict) -> int | list[int]:
+def extraction_revision(extract_opts: dict) -> int | list[int | str]:
     """The revision part of the extract and observe keys of extracted tracks."""
     out = [EXTRACTION_REVISION]
     if extract_opts.get("line_fit"):
         out.append(LINE_FIT_REVISION)
     if extract_opts.get("identifier", "peaks") != "peaks":
-        out.append(["poles", POLE_REVISION])
+        out.append(f"p{POLE_REVISION}")
     return out if len(out) > 1 else EXTRACTION_REVISION
