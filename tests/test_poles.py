@@ -123,7 +123,7 @@ def test_projection_on_poles_gives_each_mode_its_field():
     shapes = [smooth_shape(rng, 16) for _ in range(2)]
     f, z = [11.0, 23.0], [0.02, 0.01]
     d = decay_field(f, z, [0.3, 0.05], shapes, T, fps)
-    lam = [2 * np.pi * fk * (-zk + 1j * np.sqrt(1 - zk * zk)) for fk, zk in zip(f, z)]
+    lam = [2 * np.pi * fk * (-zk + 1j * np.sqrt(1 - zk * zk)) for fk, zk in zip(f, z, strict=True)]
     Z, noise = project_poles(d, fps, lam)
     for k in range(2):
         assert mac(2 * Z[k].real, shapes[k]) > 0.9999
