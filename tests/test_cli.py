@@ -119,11 +119,29 @@ def test_solve_options_are_checked_before_work(option, capsys, tmp_path, monkeyp
                                     ["--faint-product-ratio", "-0.1"],
                                     ["--product-scaling", "cubic"],
                                     ["--roughness-weighting", "noise"],
-                                    ["--min-reliable-fraction", "-0.1"]])
+                                    ["--min-reliable-fraction", "-0.1"],
+                                    ["--identifier", "ssi"]])
 def test_extract_options(option, sample, capsys, tmp_path):
     assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), *option]) == 2
     _one_error_line(capsys)
     assert not (tmp_path / "o").exists()
+
+
+def test_extract_says_which_identifier_ran_and_why(sample, capsys, tmp_path):
+    """The default ``--identifier auto`` reads the sample's pluck; a 20-frame record whose
+    motion hardly decays goes to the peak picker, and modes.json and the output say so; ERA
+    asked for on a record that short is one error line."""
+    from vvtbench.modes import ModeSet
+
+    assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    ident = ModeSet.load(tmp_path / "o").identifier
+    assert ident["requested"] == "auto" and ident["used"] == "peaks"
+    assert ident["excitation"] == "pluck" and "envelope" in ident["reason"]
+    assert f"identifier: peaks (auto: {ident['reason']})" in out
+    assert cli.main(["extract", str(sample), "-o", str(tmp_path / "e"), "--identifier",
+                     "era", "--fps", "400"]) == 2
+    assert "too short for ERA" in _one_error_line(capsys)
 
 
 def test_outputs_inside_a_sample_are_refused(sample, capsys):

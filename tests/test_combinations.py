@@ -279,3 +279,24 @@ def test_extract_modes_applies_the_product_test_when_asked():
     # 2 x 37 Hz: rough enough for the distortion test against the first frame, named by the
     # product test against the mean frame (the extractor's harmonic is smoother about it)
     assert rejected[74] in ("distortion", "product")
+
+
+def test_high_order_harmonic_folded_at_nyquist_is_a_product_by_phase_and_envelope():
+    """``7 x 113 = 791`` Hz sampled at 1000 fps shows at 209 Hz with its phase mirrored: a
+    field shaped like its parent to the 7th power is rejected; one of its own is kept."""
+    rng = np.random.default_rng(11)
+    s1, s2 = smooth_shape(rng), smooth_shape(rng)
+    ph = np.array([0.3, 1.0])
+    f = np.array([113.0, 47.0, 209.0])
+    a = np.array([1.0, 0.8, 1e-3])
+    ph_k = (-(7 * ph[0])) % np.pi
+    harmonic = unit(texture(rng) * s1**7)
+    kept, out = find_combinations(f, a, np.stack([s1, s2, harmonic]), 1.0,
+                                  phases=np.append(ph, ph_k), fps=1000.0)
+    assert kept.tolist() == [True, True, False] and out[0]["product"] == "7 x 113.0 Hz"
+    kept, _ = find_combinations(f, a, np.stack([s1, s2, harmonic]), 1.0,
+                                phases=np.append(ph, ph_k), fps=1000.0, max_harmonic=3)
+    assert kept.all()  # not looked for
+    kept, _ = find_combinations(f, a, np.stack([s1, s2, smooth_shape(rng)]), 1.0,
+                                phases=np.append(ph, ph_k), fps=1000.0)
+    assert kept.all()

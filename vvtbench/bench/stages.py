@@ -57,6 +57,11 @@ def _stage_extract(cache: Path, task: Task, out: Path, ctx: dict) -> dict:
 
     sample = open_sample(sample_path(cache, task.deps[0]))
     opts = {k: v for k, v in task.payload["options"].items() if not k.startswith("merge_")}
+    if opts.get("identifier") == "auto" and "excitation" not in opts:
+        # how the scene set the object moving (a pluck: a free decay), for the identifier
+        kind = getattr(getattr(sample.scene, "excitation", None), "kind", None)
+        if isinstance(kind, str):
+            opts["excitation"] = kind
     limits = ctx.get("limits") or {}
     field = task.payload.get("field")
     scratch = None

@@ -131,6 +131,9 @@ class ExtractOptions(_Strict):
     reject_products: bool | None = Field(
         None, description="true or false (harmonics and intermodulation products of stronger "
         "modes rejected by phase and shape)")
+    identifier: Literal["auto", "peaks", "era", "plscf"] | None = Field(
+        None, description="'auto', 'peaks', 'era' or 'plscf' (how modes are identified; auto: "
+        "ERA for a free decay, the peak picker for a driven record)")
     roughness_weighting: Literal["shape", "spectrum"] | None = Field(
         None, description="'shape' or 'spectrum' (pixel weights of the roughness tests)")
     min_reliable_fraction: NonNegativeNumber | None = Field(

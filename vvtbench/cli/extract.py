@@ -54,6 +54,20 @@ def _sample_fps(path: Path) -> float | None:
         return None
 
 
+def _sample_excitation(path: Path) -> str | None:
+    """The excitation kind of a vvtbench sample's scene (``scene.toml``), or None."""
+    import tomllib
+
+    scene = path / "scene.toml" if path.is_dir() else path.parent / "scene.toml"
+    if not scene.is_file() or not (scene.parent / "truth.json").is_file():
+        return None
+    try:
+        kind = tomllib.loads(scene.read_text()).get("excitation", {}).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return kind if isinstance(kind, str) else None
+
+
 def _sample_of(path: Path) -> Path | None:
     """The sample folder ``path`` is, or whose video it is, else None."""
     if path.is_dir() and (path / "manifest.json").is_file():
@@ -220,6 +234,14 @@ def build_parser(prog: str = "vvtbench extract") -> argparse.ArgumentParser:
     ap.add_argument("--line-fit", action="store_true",
                     help="fit the peaks as lines across all pixels (close modes resolved) and "
                     "add significant lines of the residual (docs/modes.md, 'Line fit')")
+    ap.add_argument("--identifier", choices=("auto", "peaks", "era", "plscf"), default="auto",
+                    help="how modes are identified: auto (ERA for a free decay, the peak "
+                    "picker for a driven record, read from --excitation, a sample's scene, "
+                    "else the motion's envelope), peaks (the peak picker), era (poles of the "
+                    "free decay) or plscf (poles of the power spectra); docs/modes.md")
+    ap.add_argument("--excitation", default=None, metavar="KIND",
+                    help="how the object was set moving (pluck, velocity, force, sweep, ...), "
+                    "for --identifier auto; default: a sample's scene, else the envelope")
     ap.add_argument("--reject-products", action="store_true",
                     help="also reject harmonics and intermodulation products of stronger modes "
                     "judged by phase and shape (opt-in; docs/modes.md, 'False modes of the "
@@ -318,7 +340,9 @@ def main_extract(argv: list[str] | None = None) -> int:
         shape_attenuation=args.shape_attenuation, shape_fill=args.shape_fill,
         roughness_weighting=args.roughness_weighting,
         min_reliable_fraction=args.min_reliable_fraction, extractor=args.extractor,
-        extractor_config=extractor_config, **read)
+        extractor_config=extractor_config, identifier=args.identifier,
+        excitation=args.excitation if args.excitation is not None
+        else _sample_excitation(args.video), **read)
     code = _extract_sealed(args, src, fps, options)
     if code:
         return code
@@ -338,6 +362,10 @@ def main_extract(argv: list[str] | None = None) -> int:
     print(f"{len(ms)} modes, T = {ms.n_frames} frames at {ms.fps:g} fps -> {args.out}")
     if not len(ms) and ms.metadata.get("no_modes"):
         print(f"  no mode: {ms.metadata['no_modes']}")
+    ident = ms.identifier
+    print(f"identifier: {ident['used']}"
+          + (f" ({ident['requested']}: {ident['reason']})" if ident["requested"] == "auto"
+             else ""))
     peak, resolved = ms.peak_displacement_px, ms.damping_resolved()
     start = ms.initial_displacement_px
     sf, (zlo, zhi) = ms.frequency_std_hz(), ms.damping_interval()

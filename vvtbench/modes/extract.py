@@ -197,6 +197,10 @@ def modes_from_displacements(
     roughness_weighting: str = "shape",
     min_reliable_fraction: float | None = None,
     unreliable_roughness: float = 0.06,
+    identifier: str = "peaks",
+    excitation: str | None = None,
+    pole_options: Mapping[str, Any] | None = None,
+    pole_products: bool = True,
 ) -> ModeSet:
     """Identify image-space modes from displacement fields.
 
@@ -329,12 +333,79 @@ def modes_from_displacements(
         it off.
     unreliable_roughness : float, default 0.06
         See ``min_reliable_fraction``.
+    identifier : {"peaks", "auto", "era", "plscf"}, default "peaks"
+        How modes are identified: the peak picker (everything above), ERA on the free decay
+        or pLSCF on positive power spectra over reduced channels with a stabilisation diagram
+        (:mod:`.poles`), or ``"auto"``: ERA for a free decay, the peak picker for a driven
+        record, decided by ``excitation`` when given, else by the envelope of the motion
+        (:func:`.poles.decide_identifier`).  ``metadata["identifier"]`` records the request,
+        the identifier used and why.
+    excitation : str, optional
+        How the object was set moving (a scene's ``excitation.kind``: ``"pluck"``,
+        ``"velocity"``, ``"force"``, ...), for ``identifier="auto"``.
+    pole_options : mapping, optional
+        Options of :func:`.poles.scan_poles` (``block``, ``n_components``, ``max_order``,
+        ``f_tol``, ...) and ``"products"``: options of
+        :func:`.products.find_pole_products`.
+    pole_products : bool, default True
+        With a pole-based identifier: reject the modes that are products of stronger ones by
+        frequency, decay, phase and shape together (:mod:`.products`).
 
     Returns
     -------
     ModeSet
     """
     band = check_band(fps, fmin, fmax)
+    if identifier not in ("peaks", "auto", "era", "plscf"):
+        raise ValueError(f"identifier must be 'peaks', 'auto', 'era' or 'plscf', got "
+                         f"{identifier!r}")
+    if identifier != "peaks":
+        from .poles import FORCED_EXCITATIONS, decide_identifier, pole_modes, scan_poles
+        from .reduce import block_channels
+
+        popts = dict(pole_options or {})
+        product_options = popts.pop("products", None)
+        sw_ = weights if spectrum_weights is None else spectrum_weights
+        lo_band = (max(band[0], min_bin * float(fps) / _n_frames(disp)), band[1])
+        channels = None
+        if identifier == "auto":
+            if excitation is not None and str(excitation).lower() in FORCED_EXCITATIONS:
+                used, reason = decide_identifier(excitation=excitation)
+            else:
+                channels = block_channels(disp, weights=sw_, block=int(popts.get("block", 8)),
+                                          block_bytes=block_bytes)
+                used, reason = decide_identifier(channels.data, excitation=excitation)
+        else:
+            used, reason = identifier, "asked for"
+        record = {"requested": identifier, "used": used, "reason": reason,
+                  "excitation": excitation}
+        scan = None
+        if used != "peaks":
+            try:
+                scan = scan_poles(disp, fps, method=used, weights=sw_, band=lo_band,
+                                  channels=channels, **popts)
+            except ValueError as error:
+                if identifier != "auto" or "too short" not in str(error):
+                    raise
+                used, reason = "peaks", f"{reason}; but {error}"
+                record.update(used=used, reason=reason)
+        if scan is not None:
+            meta = {**dict(metadata or {}), "identifier": record, "min_bin": int(min_bin),
+                    "weighted": weights is not None}
+            return pole_modes(disp, fps, scan, band=lo_band, weights=weights,
+                              spectrum_weights=spectrum_weights, output_shape=output_shape,
+                              confidence=confidence, metadata=meta,
+                              shake_threshold=shake_threshold,
+                              keep_camera_shake=keep_camera_shake,
+                              reject_products=pole_products and reject_distortion,
+                              product_options=product_options, max_roughness=max_roughness,
+                              rough_sigma_px=rough_sigma_px, min_power_ratio=min_power_ratio,
+                              block_bytes=block_bytes)
+        metadata = {**dict(metadata or {}), "identifier": record}
+    else:
+        metadata = {**dict(metadata or {}),
+                    "identifier": {"requested": "peaks", "used": "peaks", "reason": "asked for",
+                                   "excitation": excitation}}
     if roughness_weighting not in ("shape", "spectrum"):
         raise ValueError(f"roughness_weighting must be 'shape' or 'spectrum', got "
                          f"{roughness_weighting!r}")
@@ -764,6 +835,9 @@ def extract_modes(
     reject_keyframe_comb: bool = True,
     reject_products: bool = False,
     reference: str = "mean",
+    identifier: str = "peaks",
+    excitation: str | None = None,
+    pole_options: Mapping[str, Any] | None = None,
 ) -> ModeSet:
     """Extract image-space modes from a video end to end.
 
@@ -854,6 +928,11 @@ def extract_modes(
         weights: -13 % at a texture-to-noise ratio of 5); the mean holds ``1 / T`` of one
         frame's noise variance.  Displacements are then relative to the mean position, which
         differs from the first frame's by a constant the spectrum removes.
+    identifier, excitation, pole_options :
+        Peak picker or pole-based identification (ERA, pLSCF) and how ``"auto"`` chooses,
+        see :func:`modes_from_displacements`.  A pole-based identifier rejects products
+        itself (by frequency, decay, phase and shape); ``reject_products`` applies to the
+        peak picker's modes.
 
     Returns
     -------
@@ -993,6 +1072,9 @@ def extract_modes(
             spectrum_weights=spectrum_weights,
             roughness_weighting=roughness_weighting,
             min_reliable_fraction=min_reliable_fraction,
+            identifier=identifier,
+            excitation=excitation,
+            pole_options=pole_options,
         )
         if stability:
             from .stability import record_stability
@@ -1003,7 +1085,8 @@ def extract_modes(
     gop = (video.meta.get("lossy") or {}).get("gop")
     if reject_keyframe_comb and gop and len(ms):
         ms = _reject_keyframe_comb(ms, float(fps), int(gop))
-    if reject_products and reject_distortion and len(ms) > 1:
+    if reject_products and reject_distortion and len(ms) > 1 and (
+            ms.metadata.get("identifier") or {}).get("used", "peaks") == "peaks":
         from .combinations import reject_combinations
 
         ms = reject_combinations(ms)

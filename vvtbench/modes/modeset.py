@@ -181,6 +181,9 @@ class ModeSet:
         An undamped scene's peaks fail it (half-power NaN or far off), so no ``zeta`` is
         shown for them.
 
+        A pole-based identifier's damping (:attr:`pole_based`) has no half-power estimate; its
+        interval decides.
+
         Where the set carries the damping's 95 % interval (line fit, :meth:`damping_interval`)
         it must also be tighter than a factor 2 (``lo > 0`` and ``hi / lo <= 2``), and a mode
         flagged ``close_mode_bias`` (a close pair whose fit residual or parameter correlation
@@ -193,12 +196,30 @@ class ModeSet:
         df = self.fps / self.n_frames if self.n_frames else np.inf
         with np.errstate(invalid="ignore", divide="ignore"):
             ok = np.isfinite(z) & (z > 0) & (z < 0.3) & (z * f >= 0.05 * df)
-            ok &= np.isfinite(zh) & (zh > 0.5 * z) & (zh < 2.0 * z)
+            # a pole's damping has no half-power cross-check: its interval (the spread over
+            # the model orders) decides
+            ok &= (np.isfinite(zh) & (zh > 0.5 * z) & (zh < 2.0 * z)) | self.pole_based
             lo, hi = self.damping_interval()
             known = np.isfinite(lo) & np.isfinite(hi)
             ok &= ~known | ((lo > 0) & (hi <= 2.0 * lo))
         ok &= ~self.close_mode_bias()
         return ok
+
+    @property
+    def identifier(self) -> dict[str, Any]:
+        """How the modes were identified (``metadata["identifier"]``: ``requested``, ``used``
+        (``"peaks"``, ``"era"`` or ``"plscf"``), ``reason``); the peak picker for sets written
+        before the key existed."""
+        value = self.metadata.get("identifier")
+        if isinstance(value, dict) and isinstance(value.get("used"), str):
+            return value
+        return {"requested": "peaks", "used": "peaks", "reason": "recorded before the "
+                "identifier was", "excitation": None}
+
+    @property
+    def pole_based(self) -> bool:
+        """Whether a pole-based identifier (ERA, pLSCF) found the modes."""
+        return self.identifier["used"] in ("era", "plscf")
 
     def mode_list(self, name: str, default: float = np.nan) -> NDArray[np.float64]:
         """``(k,)`` each mode's entry of a per-candidate metadata list

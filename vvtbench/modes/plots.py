@@ -10,7 +10,7 @@ import numpy as np
 from .modeset import ModeSet
 from .uncertainty import Z95
 
-__all__ = ["plot_mode", "plot_modes", "plot_spectrum"]
+__all__ = ["plot_mode", "plot_modes", "plot_spectrum", "plot_stabilization"]
 
 
 def _plt():
@@ -282,10 +282,56 @@ def plot_stability(ms: ModeSet, path: str | Path) -> Path:
     return out
 
 
+def plot_stabilization(ms: ModeSet, path: str | Path) -> Path:
+    """Stabilisation diagram of a pole-based identification (``metadata["poles"]["diagram"]``):
+    every pole of the model-order scan at its frequency (x) and order (y), stable poles (their
+    frequency, damping and shape repeat from the previous order) in blue, the members of a
+    cluster in black, each identified mode a red line with its 95 % frequency interval shaded,
+    and the clusters rejected as products or otherwise a dashed grey line."""
+    poles = (ms.metadata.get("poles") or {}).get("diagram")
+    if not isinstance(poles, dict) or "poles" not in poles:
+        raise ValueError("the mode set has no stabilisation diagram (metadata 'poles')")
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(10, 5), dpi=110)
+    rows = np.asarray(poles["poles"], dtype=np.float64).reshape(-1, 5)
+    if rows.size:
+        order, f, stable, cl = rows[:, 0], rows[:, 1], rows[:, 3] > 0, rows[:, 4]
+        ax.plot(f[~stable], order[~stable], ".", color="0.75", ms=2.5, label="pole")
+        ax.plot(f[stable & (cl < 0)], order[stable & (cl < 0)], "o", mfc="none",
+                color="tab:blue", ms=3.5, mew=0.7, label="stable pole")
+        ax.plot(f[cl >= 0], order[cl >= 0], "o", color="k", ms=2.5, label="in a cluster")
+    sf = ms.frequency_std_hz()
+    for i, fi in enumerate(ms.frequencies_hz):
+        ax.axvline(fi, color="tab:red", lw=0.7, alpha=0.7)
+        if np.isfinite(sf[i]):
+            ax.axvspan(fi - Z95 * sf[i], fi + Z95 * sf[i], color="tab:red", alpha=0.15, lw=0)
+    for r in ms.metadata.get("rejected", []):
+        ax.axvline(r["frequency_hz"], color="0.4", lw=0.7, ls="--")
+    ax.plot([], [], "-", color="tab:red", label="identified mode (95 % interval)")
+    if ms.metadata.get("rejected"):
+        ax.plot([], [], "--", color="0.4", label="rejected (product, shake, ...)")
+    band = ms.metadata.get("band_hz", [0, 0])
+    ax.set_xlim(float(band[0]), _modes_xmax(ms))
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("model order")
+    used = ms.identifier["used"].upper() if ms.identifier["used"] == "era" else "pLSCF"
+    ax.set_title(f"Stabilisation diagram ({used}): {len(ms)} modes")
+    ax.grid(True, alpha=0.2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    out = Path(path)
+    from ..io.files import atomic_file
+
+    with atomic_file(out) as fh:
+        fig.savefig(fh, format=out.suffix[1:] or "png")
+    plt.close(fig)
+    return out
+
+
 def plot_modes(ms: ModeSet, directory: str | Path) -> list[Path]:
     """``spectrum.png``, ``mode_XX.png`` for every mode and, where the modes carry
-    intervals (line fit), ``uncertainty.png``, and with a stability search
-    ``stability.png``, into ``directory``."""
+    intervals (line fit), ``uncertainty.png``, with a stability search ``stability.png``,
+    and for a pole-based identification ``stabilization.png``, into ``directory``."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     paths = [plot_spectrum(ms, d / "spectrum.png")]
@@ -293,5 +339,7 @@ def plot_modes(ms: ModeSet, directory: str | Path) -> list[Path]:
         paths.append(plot_uncertainty(ms, d / "uncertainty.png"))
     if isinstance(ms.metadata.get("stability"), dict):
         paths.append(plot_stability(ms, d / "stability.png"))
+    if isinstance((ms.metadata.get("poles") or {}).get("diagram"), dict):
+        paths.append(plot_stabilization(ms, d / "stabilization.png"))
     paths += [plot_mode(ms, i, d / f"mode_{i:02d}.png") for i in range(len(ms))]
     return paths
