@@ -505,6 +505,18 @@ def report(out_root: Path, figures: Path | None = None) -> str:
     return text
 
 
+def _board_video() -> dict:
+    """The board's sensitivity NC w from video (phase extractor), per instance."""
+    import pandas as pd
+
+    if not BOARD.exists():
+        return {}
+    d = pd.read_csv(BOARD)
+    d = d[d.track.isin(["cube_video", "drums_video"]) & (d.solver == "sensitivity")
+          & (d.observation == "extracted") & (d.status == "ok")]
+    return dict(zip(d.scene, d.nc_w, strict=True))
+
+
 def plot(df, out_root: Path, figures: Path) -> None:
     """docs/gallery/ceiling_*.png."""
     import matplotlib
@@ -540,7 +552,39 @@ def plot(df, out_root: Path, figures: Path) -> None:
     fig.tight_layout()
     fig.savefig(figures / "ceiling_per_instance.png", dpi=110)
     plt.close(fig)
-    # 2. NC against the two truths
+    # 2. what limits each class: the ladder from the truth to the solvers
+    video = _board_video()
+    fig, axes = plt.subplots(1, len(fams), figsize=(6.2 * len(fams), 3.9), squeeze=False)
+    steps = [("homog_nc_w", "homogenised truth"), ("ceiling_w_full", "ceiling, every DOF"),
+             ("ceiling_w_view", "ceiling, the board's view"), ("oracle_nc_w", "oracle"),
+             ("sensitivity_nc_w", "sensitivity, true modes"),
+             ("video_sensitivity", "sensitivity, video (board)")]
+    for ax, fam in zip(axes[0], fams, strict=True):
+        d = df[(df.family == fam) & df.has_contrast].copy()
+        d["video_sensitivity"] = [video.get(i, np.nan) for i in d.instance]
+        kinds = [k for k in ("near-void", "soft", "mixed", "stiff") if k in set(d["class"])]
+        width = 0.8 / len(steps)
+        for j, (col, label) in enumerate(steps):
+            if col not in d:
+                continue
+            vals = [d[d["class"] == k][col].mean() for k in kinds]
+            ns = [int(d[d["class"] == k][col].notna().sum()) for k in kinds]
+            xs = np.arange(len(kinds)) + (j - len(steps) / 2 + 0.5) * width
+            ax.bar(xs, vals, width, label=label)
+            for xx, vv, nn in zip(xs, vals, ns, strict=True):
+                if np.isfinite(vv):
+                    ax.text(xx, max(vv, 0) + 0.01, str(nn), ha="center", fontsize=5)
+        ax.set_xticks(np.arange(len(kinds)))
+        ax.set_xticklabels([f"{k} ({int((d['class'] == k).sum())})" for k in kinds])
+        ax.set_ylabel("mean NC w (arithmetic truth)")
+        ax.set_ylim(0, 1.05)
+        ax.set_title(f"{fam} test: from the truth to the solvers (n over each bar)",
+                     fontsize=9)
+        ax.legend(fontsize=6, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(figures / "ceiling_ladder.png", dpi=110)
+    plt.close(fig)
+    # 3. NC against the two truths
     fig, axes = plt.subplots(1, len(fams), figsize=(5.2 * len(fams), 4.6), squeeze=False)
     for ax, fam in zip(axes[0], fams, strict=True):
         d = df[(df.family == fam) & df.has_contrast]
@@ -558,7 +602,7 @@ def plot(df, out_root: Path, figures: Path) -> None:
     fig.tight_layout()
     fig.savefig(figures / "ceiling_truths.png", dpi=110)
     plt.close(fig)
-    # 3. misfit fronts of a few instances, with the estimates
+    # 4. misfit fronts of a few instances, with the estimates
     picks = []
     for fam in fams:
         d = df[(df.family == fam) & df.has_contrast & df.get("ceiling_w_view").notna()]
@@ -587,6 +631,9 @@ def plot(df, out_root: Path, figures: Path) -> None:
             ax.plot(m["arithmetic"]["D_view"] / c["eps"], 1.0, "k*", label="arithmetic truth")
             ax.plot(1.0, r["homog"]["nc_w"], "ks", mfc="none", label="homogenised")
             ax.set_xscale("log")
+            ax.set_xlim(0.1, 3e3)
+            ax.set_xticks([0.1, 1, 10, 100, 1000])
+            ax.set_xticklabels(["0.1", "1", "10", "100", "1000"])
             ax.set_title(f"{inst.split('-')[0][:4]} {inst[-5:]} ({r['class']})", fontsize=8)
             ax.set_xlabel("misfit D / eps (view)", fontsize=8)
             ax.set_ylim(min(0.0, ax.get_ylim()[0]), 1.02)
@@ -660,6 +707,7 @@ def run_instance(sample: Path, stages, out_root: Path) -> None:
             arrays.update(arr)
             write_npz(npath, arrays)
             write_json(jpath, result)
+    write_json(jpath, result)  # the instance's description, even when every stage was cached
 
 
 def parse_only(text: str | None, n: int) -> list[int]:

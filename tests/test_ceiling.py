@@ -169,3 +169,29 @@ def test_committed_ceilings_hold_every_feasible_row():
             checked += 1
     if not checked:
         pytest.skip("no ceiling stage committed yet")
+
+
+def test_a_committed_drum_ceiling_reproduces(tmp_path):
+    """Regenerate one committed drum instance (modes only, ~1 s), rebuild its problem, and
+    recompute the misfit and NC of the committed best field: it explains the data within the
+    committed eps and scores the committed search value."""
+    from benchmarks.ceiling import data_of, load, theta
+    from vvtbench.samples.generate import generate
+    from vvtbench.scene.families import draw
+
+    files = [f for f in sorted(COMMITTED.glob("drum_defects/*.json"))
+             if "ceiling" in json.loads(f.read_text()).get("ceil_w_view", {})]
+    if not files:
+        pytest.skip("no committed drum ceiling")
+    r = json.loads(files[0].read_text())
+    c = r["ceil_w_view"]
+    index = int(r["instance"].rsplit("-", 1)[1])
+    sample = generate(draw("drum_defects", "test", index), tmp_path, video=False,
+                      progress=False)
+    (sample / "family.json").write_text(json.dumps({"family": "drum_defects"}))
+    _, _, p, t = load(sample)
+    z = np.load(files[0].with_suffix(".npz"))
+    w, v = z["ceil_w_view_w"].astype(float), z["ceil_w_view_v"].astype(float)
+    D = Misfit(p.model, data_of(p, t)["view"]).value(theta(w, v))
+    assert D <= c["eps"] * (1 + 1e-4)
+    assert nc_and_gradient(w, t.w)[0] == pytest.approx(c["search"], abs=1e-5)
