@@ -1,4 +1,9 @@
-"""``oracle``: material from full-field 3-D modes and exact eigenvalues -- the upper bound.
+"""``oracle``: material from full-field 3-D modes and exact eigenvalues -- a reference.
+
+A reference, not a bound: it is one regularised estimator fed the complete modes, and a
+ranked solver can score above it (docs/solvers.md says where and why). What any field on the
+inference grid can reach while explaining the data is the instance's ceiling
+(:mod:`vvtbench.scoring.ceiling`, docs/metrics.md).
 
 Ways to fit the voxel model to the true modes; ``method="select"`` (the default) runs the two
 that use the complete data (``strong`` and ``fitted``) and keeps the one whose forward model
@@ -112,8 +117,9 @@ class OracleSolver:
     name = "oracle"
     version = "2.3.0"
     uses_truth = True  # a reference: solve(problem, truth) gets the true 3-D modes
-    description = ("Upper bound: true full-field 3-D modes and exact eigenvalues; Eq. 2 least "
-                   "squares or vvt on the full field, whichever fits the modes best")
+    description = ("Reference (reads the truth; not a bound): true full-field 3-D modes and "
+                   "exact eigenvalues; Eq. 2 least squares or vvt on the full field, whichever "
+                   "fits the modes best")
     Config = OracleConfig
 
     def __init__(self, config: OracleConfig | None = None) -> None:

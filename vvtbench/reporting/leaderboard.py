@@ -828,9 +828,9 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
              "valid instances; a solver whose paired interval against the one above it "
              "includes 0 shares its rank (1=); with fewer than "
              f"{MIN_RANK_N} instances a solver shows its mean and n only: too few instances "
-             "to rank. Reference solvers (they saw the truth: an upper bound) are shown "
-             "apart, last, and never ranked. The method is at the end of the page. "
-             + solver_versions(df))
+             "to rank. Reference solvers (they saw the truth; a reference, not a bound: "
+             "a ranked solver may score above one) are shown apart, last, and never "
+             "ranked. The method is at the end of the page. " + solver_versions(df))
     md = ["# vvtbench leaderboard\n", f"**{trust}**\n", intro + "\n", "## Summary\n",
           f"| track | ranked first: NC w mean [{_PCT} CI] | tied with | reference: NC w mean "
           f"[{_PCT} CI] | runs | failed | invalid |", "|---|---|---|---|---|---|---|"]
