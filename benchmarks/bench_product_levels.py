@@ -51,6 +51,7 @@ def main() -> None:
     q = u @ np.linalg.pinv(surf.reshape(n, -1).T).T
     Y = Y - Y.mean(0)
     Q = q - q.mean(0)
+    f = np.asarray(s.frequencies_hz, np.float64)
     B, *_ = np.linalg.lstsq(Q, Y, rcond=None)
     L = Q @ B
     R = Y - L
@@ -61,16 +62,20 @@ def main() -> None:
     cuts = np.linspace(0, T, 6).astype(int)
     print("residual energy per frame (px²) over the record:",
           ", ".join(f"{e[a:b].mean():.3g}" for a, b in zip(cuts[:-1], cuts[1:], strict=True)))
-    f = np.asarray(s.frequencies_hz, np.float64)
-    gain = np.abs(B).max(axis=1) * np.abs(Q).max(axis=0)
-    i1, i2 = (int(k) for k in np.argsort(-gain)[:2])
-    strong = [int(k) for k in np.argsort(-gain)[:3]]
+    F = np.fft.rfftfreq(T, 1 / fps)
+    PL = (np.abs(np.fft.rfft(L, axis=0)) ** 2).sum(1)
+    # the modes by the power of the linear fit at their frequency (repeated modes move
+    # together: their coefficients one by one are not determined)
+    line = PL[np.clip(np.rint(f * T / fps).astype(int), 0, F.size - 1)]
+    rank = [int(k) for k in np.argsort(-line)]
+    i1 = rank[0]
+    i2 = next(k for k in rank if abs(f[k] - f[i1]) > fps / T)
+    strong = [i1, i2] + [k for k in rank if k not in (i1, i2)][:1]
     quad = np.stack([Q[:, a] * Q[:, b] for a, b in
                      itertools.combinations_with_replacement(strong, 2)], 1)
     quad -= quad.mean(0)
     C, *_ = np.linalg.lstsq(quad, R, rcond=None)
     R2 = R - quad @ C
-    F = np.fft.rfftfreq(T, 1 / fps)
 
     def power(X, f0):
         k = int(round(f0 * T / fps))
@@ -88,7 +93,6 @@ def main() -> None:
                           ("3 f1", 3 * f1, p1)):
         a, b = power(R, fr), power(R2, fr)
         print(f"| {name} | {fr:.2f} | {a:.3g} | {b:.3g} | {np.sqrt(max(a - b, 0) / ref):.2%} |")
-    del F
 
 
 if __name__ == "__main__":
