@@ -344,6 +344,29 @@ def test_line_fit_revision_changes_only_the_line_fit_extraction_keys(monkeypatch
     assert {"extract", "observe"} <= changed and "generate" not in changed
 
 
+def test_pole_revision_changes_only_the_keys_of_pole_identifiers(monkeypatch):
+    import dataclasses
+
+    from vvtbench.bench import build_graph
+
+    smoke = load_suite("smoke")
+    poles = dataclasses.replace(smoke, extract={**smoke.extract, "identifier": "auto"})
+
+    def keys(suite):
+        tasks, _ = build_graph(suite, ["homogeneous"])
+        return {(t.stage, t.label, t.key) for t in tasks.values()}
+
+    before = keys(smoke), keys(poles)
+    assert before[0] != before[1]
+    from vvtbench.modes import revision
+
+    monkeypatch.setattr(revision, "POLE_REVISION", revision.POLE_REVISION + 1)
+    after = keys(smoke), keys(poles)
+    assert after[0] == before[0]  # peak-picked suites keep their cache
+    changed = {s for s, _, _ in before[1] ^ after[1]}
+    assert {"extract", "observe"} <= changed and "generate" not in changed
+
+
 def test_extractors_are_ranked_on_the_same_videos(micro, tmp_path):
     """An ``extracted:NAME`` source runs another extractor on the cached videos; the default
     source keeps its cache; the leaderboard ranks the extractors."""
