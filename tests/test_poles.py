@@ -319,3 +319,29 @@ def test_clean_two_mode_clip_gives_its_two_modes_and_at_most_one_more(zeta):
                    for r in ms.metadata["rejected"])
         for x in (47.0, 113.0):
             assert ms.damping[np.argmin(np.abs(f - x))] == pytest.approx(zeta, rel=0.1)
+
+
+def test_plscf_identifier_on_a_random_response_field():
+    """Two modes driven by white noise (a stationary record): pLSCF over the channels' power
+    spectra finds both, with their damping; the spurious cluster between them does not
+    settle."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(1)
+    n, fps, T = 24, 200.0, 8000
+    f, z = [12.0, 31.0], [0.02, 0.03]
+    shapes = [smooth_shape(rng, n) * n for _ in f]
+    d = np.zeros((T, n, n, 2))
+    for k in range(2):
+        p = np.exp(2 * np.pi * f[k] * (-z[k] + 1j * np.sqrt(1 - z[k] ** 2)) / fps)
+        q = lfilter([1.0], [1.0, -2 * p.real, abs(p) ** 2], rng.standard_normal(T)) * 1e-3
+        d += q[:, None, None, None] * shapes[k][None]
+    d += 1e-5 * rng.standard_normal(d.shape)
+    ms = modes_from_displacements(d.astype(np.float32), fps, identifier="plscf",
+                                  pole_options={"block": 4, "n_components": 8,
+                                                "max_order": 40})
+    assert ms.identifier["used"] == "plscf" and len(ms) == 2
+    for k in range(2):
+        assert ms.frequencies_hz[k] == pytest.approx(f[k], rel=5e-3)  # a linearised fit
+        assert ms.damping[k] == pytest.approx(z[k], rel=0.15)
+        assert mac(ms.shapes[k], shapes[k]) > 0.98

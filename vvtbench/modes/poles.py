@@ -302,6 +302,7 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
     A mode is also rejected when its power (amplitude squared) is below ``min_power_ratio``
     of the strongest (reason ``"faint"``, the peak picker's ``min_power_ratio``), when its
     frequency varies over the orders by more than ``max_frequency_spread_bins`` DFT bins
+    (of the record for ERA, of the correlation functions for pLSCF)
     (reason ``"unstable"``: a pole the data do not pin down, such as a noise-level product
     whose decay and frequency the scan cannot settle), as camera shake and when incoherent
     (rougher than ``max_roughness``).
@@ -404,6 +405,10 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
         ms.metadata["products"] = {"options": popts, "tested": int(K)}
     amp2 = np.asarray(ms.amplitudes_px, np.float64) ** 2
     top = float(amp2.max()) if K else 0.0
+    # the resolution the poles were read at: the record's bin for a decay, the correlation
+    # functions' for power spectra
+    spread_bin = df if scan.method == "era" else float(fps) / (
+        scan.settings.get("decimation", 1) * 2 * scan.settings.get("lags", T))
     for k in range(K):
         if drop[k]:
             continue
@@ -411,7 +416,7 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
             drop[k] = True
             rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
                 ms.frequencies_hz[k]), "power_ratio": float(amp2[k] / top), "reason": "faint"})
-        elif fstd[k] > max_frequency_spread_bins * df:
+        elif fstd[k] > max_frequency_spread_bins * spread_bin:
             drop[k] = True
             rejected.append({"bin": int(ms.peak_bins[k]), "frequency_hz": float(
                 ms.frequencies_hz[k]), "frequency_std_hz": float(fstd[k]),
