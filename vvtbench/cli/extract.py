@@ -381,7 +381,8 @@ def main_extract(argv: list[str] | None = None) -> int:
             + ("  ! close mode bias" if biased[i] else "")
             + f"  peak {peak[i]:.3g} px"
             + (f" (at onset {start[i]:.3g} px)" if start[i] > 1.05 * peak[i] else "")
-            + f"  prominence {row['prominences']:.2f}"
+            + (f"  prominence {row['prominences']:.2f}" if row["prominences"] is not None
+               else "")
             + (f"  roughness {row['roughness']:.2f}" if row.get("roughness") is not None else "")
         )
     for r in ms.metadata.get("rejected", []):
@@ -396,6 +397,10 @@ def main_extract(argv: list[str] | None = None) -> int:
             why = f"{r['product']} ({r['test']})"
         elif r["reason"] == "unreliable":
             why = f"reliable fraction {r['reliable_fraction']:.3f}"
+        elif r["reason"] == "faint":
+            why = f"power {r['power_ratio']:.2g} of the strongest mode's"
+        elif r["reason"] == "unstable":
+            why = f"frequency spread {r['frequency_std_hz']:.3g} Hz over the model orders"
         else:
             why = f"roughness {r['roughness']:.2f}"
         print(f"  rejected {r['frequency_hz']:.4f} Hz: {r['reason']} ({why})")

@@ -41,7 +41,8 @@ from .reduce import block_channels, channel_noise, decimate_frames
 from .spectrum import DisplacementStore, _as_store
 from .stabilization import PoleCluster, cluster_poles, diagram, stable_poles
 
-__all__ = ["PoleScan", "decide_identifier", "identify_poles", "project_poles", "scan_poles"]
+__all__ = ["PoleScan", "content_top", "decide_identifier", "identify_poles", "project_poles",
+           "scan_poles"]
 
 #: excitation kinds (scene files, ``excitation=``) whose records are free decays
 DECAY_EXCITATIONS = ("pluck", "velocity", "impulse", "decay", "free")
@@ -122,15 +123,47 @@ def decide_identifier(channels: ArrayLike | None = None, *, excitation: str | No
                      f"falls {ratio:.3g}x (a driven record)")
 
 
+def content_top(channels: ArrayLike, fps: float, band: tuple[float, float],
+                margin: float = 1.25) -> float:
+    """The highest frequency (Hz) the record's motion reaches: ``margin`` times the highest
+    bin of the channels' summed, noise-scaled periodogram above its noise floor's
+    significance threshold (:func:`.significance.noise_floor`), within ``band``; the band's
+    top when nothing stands out.  Frames are averaged down to a few times it when no band
+    top was given, so that ERA does not read 5 Hz poles 2000 times a second."""
+    from .significance import noise_floor
+
+    Y = np.asarray(channels, dtype=np.float64)
+    Y = Y - Y.mean(axis=0)
+    sd = channel_noise(Y)
+    ok = sd > 0
+    if not ok.any():
+        return float(band[1])
+    P = np.sum(np.abs(np.fft.rfft(Y[:, ok] / sd[ok], axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(Y.shape[0], 1.0 / fps)
+    inb = np.flatnonzero((f >= band[0]) & (f <= band[1]) & (np.arange(f.size) >= 3))
+    if inb.size < 16:
+        return float(band[1])
+    nf = noise_floor(P, slice(int(inb[0]), int(inb[-1]) + 1))
+    above = inb[P[inb] > nf.threshold()[inb]]
+    if not above.size:
+        return float(band[1])
+    return float(min(band[1], max(margin * f[above[-1]], 4.0 * fps / Y.shape[0])))
+
+
 def _reduce(store: DisplacementStore, fps: float, weights: NDArray | None, block: int,
             band: tuple[float, float], oversampling: float, n_components: int,
-            decimation: int | None, ch: Any = None) -> tuple[NDArray, NDArray, int, dict]:
+            decimation: int | None, ch: Any = None, from_content: bool = True
+            ) -> tuple[NDArray, NDArray, int, dict]:
     """Reduced, decimated, noise-scaled principal components ``(T', r)``, the component
     basis ``(m, r)`` and the decimation factor."""
     if ch is None or ch.block != block:
         ch = block_channels(store, weights=weights, block=block)
     Y = ch.data
-    q = int(decimation) if decimation else max(1, int(fps / (oversampling * band[1])))
+    top, over = band[1], oversampling
+    if not decimation and from_content and top >= 0.99 * fps / 2:
+        # no band top given: the motion's own, with more room above it (an estimate)
+        top, over = content_top(Y, fps, band), max(oversampling, 4.0)
+    q = int(decimation) if decimation else max(1, int(fps / (over * top)))
     Yd = decimate_frames(Y - Y.mean(axis=0), q)
     sd = channel_noise(Yd)
     ok = sd > 0
@@ -182,7 +215,8 @@ def scan_poles(store: DisplacementStore | ArrayLike, fps: float, *, method: str 
     st = _as_store(store)
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     Yr, V, q, info = _reduce(st, float(fps), w, int(block), band, float(oversampling),
-                             int(n_components), decimation, channels)
+                             int(n_components), decimation, channels,
+                             from_content=method == "era")
     dt = q / float(fps)
     Tq, r = Yr.shape
     if method == "era":
@@ -382,6 +416,10 @@ def pole_modes(store: DisplacementStore | ArrayLike, fps: float, scan: PoleScan,
                  power=power, fps=float(fps), n_frames=T,
                  confidence=None if confidence is None else np.asarray(confidence, np.float32),
                  metadata=meta, **arr)
+    if K:
+        # prominence: the line's power over the spectrum's noise floor (decades)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ms.prominences = np.log10(ms.line_snr())
     drop = np.zeros(K, bool)
     rejected = []
     if reject_products and K > 1:
