@@ -162,7 +162,7 @@ def _reduce(store: DisplacementStore, fps: float, weights: NDArray | None, block
     top, over = band[1], oversampling
     if not decimation and from_content and top >= 0.99 * fps / 2:
         # no band top given: the motion's own, with more room above it (an estimate)
-        top, over = content_top(Y, fps, band), max(oversampling, 4.0)
+        top, over = content_top(Y, fps, band), max(oversampling, 8.0)
     q = int(decimation) if decimation else max(1, int(fps / (over * top)))
     Yd = decimate_frames(Y - Y.mean(axis=0), q)
     sd = channel_noise(Yd)
