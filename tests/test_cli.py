@@ -128,16 +128,16 @@ def test_extract_options(option, sample, capsys, tmp_path):
 
 
 def test_extract_says_which_identifier_ran_and_why(sample, capsys, tmp_path):
-    """The default ``--identifier auto`` reads the sample's pluck; a 20-frame record whose
-    motion hardly decays goes to the peak picker, and modes.json and the output say so; ERA
-    asked for on a record that short is one error line."""
+    """The default ``--identifier auto`` reads the sample's pluck; a 20-frame record goes to
+    the peak picker (under 128 frames an order scan does not settle), and modes.json and the
+    output say so; ERA asked for on a record that short is one error line."""
     from vvtbench.modes import ModeSet
 
     assert cli.main(["extract", str(sample), "-o", str(tmp_path / "o"), "--no-plots"]) == 0
     out = capsys.readouterr().out
     ident = ModeSet.load(tmp_path / "o").identifier
     assert ident["requested"] == "auto" and ident["used"] == "peaks"
-    assert ident["excitation"] == "pluck" and "envelope" in ident["reason"]
+    assert ident["excitation"] == "pluck" and "short record (20 frames" in ident["reason"]
     assert f"identifier: peaks (auto: {ident['reason']})" in out
     assert cli.main(["extract", str(sample), "-o", str(tmp_path / "e"), "--identifier",
                      "era", "--fps", "400"]) == 2

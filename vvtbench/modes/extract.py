@@ -338,7 +338,9 @@ def modes_from_displacements(
         or pLSCF on positive power spectra over reduced channels with a stabilisation diagram
         (:mod:`.poles`), or ``"auto"``: ERA for a free decay, the peak picker for a driven
         record, decided by ``excitation`` when given, else by the envelope of the motion
-        (:func:`.poles.decide_identifier`).  ``metadata["identifier"]`` records the request,
+        (:func:`.poles.decide_identifier`); the peak picker for a record of fewer than
+        :data:`.record.MIN_FRAMES` frames or when the scan finds no stable pole.
+        ``metadata["identifier"]`` records the request,
         the identifier used and why.
     excitation : str, optional
         How the object was set moving (a scene's ``excitation.kind``: ``"pluck"``,
@@ -369,8 +371,14 @@ def modes_from_displacements(
         lo_band = (max(band[0], min_bin * float(fps) / _n_frames(disp)), band[1])
         channels = None
         if identifier == "auto":
+            from .record import MIN_FRAMES
+
             if excitation is not None and str(excitation).lower() in FORCED_EXCITATIONS:
                 used, reason = decide_identifier(excitation=excitation)
+            elif _n_frames(disp) < MIN_FRAMES:
+                used, reason = "peaks", (f"a short record ({_n_frames(disp)} frames, under "
+                                         f"{MIN_FRAMES}): too few for a model-order scan to "
+                                         "settle")
             else:
                 channels = block_channels(disp, weights=sw_, block=int(popts.get("block", 8)),
                                           block_bytes=block_bytes)
@@ -389,6 +397,11 @@ def modes_from_displacements(
                     raise
                 used, reason = "peaks", f"{reason}; but {error}"
                 record.update(used=used, reason=reason)
+        if scan is not None and identifier == "auto" and not scan.clusters:
+            used, reason = "peaks", (f"{reason}; but {scan.method.upper()} found no pole "
+                                     "stable over model orders: the peak picker ran")
+            record.update(used=used, reason=reason)
+            scan = None
         if scan is not None:
             meta = {**dict(metadata or {}), "identifier": record, "min_bin": int(min_bin),
                     "weighted": weights is not None}
