@@ -730,3 +730,19 @@ def test_unsandboxed_rows_are_marked_on_the_board(tmp_path):
     (tmp_path / "sealed").mkdir()
     md, _, _ = _board(_instances_table(tmp_path / "sealed"), tmp_path / "lb2")
     assert "UNSANDBOXED" not in md and "(unsandboxed)" not in md
+
+
+def test_a_table_that_ranks_nothing_is_titled_a_reproduction(table, tmp_path):
+    from vvtbench.reporting.leaderboard import MIN_RANK_N, board_title
+
+    assert board_title([{"best": None}, {"best": {"solver": "vvt"}}])[0] == "vvtbench leaderboard"
+    title, sentence = board_title([{"best": None}, {"best": None}])
+    assert "not a ranking" in title and f"{MIN_RANK_N} valid instances" in sentence
+    df = pd.read_csv(table / "results.csv")
+    few = df[df.seed == df.seed.min()].groupby(["track", "solver"]).head(1)
+    few.to_csv(tmp_path / "few.csv", index=False)
+    out = build(tmp_path / "few.csv", tmp_path / "lb")
+    page = (out / "README.md").read_text()
+    assert page.startswith("# vvtbench results: a reproduction, not a ranking")
+    assert "ranks nothing" in page and "<h1>vvtbench results: a reproduction" in (
+        out / "index.html").read_text()

@@ -812,6 +812,26 @@ def solver_versions(df) -> str:
     return "Solver versions: " + "; ".join(parts) + "."
 
 
+def board_title(rows: list[dict]) -> tuple[str, str]:
+    """The page's title, and a sentence saying so when the table ranks nothing.
+
+    A table in which no track has a ranked solver (fewer than ``MIN_RANK_N`` valid instances
+    everywhere) reproduces experiments; it is not a ranking, and its title says so.
+
+    >>> board_title([{"best": None}])[0]
+    'vvtbench results: a reproduction, not a ranking'
+    >>> board_title([{"best": {"solver": "vvt"}}])
+    ('vvtbench leaderboard', '')
+    """
+    if any(r.get("best") for r in rows):
+        return "vvtbench leaderboard", ""
+    return ("vvtbench results: a reproduction, not a ranking",
+            f"No track of this table has {MIN_RANK_N} valid instances of a solver, so it "
+            "ranks nothing: it reproduces experiments (means per setting, with n), and a "
+            "difference between two solvers here is not a result. Rankings are on boards "
+            "whose tracks draw enough instances (leaderboard/standard).")
+
+
 def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
     """(README.md lines, index.html text, the tracks' statistics for leaderboard.json)."""
     n_failed = int((df.status == "error").sum())
@@ -831,7 +851,10 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
              "to rank. Reference solvers (they saw the truth; a reference, not a bound: "
              "a ranked solver may score above one) are shown apart, last, and never "
              "ranked. The method is at the end of the page. " + solver_versions(df))
-    md = ["# vvtbench leaderboard\n", f"**{trust}**\n", intro + "\n", "## Summary\n",
+    board_name, reproduction = board_title(rows)
+    if reproduction:
+        intro = reproduction + " " + intro
+    md = [f"# {board_name}\n", f"**{trust}**\n", intro + "\n", "## Summary\n",
           f"| track | ranked first: NC w mean [{_PCT} CI] | tied with | reference: NC w mean "
           f"[{_PCT} CI] | runs | failed | invalid |", "|---|---|---|---|---|---|---|"]
     summary_rows = []
@@ -909,9 +932,9 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
-<title>vvtbench leaderboard</title><link rel="icon" href="data:,">
+<title>{html.escape(board_name)}</title><link rel="icon" href="data:,">
 <style>{_CSS}</style></head><body>
-<h1>vvtbench leaderboard</h1>
+<h1>{html.escape(board_name)}</h1>
 <p class="trust"><b>{html.escape(trust)}</b></p>
 <p>{html.escape(intro)} Data: <a href="results.csv">results.csv</a>.</p>
 <nav>{nav} <a href="#method">method</a></nav><h2>Summary</h2>{summary_html}
