@@ -156,7 +156,7 @@ def test_the_reference_is_the_temporal_mean_of_the_record(tmp_path) -> None:
 
 
 def test_frame_spool_keeps_the_order_in_ram_and_on_disk(tmp_path) -> None:
-    from vvtbench.video import FrameSpool, mean_frame
+    from vvtbench.video.files import FrameSpool, mean_frame
 
     frames = np.random.default_rng(0).random((7, 5, 6)).astype("f4")
     for budget in (1 << 20, 3 * frames[0].nbytes, 0):

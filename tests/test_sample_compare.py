@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import zarr
 
-from vvtbench import dataset as ds
-from vvtbench import generate as gen
+from vvtbench.samples import reader as ds
+from vvtbench.samples import generate as gen
 from vvtbench.io.files import write_json
 from vvtbench.samples.compare import (
     LINEAR_IN_MODES,
