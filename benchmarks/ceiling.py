@@ -27,6 +27,10 @@ the track's inference grid, one camera with depth visibility) the stages are:
                voxel means, every point evaluated on the way).
 
 Results: ``benchmarks/ceiling/<family>/<instance>.json`` (+ ``.npz``: the fields, float32).
+``report`` reads whichever instances are committed and writes ``summary.txt`` and
+``instances.csv`` beside them, the figures, and ``leaderboard/standard/ceilings.csv`` (one row
+per instance and ceiling kind: the leaderboard's headroom reads it beside the board's results);
+it checks every recomputed estimate and every board row against its instance's ceilings.
 Definitions: docs/metrics.md ("Ceiling", "Truth on the inference grid"). The ceiling is the
 best found by this search: a lower bound on the supremum over feasible fields.
 """
@@ -347,27 +351,98 @@ def stage_ceiling(ctx, which: str, data: str) -> dict:
 
 RANKED = ("sensitivity", "vvt", "learned", "homogeneous")
 CEILINGS = ("ceil_w_view", "ceil_w_full", "ceil_v_view", "ceil_v_full")
+#: the keys every committed result holds, and every ceiling stage that reached a ceiling
+RESULT_KEYS = ("instance", "family", "track", "has_contrast_w")
+CEILING_KEYS = ("which", "data", "eps", "ceiling", "search", "by_start", "evaluations",
+                "time_s", "method")
+ESTIMATE_KEYS = ("nc_w", "nc_v", "D_view", "D_full")
+HOMOG_KEYS = ("nc_w", "nc_v", "feasible", "D_view", "D_full", "anchor")
+#: a board row's misfit is its recomputed estimate's when the recomputation (same solver
+#: version, hence the board's config) reproduces the row's NC within this
+NC_MATCH = 0.01
+CLASSES = ("near-void", "soft", "mixed", "stiff", "no defect")
+UNRECORDED = "class not recorded"
 
 
-def table(out_root: Path):
-    """One row per instance from the committed JSON files (pandas DataFrame)."""
+class BadInput(ValueError):
+    """A committed result, a results table or an argument that cannot be used (the message is
+    one line naming the file or key)."""
+
+
+def _need(d, keys, where: str) -> None:
+    if not isinstance(d, dict):
+        raise BadInput(f"{where}: not a JSON object")
+    for k in keys:
+        if k not in d:
+            raise BadInput(f"{where}: missing key {k!r}")
+
+
+def check_result(r, where: str) -> None:
+    """Raise :class:`BadInput` naming ``where`` and the key when the committed result ``r``
+    lacks what the report reads (a stage still to be computed is simply absent)."""
+    _need(r, RESULT_KEYS, where)
+    est = r.get("estimates")
+    if est is not None:
+        _need(est, ("solvers", "means"), f"{where}: estimates")
+        for name, s in est["solvers"].items():
+            if isinstance(s, dict) and s.get("status") == "ok":
+                _need(s, ESTIMATE_KEYS, f"{where}: estimates.solvers.{name}")
+    h = r.get("homog")
+    if isinstance(h, dict) and "nc_w" in h:
+        _need(h, HOMOG_KEYS, f"{where}: homog")
+    for stage in CEILINGS:
+        c = r.get(stage)
+        if isinstance(c, dict) and "ceiling" in c:
+            _need(c, CEILING_KEYS, f"{where}: {stage}")
+            if est is None or "homog" not in r:
+                raise BadInput(f"{where}: {stage} without the estimates and homog stages")
+
+
+def load_results(out_root: Path) -> list[tuple[Path, dict]]:
+    """Every committed result under ``out_root`` (``<family>/<instance>.json``), checked."""
+    out = []
+    for path in sorted(out_root.glob("*/*.json")):
+        try:
+            r = json.loads(path.read_text())
+        except (OSError, ValueError) as error:
+            raise BadInput(f"{path}: cannot read: {error}") from None
+        check_result(r, str(path))
+        out.append((path, r))
+    return out
+
+
+def has_ceiling(r: dict, stage: str) -> bool:
+    c = r.get(stage)
+    return isinstance(c, dict) and "ceiling" in c and np.isfinite(_f(c["ceiling"]))
+
+
+def _f(x) -> float:
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def table(results: list[tuple[Path, dict]]):
+    """One row per instance from the committed results (pandas DataFrame)."""
     import pandas as pd
 
     rows = []
-    for path in sorted(out_root.glob("*/*.json")):
-        r = json.loads(path.read_text())
-        row = {"family": r["family"], "instance": r["instance"], "class": r.get("class"),
-               "n_defects": len(r.get("defects", [])), "has_contrast": r["has_contrast_w"]}
+    for _, r in results:
+        row = {"family": r["family"], "instance": r["instance"],
+               "class": r.get("class") or UNRECORDED,
+               "n_defects": len(r["defects"]) if "defects" in r else np.nan,
+               "has_contrast": bool(r["has_contrast_w"])}
         if "eps" in r:
-            row |= {"floor_view": r["eps"]["view"], "floor_full": r["eps"]["full"]}
+            row |= {"floor_view": r["eps"].get("view"), "floor_full": r["eps"].get("full")}
         h = r.get("homog", {})
         if "nc_w" in h:
             row |= {"homog_nc_w": h["nc_w"], "homog_nc_v": h["nc_v"],
                     "homog_feasible": h["feasible"], "eps_view": h["D_view"],
                     "eps_full": h["D_full"], "homog_anchor": h["anchor"]}
         for name, m in r.get("estimates", {}).get("means", {}).items():
-            row |= {f"{name}_nc_w": m["nc_w"], f"{name}_D_full": m["D_full"],
-                    f"{name}_D_view": m["D_view"]}
+            row |= {f"{name}_nc_w": m.get("nc_w"), f"{name}_D_full": m.get("D_full"),
+                    f"{name}_D_view": m.get("D_view")}
         for name, e in r.get("estimates", {}).get("solvers", {}).items():
             row[f"{name}_status"] = e.get("status")
             if e.get("status") == "ok":
@@ -376,19 +451,20 @@ def table(out_root: Path):
                         f"{name}_board_nc_w": e.get("board_nc_w"),
                         f"{name}_version": e.get("version")}
         for stage in CEILINGS:
-            c = r.get(stage)
-            if isinstance(c, dict) and "ceiling" in c:
-                tag = stage[5:]
-                row |= {f"ceiling_{tag}": c["ceiling"], f"search_{tag}": c["search"],
-                        f"evals_{tag}": c["evaluations"], f"time_{tag}": c["time_s"]}
-                starts = [b["best_nc"] for b in c["by_start"].values()
-                          if b.get("best_nc") is not None]
-                if len(starts) > 1:
-                    row[f"start_spread_{tag}"] = max(starts) - min(starts)
-                hist = [b["history"] for b in c["by_start"].values()]
-                last = [hh[-1]["f"] - hh[-2]["f"] for hh in hist if len(hh) > 1]
-                if last:  # change of -NC over the last outer iteration (0: flat)
-                    row[f"last_gain_{tag}"] = max(-x for x in last)
+            if not has_ceiling(r, stage):
+                continue
+            c = r[stage]
+            tag = stage[5:]
+            row |= {f"ceiling_{tag}": c["ceiling"], f"search_{tag}": c["search"],
+                    f"evals_{tag}": c["evaluations"], f"time_{tag}": c["time_s"]}
+            starts = [b["best_nc"] for b in c["by_start"].values()
+                      if b.get("best_nc") is not None]
+            if len(starts) > 1:
+                row[f"start_spread_{tag}"] = max(starts) - min(starts)
+            hist = [b.get("history", []) for b in c["by_start"].values()]
+            last = [hh[-1]["f"] - hh[-2]["f"] for hh in hist if len(hh) > 1]
+            if last:  # change of -NC over the last outer iteration (0: flat)
+                row[f"last_gain_{tag}"] = max(-x for x in last)
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -399,91 +475,240 @@ def _homog_nc(out_root: Path):
 
     out = {}
     for path in sorted(out_root.glob("*/*.npz")):
-        z = np.load(path)
-        if "homog_w" not in z:
+        try:
+            z = dict(np.load(path, allow_pickle=False))
+        except (OSError, ValueError) as error:
+            raise BadInput(f"{path}: cannot read: {error}") from None
+        if "homog_w" not in z or "homog_v" not in z:
             continue
         res = {}
         for name in SOLVERS:
-            if f"est_{name}_w" in z:
+            if f"est_{name}_w" in z and f"est_{name}_v" in z:
                 res[name] = (normalized_correlation(z[f"est_{name}_w"], z["homog_w"]),
                              normalized_correlation(z[f"est_{name}_v"], z["homog_v"]))
         out[path.stem] = res
     return out
 
 
-def report(out_root: Path, figures: Path | None = None) -> str:
-    """The summary printed and written to ``out_root / summary.txt``; the per-instance table
-    to ``out_root / instances.csv``; figures to ``figures``."""
-    from vvtbench.scoring.ceiling import rows_above_ceiling
-    from vvtbench.scoring.stats import paired_comparison, summarize
+# ------------------------------------------------------------------ report: numbers as text
 
-    df = table(out_root)
-    hn = _homog_nc(out_root)
-    for name in SOLVERS:
-        df[f"{name}_nc_w_homog"] = [hn.get(i, {}).get(name, (np.nan, np.nan))[0]
-                                    for i in df.instance]
-        df[f"{name}_nc_v_homog"] = [hn.get(i, {}).get(name, (np.nan, np.nan))[1]
-                                    for i in df.instance]
-    df.to_csv(out_root / "instances.csv", index=False, float_format="%.6g")
-    lines: list[str] = []
 
-    def ci(x):
-        s = summarize(x)
-        return (f"{s['mean']:.3f} [{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}] "
-                f"(n = {s['n']})") if s["n"] else "–"
+def fmt_interval(mean: float, low: float, high: float, n: int, sign: bool = False) -> str:
+    """A mean with its interval and n, never an undefined number printed as one.
 
-    def paired(a, b):
-        s = paired_comparison(a, b)
-        return (f"{s['mean_diff']:+.3f} [{s['ci_low']:+.3f}, {s['ci_high']:+.3f}] "
-                f"(n = {s['n']}, first higher on {s['wins']})") if s["n"] else "–"
+    >>> fmt_interval(0.5, 0.4, 0.6, 7)
+    '0.500 [0.400, 0.600] (n = 7)'
+    >>> fmt_interval(0.5, float("nan"), float("nan"), 1)
+    '0.500 [–] (n = 1, no interval)'
+    >>> fmt_interval(float("nan"), float("nan"), float("nan"), 0)
+    '– (n = 0, no value)'
+    """
+    f = "+.3f" if sign else ".3f"
+    if not n or not np.isfinite(mean):
+        return "– (n = 0, no value)"
+    if not (np.isfinite(low) and np.isfinite(high)):
+        return f"{mean:{f}} [–] (n = {n}, no interval)"
+    return f"{mean:{f}} [{low:{f}}, {high:{f}}] (n = {n})"
 
-    for fam, d in df.groupby("family"):
-        d = d[d.has_contrast]
-        lines += [f"== {fam}: {len(d)} instances with a defect", ""]
-        for tag in ("w_view", "w_full", "v_view", "v_full"):
-            col = f"ceiling_{tag}"
-            if col not in d or d[col].notna().sum() == 0:
-                continue
-            lines.append(f"ceiling {tag}: {ci(d[col])}; done on {d[col].notna().sum()}")
-        lines.append(f"homogenised truth, NC w with the arithmetic: {ci(d.homog_nc_w)}; "
-                     f"reaches the floor on {int(d.homog_feasible.sum())} of "
-                     f"{d.homog_feasible.notna().sum()}")
-        if "ceiling_w_view" in d:
-            for name in ("sensitivity", "oracle", "vvt"):
-                if f"{name}_nc_w" in d:
-                    lines.append(f"ceiling w (view) - {name} NC w: "
-                                 f"{paired(d.ceiling_w_view, d[f'{name}_nc_w'])}")
-        lines.append("")
-        lines.append("mean NC w against the arithmetic | against the homogenised truth "
-                     "(same instances):")
-        for name in SOLVERS:
-            if f"{name}_nc_w" in d:
-                ok = d[f"{name}_nc_w"].notna() & d[f"{name}_nc_w_homog"].notna()
-                lines.append(f"  {name:12s} {ci(d[f'{name}_nc_w'][ok])} | "
-                             f"{ci(d[f'{name}_nc_w_homog'][ok])}")
-        for a, b in (("sensitivity", "oracle"), ("sensitivity", "vvt")):
-            if f"{a}_nc_w" in d and f"{b}_nc_w" in d:
-                lines.append(f"  {a} - {b}: arithmetic {paired(d[f'{a}_nc_w'], d[f'{b}_nc_w'])}"
-                             f"; homogenised {paired(d[f'{a}_nc_w_homog'], d[f'{b}_nc_w_homog'])}")
-        lines.append("")
-        lines.append("per class (mean NC w; ceiling w view; homogenised truth vs arithmetic):")
-        for kind, g in d.groupby("class"):
-            parts = [f"{kind} ({len(g)})"]
-            for col in ("ceiling_w_view", "ceiling_w_full", "homog_nc_w", "sensitivity_nc_w",
-                        "sensitivity_nc_w_homog", "oracle_nc_w", "oracle_nc_w_homog"):
-                if col in g and g[col].notna().any():
-                    parts.append(f"{col} {g[col].mean():.3f}")
-            lines.append("  " + "; ".join(parts))
-        lines.append("")
-    # the check: no row above its instance's ceiling
-    lines.append("== rows above their instance's ceiling")
-    n_checked, bad, over = 0, [], []
-    for path in sorted(out_root.glob("*/*.json")):
-        r = json.loads(path.read_text())
+
+def fmt_mean(values) -> str:
+    """The finite values' mean with its bootstrap interval (:func:`fmt_interval`)."""
+    from vvtbench.scoring.stats import summarize
+
+    s = summarize(np.asarray(values, dtype=float))
+    return fmt_interval(s["mean"], s["mean_ci_low"], s["mean_ci_high"], s["n"])
+
+
+def fmt_paired(a, b) -> str:
+    """``a - b`` on the pairs where both are finite: mean, interval, n and a's wins."""
+    from vvtbench.scoring.stats import paired_comparison
+
+    s = paired_comparison(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    if not s["n"]:
+        return "– (n = 0, no pair)"
+    text = fmt_interval(s["mean_diff"], s["ci_low"], s["ci_high"], s["n"], sign=True)
+    return text[:-1] + f", first higher on {s['wins']})"
+
+
+def fmt_class_mean(values, size: int) -> str | None:
+    """A class's mean of one column, with its n when some instances have no value; None when
+    none has one."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if not x.size:
+        return None
+    return f"{x.mean():.3f}" + (f" (n = {x.size})" if x.size < size else "")
+
+
+def column(d, name: str):
+    """``d[name]``, or NaN on every row when the column is absent (no instance has it yet)."""
+    import pandas as pd
+
+    return d[name] if name in d else pd.Series(np.nan, index=d.index)
+
+
+# ------------------------------------------------------------------ report: coverage, board
+
+
+def split_sizes() -> dict[str, int]:
+    """The number of instances of each ceiling track in the standard suite ({} when the
+    suite cannot be read)."""
+    from vvtbench.bench.suite import load_suite
+
+    try:
+        suite = load_suite("standard")
+    except (OSError, ValueError):
+        return {}
+    tracks = {t for t, _ in TRACKS.values()}
+    return {t.name: len(t.scenes) for t in suite.tracks if t.name in tracks}
+
+
+def coverage_lines(results: list[tuple[Path, dict]], family: str, sizes: dict) -> list[str]:
+    """How many of the split's instances each ceiling kind covers, for ``family``."""
+    track = TRACKS.get(family, (None,))[0]
+    mine = [r for _, r in results if r["family"] == family]
+    total = sizes.get(track)
+    of = f"of the {total} instances of the test split ({track})" if total else \
+        f"of the instances of {track} (split size unknown)"
+    flat = sum(1 for r in mine if not r["has_contrast_w"])
+    lines = [f"committed: {len(mine)} {of}; {flat} without contrast in w (NC undefined, no "
+             "ceiling)"]
+    for stage in CEILINGS:
+        if stage in SKIP.get(family, ()):
+            lines.append(f"  {stage[5:]}: not computed for this family (its view is every DOF)")
+            continue
+        k = sum(has_ceiling(r, stage) for r in mine)
+        if not k and stage not in DEFAULT_STAGES:
+            lines.append(f"  {stage[5:]}: not computed (not a default stage of `run`)")
+            continue
+        lines.append(f"  ceiling {stage[5:]}: {k} " + (f"of {total}" if total else "instances"))
+    return lines
+
+
+def ceiling_rows(results: list[tuple[Path, dict]]) -> list[dict]:
+    """One row per instance and ceiling kind (:data:`vvtbench.reporting.headroom.COLUMNS`):
+    the table the leaderboard reads beside the standard board's results."""
+    out = []
+    for _, r in results:
         for stage in CEILINGS:
-            c = r.get(stage)
-            if not (isinstance(c, dict) and "ceiling" in c):
+            if not has_ceiling(r, stage):
                 continue
+            c = r[stage]
+            out.append({"instance": r["instance"], "track": r["track"], "observation": "true",
+                        "n_modes": int(r.get("n_modes", N_MODES)), "kind": stage[5:],
+                        "ceiling": float(c["ceiling"]), "eps": float(c["eps"]),
+                        "homog_nc": float(r["homog"][f"nc_{c['which']}"]),
+                        "method": str(c["method"]), "inputs_sha256": r.get("inputs_sha256", "")})
+    return out
+
+
+def write_ceilings(rows: list[dict], path: Path) -> None:
+    """``rows`` (:func:`ceiling_rows`) as ``path``, atomically, checked as the leaderboard
+    checks it."""
+    import pandas as pd
+
+    from vvtbench.io.files import write_text
+    from vvtbench.reporting.headroom import COLUMNS, check_ceilings
+
+    df = pd.DataFrame(rows, columns=list(COLUMNS))
+    problem = check_ceilings(df, str(path))
+    if problem:
+        raise BadInput(problem)
+    write_text(path, df.to_csv(index=False, lineterminator="\n"))
+
+
+def read_board(path: Path):
+    """The results table at ``path`` (None when there is none), typed as written (a CSV's
+    observation ``true`` stays a string)."""
+    from vvtbench.bench import read_results
+
+    if not path.exists():
+        return None
+    try:
+        d = read_results(path)
+    except (OSError, ValueError) as error:
+        raise BadInput(f"{path}: cannot read: {error}") from None
+    for col in ("track", "scene", "solver", "status", "observation", "nc_w", "nc_v"):
+        if col not in d.columns:
+            raise BadInput(f"{path}: missing column {col!r}")
+    return d
+
+
+def board_rows_above(r: dict, board) -> dict:
+    """The board's rows of the instance ``r`` (its track and scene, true modes, its number of
+    modes) against each of its ceilings.
+
+    A row's misfit is that of the instance's recomputed estimate of the same solver when the
+    recomputation ran the row's solver version and reproduces its NC within
+    :data:`NC_MATCH`; otherwise it is unknown.
+
+    Returns
+    -------
+    dict
+        ``checked``: (row, ceiling) pairs compared; ``feasible_above``: (solver, stage) of rows
+        above a ceiling that explain the data (D <= eps: each contradicts the ceiling);
+        ``unknown_above``: (solver, stage, why) of rows above a ceiling whose misfit is not
+        known; ``infeasible_above``: (solver, stage, NC, ceiling, D / eps) of rows above it
+        that do not explain the data.
+    """
+    from vvtbench.scoring.ceiling import rows_above_ceiling
+
+    out = {"checked": 0, "feasible_above": [], "unknown_above": [], "infeasible_above": []}
+    if board is None:
+        return out
+    rows = board[(board.track == r["track"]) & (board.scene == r["instance"])
+                 & (board.observation == "true") & (board.status == "ok")]
+    if "n_modes" in rows:
+        rows = rows[rows.n_modes.astype(float) == float(r.get("n_modes", N_MODES))]
+    est = r.get("estimates", {}).get("solvers", {})
+    for stage in CEILINGS:
+        if not has_ceiling(r, stage):
+            continue
+        c = r[stage]
+        which, data = c["which"], c["data"]
+        for row in rows.itertuples():
+            nc = _f(getattr(row, f"nc_{which}"))
+            if not np.isfinite(nc):
+                continue
+            out["checked"] += 1
+            e = est.get(row.solver, {})
+            same = (e.get("status") == "ok"
+                    and str(e.get("version")) == str(getattr(row, "solver_version", None))
+                    and abs(_f(e.get(f"nc_{which}")) - nc) <= NC_MATCH)
+            D = _f(e.get(f"D_{data}")) if same else float("nan")
+            res = rows_above_ceiling(c, {row.solver: {"nc": nc, "D": D}})
+            if res["feasible_above"]:
+                out["feasible_above"].append((row.solver, stage))
+            elif res["unknown_above"]:
+                why = ("no recomputed estimate of this version" if not same else "no misfit")
+                out["unknown_above"].append((row.solver, stage, why))
+            elif res["infeasible_above"]:
+                out["infeasible_above"].append((row.solver, stage, nc, float(c["ceiling"]),
+                                                D / float(c["eps"])))
+    return out
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the repository when inside it (the summary reads the same on every
+    machine)."""
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
+def check_lines(results: list[tuple[Path, dict]], board, board_path: Path) -> list[str]:
+    """The checks: no recomputed estimate and no board row above its instance's ceiling
+    while explaining the data."""
+    from vvtbench.scoring.ceiling import rows_above_ceiling
+
+    lines = ["== rows above their instance's ceiling", "recomputed estimates:"]
+    n_checked, bad, over = 0, [], []
+    for _, r in results:
+        for stage in CEILINGS:
+            if not has_ceiling(r, stage):
+                continue
+            c = r[stage]
             which, data = c["which"], c["data"]
             rows = {n: {"nc": s[f"nc_{which}"], "D": s[f"D_{data}"]}
                     for n, s in r["estimates"]["solvers"].items() if s.get("status") == "ok"}
@@ -492,14 +717,116 @@ def report(out_root: Path, figures: Path | None = None) -> str:
             bad += [(r["instance"], stage, n) for n in res["feasible_above"]]
             over += [(r["instance"], stage, n, rows[n]["nc"], c["ceiling"],
                       rows[n]["D"] / c["eps"]) for n in res["infeasible_above"]]
-    lines.append(f"{n_checked} (row, ceiling) pairs checked; feasible rows above the ceiling: "
-                 f"{len(bad)} {bad if bad else ''}")
-    lines.append(f"rows above the ceiling that do not explain the data (D > eps): {len(over)}")
+    lines.append(f"  {n_checked} (estimate, ceiling) pairs checked; above the ceiling and "
+                 f"explaining the data: {len(bad)} {bad if bad else ''}".rstrip())
+    lines.append(f"  above the ceiling, not explaining the data (D > eps): {len(over)}")
     for inst, stage, n, nc, top, ratio in over:
-        lines.append(f"  {inst} {stage} {n}: NC {nc:.3f} > ceiling {top:.3f}, "
+        lines.append(f"    {inst} {stage} {n}: NC {nc:.3f} > ceiling {top:.3f}, "
                      f"its misfit {ratio:.1f} x eps")
+    if board is None:
+        lines.append(f"board rows: no table at {_shown(board_path)}")
+        return lines
+    lines.append(f"board rows ({_shown(board_path)}, true modes):")
+    tot = {"checked": 0, "feasible_above": [], "unknown_above": [], "infeasible_above": []}
+    for _, r in results:
+        res = board_rows_above(r, board)
+        tot["checked"] += res["checked"]
+        for k in ("feasible_above", "unknown_above", "infeasible_above"):
+            tot[k] += [(r["instance"], *x) for x in res[k]]
+    lines.append(f"  {tot['checked']} (row, ceiling) pairs checked; above the ceiling and "
+                 f"explaining the data: {len(tot['feasible_above'])}")
+    lines += [f"    {i} {st} {s}" for i, s, st in tot["feasible_above"]]
+    lines.append(f"  above the ceiling, misfit unknown: {len(tot['unknown_above'])}")
+    lines += [f"    {i} {st} {s}: {why}" for i, s, st, why in tot["unknown_above"]]
+    lines.append(f"  above the ceiling, not explaining the data: {len(tot['infeasible_above'])}")
+    lines += [f"    {i} {st} {s}: NC {nc:.3f} > ceiling {top:.3f}, its misfit {q:.1f} x eps"
+              for i, s, st, nc, top, q in tot["infeasible_above"]]
+    return lines
+
+
+def family_lines(fam: str, d) -> list[str]:
+    """The summary of one family's instances with contrast (``d``: :func:`table`'s rows)."""
+    lines = [f"== {fam}: {len(d)} instances with contrast in w", ""]
+    for tag in ("w_view", "w_full", "v_view", "v_full"):
+        col = column(d, f"ceiling_{tag}")
+        if col.notna().any():
+            lines.append(f"ceiling {tag}: {fmt_mean(col)}")
+    feas = column(d, "homog_feasible")
+    lines.append(f"homogenised truth, NC w with the arithmetic: "
+                 f"{fmt_mean(column(d, 'homog_nc_w'))}; reaches the floor on "
+                 f"{int(feas.dropna().astype(bool).sum())} of {int(feas.notna().sum())}")
+    for name in ("sensitivity", "oracle", "vvt"):
+        if f"{name}_nc_w" in d:
+            lines.append(f"ceiling w (view) - {name} NC w: "
+                         f"{fmt_paired(column(d, 'ceiling_w_view'), d[f'{name}_nc_w'])}")
+    lines += ["", "mean NC w against the arithmetic | against the homogenised truth "
+              "(same instances):"]
+    for name in SOLVERS:
+        if f"{name}_nc_w" in d:
+            a, h = d[f"{name}_nc_w"], column(d, f"{name}_nc_w_homog")
+            ok = a.notna() & h.notna()
+            lines.append(f"  {name:12s} {fmt_mean(a[ok])} | {fmt_mean(h[ok])}")
+    for a, b in (("sensitivity", "oracle"), ("sensitivity", "vvt")):
+        if f"{a}_nc_w" in d and f"{b}_nc_w" in d:
+            arith = fmt_paired(d[f"{a}_nc_w"], d[f"{b}_nc_w"])
+            homog = fmt_paired(column(d, f"{a}_nc_w_homog"), column(d, f"{b}_nc_w_homog"))
+            lines.append(f"  {a} - {b}: arithmetic {arith}; homogenised {homog}")
+    lines += ["", "per class (mean NC w; ceiling w view; homogenised truth vs arithmetic):"]
+    order = {k: i for i, k in enumerate((*CLASSES, UNRECORDED))}
+    for kind in sorted(set(d["class"]), key=lambda k: (order.get(k, len(order)), k)):
+        g = d[d["class"] == kind]
+        parts = [f"{kind} ({len(g)})"]
+        for col in ("ceiling_w_view", "ceiling_w_full", "homog_nc_w", "sensitivity_nc_w",
+                    "sensitivity_nc_w_homog", "oracle_nc_w", "oracle_nc_w_homog"):
+            text = fmt_class_mean(column(g, col), len(g))
+            if text is not None:
+                parts.append(f"{col} {text}")
+        lines.append("  " + "; ".join(parts))
+    lines.append("")
+    return lines
+
+
+def report(out_root: Path, figures: Path | None = None, board: Path = BOARD,
+           ceilings: Path | None = None) -> str:
+    """The summary printed and written to ``out_root / summary.txt``; the per-instance table
+    to ``out_root / instances.csv``; the ceilings table to ``ceilings`` (when given: the
+    leaderboard's headroom reads it beside the board's results table); figures to
+    ``figures``.
+
+    Raises
+    ------
+    BadInput
+        A committed result or the board's table cannot be used (the message names it).
+    """
+    from vvtbench.io.files import write_text
+
+    results = load_results(out_root)
+    board_df = read_board(board)
+    df = table(results)
+    if df.empty:
+        text = f"no committed result under {out_root}\n"
+        if ceilings is not None:
+            write_ceilings([], ceilings)
+        return text
+    hn = _homog_nc(out_root)
+    for name in SOLVERS:
+        df[f"{name}_nc_w_homog"] = [hn.get(i, {}).get(name, (np.nan, np.nan))[0]
+                                    for i in df.instance]
+        df[f"{name}_nc_v_homog"] = [hn.get(i, {}).get(name, (np.nan, np.nan))[1]
+                                    for i in df.instance]
+    write_text(out_root / "instances.csv", df.to_csv(index=False, float_format="%.6g"))
+    sizes = split_sizes()
+    lines: list[str] = []
+    for fam, d in df.groupby("family"):
+        lines += [f"== {fam}: coverage"] + coverage_lines(results, fam, sizes) + [""]
+        lines += family_lines(fam, d[d.has_contrast])
+    lines += check_lines(results, board_df, board)
+    if ceilings is not None:
+        rows = ceiling_rows(results)
+        write_ceilings(rows, ceilings)
+        lines.append(f"ceilings table: {len(rows)} rows -> {_shown(ceilings)}")
     text = "\n".join(lines) + "\n"
-    (out_root / "summary.txt").write_text(text)
+    write_text(out_root / "summary.txt", text)
     if figures is not None:
         plot(df, out_root, figures)
     return text
@@ -531,7 +858,7 @@ def plot(df, out_root: Path, figures: Path) -> None:
     # 1. per instance: ceiling, homogenised truth, solvers
     fig, axes = plt.subplots(len(fams), 1, figsize=(11, 3.6 * len(fams)), squeeze=False)
     for ax, fam in zip(axes[:, 0], fams, strict=True):
-        d = df[(df.family == fam) & df.has_contrast & df.get("ceiling_w_view").notna()]
+        d = df[(df.family == fam) & df.has_contrast & column(df, "ceiling_w_view").notna()]
         d = d.sort_values("ceiling_w_view")
         x = np.arange(len(d))
         ax.bar(x, d.ceiling_w_view, color=[colors.get(k, "grey") for k in d["class"]],
@@ -605,7 +932,7 @@ def plot(df, out_root: Path, figures: Path) -> None:
     # 4. misfit fronts of a few instances, with the estimates
     picks = []
     for fam in fams:
-        d = df[(df.family == fam) & df.has_contrast & df.get("ceiling_w_view").notna()]
+        d = df[(df.family == fam) & df.has_contrast & column(df, "ceiling_w_view").notna()]
         for kind in ("near-void", "soft", "stiff", "mixed"):
             g = d[d["class"] == kind]
             if len(g):
@@ -731,19 +1058,43 @@ def main(argv=None) -> None:
     rep = sub.add_parser("report", help="tables and checks from the committed results")
     rep.add_argument("-o", "--out", type=Path, default=OUT)
     rep.add_argument("--figures", type=Path, default=ROOT / "docs" / "gallery")
+    rep.add_argument("--board", type=Path, default=BOARD,
+                     help="the results table whose rows are checked against the ceilings")
+    rep.add_argument("--ceilings", type=Path, default=BOARD.parent / "ceilings.csv",
+                     help="where the ceilings table is written (beside the board's results: "
+                          "the leaderboard's headroom reads it there)")
     args = ap.parse_args(argv)
-    if args.cmd == "run":
-        samples = sorted(d for d in args.samples.iterdir() if (d / "family.json").exists())
-        stages = [s for s in args.stages.split(",") if s]
-        for s in stages:
-            if s not in STAGES:
-                sys.exit(f"unknown stage {s!r}; stages: {', '.join(STAGES)}")
-        for i in parse_only(args.only, len(samples)):
-            t0 = time.perf_counter()
-            run_instance(samples[i], stages, args.out)
-            print(f"{samples[i].name}: done in {time.perf_counter() - t0:.0f} s", flush=True)
-    else:
-        print(report(args.out, args.figures), end="")
+    try:
+        if args.cmd == "run":
+            run(args.samples, args.only, args.stages, args.out)
+        else:
+            print(report(args.out, args.figures, args.board, args.ceilings), end="")
+    except BadInput as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)
+
+
+def run(samples_dir: Path, only: str | None, stages_text: str, out: Path) -> None:
+    """``run``: every stage of the chosen samples (resumable)."""
+    if not samples_dir.is_dir():
+        raise BadInput(f"{samples_dir}: no such folder of samples")
+    samples = sorted(d for d in samples_dir.iterdir() if (d / "family.json").exists())
+    stages = [s for s in stages_text.split(",") if s]
+    for s in stages:
+        if s not in STAGES:
+            raise BadInput(f"--stages: unknown stage {s!r} (stages: {', '.join(STAGES)})")
+    try:
+        picked = parse_only(only, len(samples))
+    except ValueError:
+        raise BadInput(f"--only: {only!r} is not a list of indices such as 0-9,12") from None
+    wrong = [i for i in picked if not 0 <= i < len(samples)]
+    if wrong:
+        raise BadInput(f"--only: index {wrong[0]} is not one of the {len(samples)} samples "
+                       f"in {samples_dir}")
+    for i in picked:
+        t0 = time.perf_counter()
+        run_instance(samples[i], stages, out)
+        print(f"{samples[i].name}: done in {time.perf_counter() - t0:.0f} s", flush=True)
 
 
 if __name__ == "__main__":

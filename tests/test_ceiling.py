@@ -141,34 +141,183 @@ def test_rows_above_ceiling_flags_a_feasible_row_above():
     assert out["infeasible_above"] == ["b"]  # above, but it does not explain the data
 
 
-def _committed():
-    return sorted(COMMITTED.glob("*/*.json")) if COMMITTED.exists() else []
+BOARD = COMMITTED.parent.parent / "leaderboard" / "standard" / "results.csv"
+FAMILIES = ("cube_defects", "drum_defects")
 
 
-def test_committed_ceilings_hold_every_feasible_row():
-    """Over the committed results: no estimate that explains the data (D <= eps) scores above
-    its instance's ceiling, every ceiling is at least the homogenised truth's NC, and each
-    search's best field was feasible when it was found."""
-    files = _committed()
-    if not files:
-        pytest.skip("no committed ceilings")
-    checked = 0
+def _committed(family=None):
+    """The committed results (of ``family``, or every one), checked as the report checks
+    them."""
+    from benchmarks.ceiling import check_result
+
+    if not COMMITTED.exists():
+        return []
+    files = sorted(COMMITTED.glob(f"{family or '*'}/*.json"))
+    out = []
     for path in files:
         r = json.loads(path.read_text())
-        for stage, c in r.items():
-            if not (stage.startswith("ceil_") and isinstance(c, dict) and "ceiling" in c):
+        check_result(r, str(path))
+        out.append((path, r))
+    return out
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_committed_ceilings_hold_every_feasible_row(family):
+    """Over the family's committed results: no recomputed estimate that explains the data
+    (D <= eps) scores above its instance's ceiling, every ceiling is at least the homogenised
+    truth's NC, and each search's best field was feasible when it was found. Skipped only
+    when the family has no committed result."""
+    from benchmarks.ceiling import CEILINGS, has_ceiling
+
+    results = _committed(family)
+    if not results:
+        pytest.skip(f"no committed {family} result")
+    for path, r in results:
+        assert r["family"] == family, path.name
+        for stage in CEILINGS:
+            if not has_ceiling(r, stage):
                 continue
+            c = r[stage]
             which, data = c["which"], c["data"]
             rows = {n: {"nc": s[f"nc_{which}"], "D": s[f"D_{data}"]}
                     for n, s in r["estimates"]["solvers"].items() if s.get("status") == "ok"}
             out = rows_above_ceiling(c, rows)
             assert out["feasible_above"] == [], (path.name, stage, out)
+            assert out["unknown_above"] == [], (path.name, stage, out)
             assert c["ceiling"] >= r["homog"][f"nc_{which}"] - 1e-12
             if "check_D" in c:
                 assert c["check_D"] <= c["eps"] * (1 + 1e-9), (path.name, stage)
-            checked += 1
-    if not checked:
-        pytest.skip("no ceiling stage committed yet")
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_no_board_row_above_a_committed_ceiling_explains_the_data(family):
+    """Every valid row of the standard board (leaderboard/standard/results.csv) of an instance
+    with a committed ceiling: a row above the ceiling must be shown not to explain the data
+    (its recomputed estimate, same solver version and NC, has D > eps). A row above it that
+    explains the data, or whose misfit is not known, fails. Skipped only when the family has
+    no committed result."""
+    from benchmarks.ceiling import CEILINGS, board_rows_above, has_ceiling, read_board
+
+    results = _committed(family)
+    if not results:
+        pytest.skip(f"no committed {family} result")
+    board = read_board(BOARD)
+    assert board is not None, f"{BOARD} is missing"
+    checked, bad = 0, []
+    for path, r in results:
+        res = board_rows_above(r, board)
+        checked += res["checked"]
+        bad += [(path.name, *x) for x in res["feasible_above"] + res["unknown_above"]]
+    assert bad == [], bad
+    with_ceiling = sum(has_ceiling(r, s) for _, r in results for s in CEILINGS)
+    assert checked > 0 or not with_ceiling  # a committed ceiling is compared with its rows
+
+
+def test_board_rows_above_a_ceiling_are_sorted_by_what_is_known():
+    """A board row above a ceiling: contradicts it when its recomputed estimate (same version,
+    same NC) explains the data; does not when that estimate misfits; unknown otherwise."""
+    import pandas as pd
+
+    from benchmarks.ceiling import board_rows_above
+
+    def row(solver, nc, version="1"):
+        return dict(track="t", scene="s", observation="true", n_modes=20, status="ok",
+                    solver=solver, solver_version=version, nc_w=nc, nc_v=0.1)
+
+    board = pd.DataFrame([row("fits", 0.95), row("misfits", 0.95), row("other", 0.95, "2"),
+                          row("below", 0.5), row("fits", 0.99) | {"scene": "x"}])
+    est = {"fits": {"status": "ok", "version": "1", "nc_w": 0.95, "D_view": 1e-4},
+           "misfits": {"status": "ok", "version": "1", "nc_w": 0.951, "D_view": 1.0},
+           "other": {"status": "ok", "version": "1", "nc_w": 0.95, "D_view": 1e-4},
+           "below": {"status": "ok", "version": "1", "nc_w": 0.5, "D_view": 1e-4}}
+    r = {"track": "t", "instance": "s", "n_modes": 20, "estimates": {"solvers": est},
+         "ceil_w_view": {"which": "w", "data": "view", "eps": 1e-3, "ceiling": 0.9}}
+    out = board_rows_above(r, board)
+    assert out["checked"] == 4
+    assert out["feasible_above"] == [("fits", "ceil_w_view")]
+    assert [x[:2] for x in out["unknown_above"]] == [("other", "ceil_w_view")]
+    assert [x[:2] for x in out["infeasible_above"]] == [("misfits", "ceil_w_view")]
+
+
+def test_the_report_prints_no_undefined_number_and_writes_the_ceilings_table(tmp_path):
+    """One committed instance: no interval (n = 1) is said, never printed as nan; the ceilings
+    table has a row per ceiling kind and passes the leaderboard's check."""
+    import shutil
+
+    from benchmarks.ceiling import report
+    from vvtbench.reporting.headroom import read_ceilings
+
+    results = _committed("cube_defects")
+    if not results:
+        pytest.skip("no committed cube_defects result")
+    path, r = results[0]
+    (tmp_path / "cube_defects").mkdir()
+    for f in (path, path.with_suffix(".npz")):
+        shutil.copy(f, tmp_path / "cube_defects" / f.name)
+    text = report(tmp_path, None, BOARD, tmp_path / "ceilings.csv")
+    assert "nan" not in text.lower()
+    assert "(n = 1, no interval)" in text
+    assert "committed: 1 of the 50 instances of the test split (cube_true)" in text
+    c = read_ceilings(tmp_path / "ceilings.csv")
+    kinds = [s[5:] for s in ("ceil_w_view", "ceil_w_full", "ceil_v_view", "ceil_v_full")
+             if "ceiling" in r.get(s, {})]
+    assert sorted(c.kind) == sorted(kinds) and set(c.instance) == {r["instance"]}
+    assert (c.inputs_sha256 == r["inputs_sha256"]).all()
+
+
+@pytest.mark.parametrize("edit, key", [
+    (lambda r: r.pop("track"), "missing key 'track'"),
+    (lambda r: r["ceil_w_view"].pop("eps"), "ceil_w_view: missing key 'eps'"),
+])
+def test_a_bad_committed_result_is_one_line_exit_2(tmp_path, capsys, edit, key):
+    from benchmarks.ceiling import main
+
+    results = _committed("cube_defects")
+    if not results:
+        pytest.skip("no committed cube_defects result")
+    path, r = results[0]
+    edit(r)
+    (tmp_path / "cube_defects").mkdir()
+    bad = tmp_path / "cube_defects" / path.name
+    bad.write_text(json.dumps(r))
+    with pytest.raises(SystemExit) as exit_:
+        main(["report", "-o", str(tmp_path), "--ceilings", str(tmp_path / "c.csv"),
+              "--figures", str(tmp_path / "figures")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(bad) in err and key in err
+    assert not (tmp_path / "c.csv").exists()
+
+
+def test_the_committed_ceilings_table_matches_the_committed_results():
+    """Every row of leaderboard/standard/ceilings.csv (the board's headroom reads it) is a
+    committed ceiling, with the committed value and inputs; instances committed since the
+    table was written are missing from it until the report runs again, never contradicted."""
+    from benchmarks.ceiling import ceiling_rows
+    from vvtbench.reporting.headroom import read_ceilings
+
+    path = BOARD.parent / "ceilings.csv"
+    if not path.exists():
+        pytest.skip("no committed ceilings table")
+    table = read_ceilings(path)
+    committed = {(r["instance"], r["kind"]): r for r in ceiling_rows(_committed())}
+    for row in table.to_dict("records"):
+        key = (row["instance"], row["kind"])
+        assert key in committed, f"{path.name}: {key} has no committed result"
+        want = committed[key]
+        assert row["ceiling"] == pytest.approx(want["ceiling"], abs=1e-12), key
+        assert row["eps"] == pytest.approx(want["eps"], rel=1e-12), key
+        assert row["inputs_sha256"] == want["inputs_sha256"], key
+        assert (row["track"], row["method"]) == (want["track"], want["method"]), key
+
+
+def test_report_doctests():
+    import doctest
+
+    import benchmarks.ceiling as module
+
+    result = doctest.testmod(module)
+    assert result.attempted > 0 and result.failed == 0
 
 
 def test_a_committed_drum_ceiling_reproduces(tmp_path):

@@ -40,7 +40,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("field path", ["vvtbench.field", "vvtbench.field.*"]),
     ("bench", ["vvtbench.bench", "vvtbench.bench.*"]),
     ("learning", ["vvtbench.learning", "vvtbench.learning.*"]),
-    ("leaderboard", ["vvtbench.reporting.leaderboard"]),
+    ("leaderboard", ["vvtbench.reporting.leaderboard", "vvtbench.reporting.headroom"]),
     ("doors", ["vvtbench", "vvtbench.api", "vvtbench.cli", "vvtbench.cli.*"]),
 ]
 

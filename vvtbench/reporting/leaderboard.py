@@ -13,7 +13,10 @@ NC
 against each swept value (number of modes, α_v, geometry scale, ...), intrinsic-resolution
 curves, and per scene the voxel fields of the truth and of every solver and observation source
 (values and contrast views), read from each run's ``fields.npz`` (the ``estimate_path``
-column, relative to the results file's folder).
+column, relative to the results file's folder). When a ceilings table (``ceilings.csv``,
+:mod:`vvtbench.reporting.headroom`) is beside the results table, each track with ceilings also
+gets a headroom section: per solver, the mean of its instances' ceiling minus its NC, paired
+over the instances that have both.
 
 Data safety: the output folder may hold only files listed in its ``leaderboard.json``; a folder
 holding other files is refused unless ``overwrite=True``, and even then only the leaderboard's
@@ -358,6 +361,73 @@ def _html(head: list[str], rows, left: int = 1, wide: bool = False) -> str:
     return '<div class="scroll">' + table + "".join(out) + "</table></div>"
 
 
+# --------------------------------------------------------------------------- headroom
+def read_headroom(df, results):
+    """(the ceilings table's path, the table, :func:`vvtbench.reporting.headroom.headroom_table`)
+    when a ceilings table (``ceilings.csv``) is beside ``results``; None otherwise.
+
+    Raises
+    ------
+    vvtbench.reporting.headroom.CeilingsError
+        The ceilings table is there but cannot be used (one line naming the file and column).
+    """
+    from .headroom import ceilings_beside, headroom_table, read_ceilings
+
+    path = ceilings_beside(results)
+    if path is None:
+        return None
+    ceilings = read_ceilings(path)
+    return path, ceilings, headroom_table(df, ceilings, seed=SEED)
+
+
+def _headroom_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
+    """The header and rows of a track's headroom table (:func:`read_headroom`)."""
+    head = ["source", "variation", "solver"]
+    for _, label in RANK_METRICS:
+        head += [f"headroom {label}: ceiling − {label}, mean [{_PCT} CI]", f"pairs ({label})"]
+    head.append("rows above the ceiling (w, v)")
+    rows, last = [], None
+    for _, r in t.iterrows():
+        key = (r["observation"], r["variation"])
+        cells = [f"{r['observation']} modes", str(r["variation"]),
+                 f"{r['solver']} (reference)" if r["reference"] else str(r["solver"])]
+        for m, _ in RANK_METRICS:
+            cells += [ci_cell(r[f"{m}_mean"], r[f"{m}_ci_low"], r[f"{m}_ci_high"],
+                              int(r[f"{m}_n"]), sign=True, digits=3), str(int(r[f"{m}_n"]))]
+        cells.append(f"{int(r['nc_w_above'])}, {int(r['nc_v_above'])}")
+        cls = " ".join(filter(None, ["ref" if r["reference"] else "",
+                                     "group" if key != last else ""]))
+        last = key
+        rows.append((cells, cls))
+    return head, rows
+
+
+def headroom_section(headroom, df, track: str):
+    """(Markdown, HTML, records for leaderboard.json) of ``track``'s headroom section, or None
+    when ``headroom`` (:func:`read_headroom`) has no row of the track: a track none of whose
+    instances has a ceiling shows none."""
+    from .headroom import HEADROOM_NOTE, track_coverage
+
+    if headroom is None:
+        return None
+    _, ceilings, table = headroom
+    if table.empty:
+        return None
+    t = table[table.track == track]
+    if t.empty:
+        return None
+    have, total = track_coverage(df, ceilings, track)
+    title = (f"{track} — headroom to the ceiling ({have} of {total} instances have a ceiling "
+             "of NC w)")
+    note = HEADROOM_NOTE + (f" Over {have} of the track's {total} instances; the others have "
+                            "no ceiling yet." if have < total else "")
+    head, rows = _headroom_rows(t)
+    md = f"### {md_cell(title)}\n\n" + _md(head, rows) + "\n\n" + note + "\n"
+    page = (f"<h3>{html.escape(title)}</h3>" + _html(head, rows, left=3)
+            + f'<p class="note">{html.escape(note)}</p>')
+    return md, page, t.to_dict("records")
+
+
 # --------------------------------------------------------------------------- figures
 def _slug(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in str(s))
@@ -677,6 +747,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
     out = Path(out)
     owned = prepare_output(out, source, overwrite)
     df, run_dir = checked_table(results)
+    headroom = read_headroom(df, results)
     base = results if results.is_dir() else results.parent
     styles = Styles(df.solver.unique(), df.observation.unique())
     tracks = suite_track_order(results, list(dict.fromkeys(df.track)))
@@ -709,7 +780,8 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                                     rel))
                 written.add(rel)
 
-    md, page, tracks_json = _pages(df, results, run_dir, tracks, groups, rows, paired, figs)
+    md, page, tracks_json = _pages(df, results, run_dir, tracks, groups, rows, paired, figs,
+                                   headroom)
     write_text(out / "README.md", "\n".join(md))
     write_text(out / "index.html", page)
     write_text(out / "results.csv", df.to_csv(index=False))
@@ -729,6 +801,7 @@ def build(results: str | Path, out: str | Path = "leaderboard", overwrite: bool 
                        "legend": LEGEND, "min_rank_n": MIN_RANK_N,
                        "ties": TIE_RULE.format(min_n=MIN_RANK_N)},
         "recomputed": run_dir is not None,
+        "ceilings": None if headroom is None else str(headroom[0]),
         "tracks": tracks_json})
     return out
 
@@ -832,8 +905,9 @@ def board_title(rows: list[dict]) -> tuple[str, str]:
             "whose tracks draw enough instances (leaderboard/standard).")
 
 
-def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
-    """(README.md lines, index.html text, the tracks' statistics for leaderboard.json)."""
+def _pages(df, results, run_dir, tracks, groups, rows, paired, figs, headroom=None):
+    """(README.md lines, index.html text, the tracks' statistics for leaderboard.json);
+    ``headroom``: :func:`read_headroom`'s, a section per track that has ceilings."""
     n_failed = int((df.status == "error").sum())
     n_invalid = int((df.status == "invalid").sum())
     trust = RECOMPUTED if run_dir is not None else NOT_RECOMPUTED
@@ -887,6 +961,10 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
             title = f"{track} — paired comparisons, NC w (same instances)"
             md.append(f"### {md_cell(title)}\n\n" + _md(head, prows) + "\n")
             body.append(f"<h3>{html.escape(title)}</h3>" + _html(head, prows, left=4))
+        room = headroom_section(headroom, df, track)
+        if room is not None:
+            md.append(room[0])
+            body.append(room[1])
         for obs, t in ranked:
             head, drows = _detail_rows(t)
             title = f"{track} — {obs} modes: medians, other metrics, runtime"
@@ -896,7 +974,8 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs):
             "track": track,
             "ranking": [rec for _, t in ranked for rec in t.to_dict("records")],
             "paired": {m: paired[m][paired[m].track == track].to_dict("records")
-                       for m in paired}})
+                       for m in paired},
+            **({} if room is None else {"headroom": room[2]})})
         for title, frame in (
                 ("extractors ranked on the same videos", extractor_ranking(df, track)),
                 ("extraction (detected modes against the true ones)",

@@ -407,13 +407,17 @@ def rows_above_ceiling(ceiling: dict, rows: dict, tol: float = 1e-9) -> dict:
         ``feasible_above``: rows above the ceiling that explain the data (D <= eps): each
         contradicts the ceiling, which must be at least the NC of every feasible field seen;
         ``infeasible_above``: rows above it that do not explain the data (D > eps), so are
-        not fields the ceiling ranges over. Names sorted.
+        not fields the ceiling ranges over; ``unknown_above``: rows above it whose misfit is
+        not known (None or NaN), which can be neither. Names sorted.
     """
     eps, top = float(ceiling["eps"]), float(ceiling["ceiling"])
     above = {n: r for n, r in rows.items()
              if r.get("nc") is not None and np.isfinite(r["nc"]) and r["nc"] > top + tol}
-    return {"feasible_above": sorted(n for n, r in above.items() if r["D"] <= eps),
-            "infeasible_above": sorted(n for n, r in above.items() if r["D"] > eps)}
+    known = {n: float(r["D"]) for n, r in above.items()
+             if r.get("D") is not None and np.isfinite(float(r["D"]))}
+    return {"feasible_above": sorted(n for n, D in known.items() if D <= eps),
+            "infeasible_above": sorted(n for n, D in known.items() if D > eps),
+            "unknown_above": sorted(n for n in above if n not in known)}
 
 
 def log_bounds(fields, m: int, margin: float = 100.0) -> list[tuple[float, float]]:
