@@ -83,6 +83,29 @@ class SampleView:
     def damping_ratios(self) -> np.ndarray:
         return self["modes/damping_ratios"]
 
+    @property
+    def sensor(self) -> dict[str, Any]:
+        """The camera noise the video was filmed with (``truth.json`` ``video``).
+
+        Returns
+        -------
+        dict
+            ``read_noise_dn`` (DN), ``shot_noise``, ``full_well_electrons``, ``bit_depth``,
+            ``frame_average``, ``noise_free`` (:func:`vvtbench.render.sensor.is_noise_free`:
+            no shot and no read noise) and ``label``, the camera in words
+            (:func:`vvtbench.render.sensor.describe_sensor`; ``"noise-free sensor ..."`` for
+            a camera without noise).
+        """
+        from ..render.sensor import describe_sensor, is_noise_free
+
+        v = self.info["video"]
+        r, shot = float(v["read_noise_dn"]), bool(v["shot_noise"])
+        fw, bits = float(v["full_well_electrons"]), int(v["bit_depth"])
+        return {"read_noise_dn": r, "shot_noise": shot, "full_well_electrons": fw,
+                "bit_depth": bits, "frame_average": int(v.get("frame_average", 1)),
+                "noise_free": is_noise_free(r, shot),
+                "label": describe_sensor(r, shot, fw, bits)}
+
 
 @dataclass
 class Sample(SampleView):
@@ -202,6 +225,60 @@ class Sample(SampleView):
         without the ruler."""
         ruler = self.info.get("crb")
         return None if not isinstance(ruler, dict) else float(ruler["detection_snr"])
+
+    def ruler(self, *, read_noise_dn: float | None = None, shot_noise: bool | None = None,
+              full_well: float | None = None) -> dict[str, Any]:
+        """The Cramér-Rao ruler of the filmed motion, for the sample's camera or another.
+
+        The per-mode SNR of :mod:`vvtbench.render.crb` from the sample's rest render
+        (``image/rest``), image-space modes (``image/modes``) and modal energies
+        (``modes/crb_energy_px2``), with the noise of a camera given here; the arguments
+        left out are the sample's (:attr:`sensor`). With none given it is the stored
+        ``modes/crb_snr``. What the same motion would show to a noisier or a noise-free
+        camera, without rendering it again.
+
+        Parameters
+        ----------
+        read_noise_dn : float, optional
+            Read noise per sub-frame (DN).
+        shot_noise : bool, optional
+            Poisson shot noise.
+        full_well : float, optional
+            Full-well capacity (electrons).
+
+        Returns
+        -------
+        dict
+            ``sensor`` (the camera in words, :func:`vvtbench.render.sensor.describe_sensor`),
+            ``noise_free``, ``snr`` ``(n,)`` per true mode, ``detection_snr`` (the SNR a mode
+            needs to count as detectable, :func:`vvtbench.render.crb.detection_snr_threshold`)
+            and ``n_detectable``.
+
+        Raises
+        ------
+        DatasetError
+            For a modes-only sample or one written before the ruler existed.
+        """
+        from ..render import crb
+        from ..render.sensor import describe_sensor, is_noise_free
+
+        own = self.sensor
+        r = own["read_noise_dn"] if read_noise_dn is None else float(read_noise_dn)
+        shot = own["shot_noise"] if shot_noise is None else bool(shot_noise)
+        fw = own["full_well_electrons"] if full_well is None else float(full_well)
+        bits = own["bit_depth"]
+        energy = np.asarray(self.require("modes/crb_energy_px2"), dtype=np.float64)
+        intensity = np.asarray(self.require("image/rest"), dtype=np.float64)
+        self.require("image/modes")
+        var = crb.noise_variance_dn2(intensity, bits, r, shot, fw, own["frame_average"])
+        fisher = crb.pixel_fisher(intensity * float(2**bits - 1), var)
+        dense = self.array("image/modes")
+        info, _ = crb.mode_information(fisher, (dense[m] for m in range(dense.shape[0])))
+        snr = crb.mode_snr(info, energy)
+        threshold = crb.detection_snr_threshold(self.n_frames)
+        return {"sensor": describe_sensor(r, shot, fw, bits), "noise_free": is_noise_free(r, shot),
+                "snr": snr, "detection_snr": threshold,
+                "n_detectable": int(np.count_nonzero(snr >= threshold))}
 
     def array(self, name: str):
         """The lazy Zarr array ``name`` (slice it to read part of it)."""
