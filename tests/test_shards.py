@@ -11,6 +11,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pd = pytest.importorskip("pandas")
@@ -352,3 +353,233 @@ def test_a_score_a_shard_states_is_recomputed_not_copied(flow, tmp_path, capsys)
     assert "mode_mac" in err and "0.5 in the shard" in err
     df = read_results(out)
     assert abs(df.loc[df.seed == int(rows.loc[0, "seed"]), "mode_mac"].item() - true) < 1e-9
+
+
+# --------------------------------------------------------------------------- video tracks
+
+# a cube filmed by one camera (observed alone and through the field path) and by a rig of
+# two (one view, and both joined): two instances, one per shard
+TINY_VIDEO = """
+name = "tiny_video"
+solvers = ["homogeneous"]
+seeds = [2]
+observations = ["extracted"]
+
+[defaults]
+"geometry.cells" = [4, 4, 4]
+"simulation.n_modes" = 6
+"simulation.fps" = 200.0
+"simulation.duration" = 0.8
+"camera.resolution" = [64, 64]
+"excitation.displacement" = 0.002
+"render.supersample" = 1
+"render.read_noise_dn" = 8.0   # the background moves in the video: joined views read it
+n_modes = 3
+inference_shape = [2, 2, 2]
+
+[extract]
+max_modes = 6
+fmax = 95.0
+
+[[tracks]]
+name = "video"
+scenes = ["jello_cube_defect_top"]
+
+[[tracks]]
+name = "field"
+scenes = ["jello_cube_defect_top"]
+[tracks.field]
+format = "tiff"
+bit_depth = 12
+
+[[tracks]]
+name = "views"
+scenes = ["jello_cube_defect_top"]
+[tracks.defaults]
+"camera.rig.views" = 2
+[tracks.sweep]
+views = [1, 2]
+"""
+
+
+@pytest.fixture(scope="module")
+def video_flow(tmp_path_factory):
+    """The video suite whole, its two shards (from the whole run's cache: nothing computed
+    again) and their merge (in a folder of its own: every observation and score
+    recomputed)."""
+    root = tmp_path_factory.mktemp("video_shards")
+    suite = root / "tiny_video.toml"
+    suite.write_text(TINY_VIDEO)
+    whole = run_suite(str(suite), None, root / "whole", progress=False)
+    assert (whole["status"] == "ok").all(), whole[["track", "variation", "error"]]
+    shards = root / "shards"
+    for k in (1, 2):
+        run_suite(str(suite), None, root / "whole", progress=False, shard=f"{k}/2",
+                  shard_dir=shards / f"{k}-of-2")
+    merged = merge_shards([shards], root / "merged", progress=False)
+    return {"root": root, "suite": suite, "whole": whole, "shards": shards, "merged": merged}
+
+
+def _extractions(folder: Path) -> dict[str, dict]:
+    """``{extract key: its record in shard.json}`` of a shard folder."""
+    tasks = json.loads((folder / "shard.json").read_text())["tasks"]
+    return {k: r for k, r in tasks.items() if r["stage"] == "extract"}
+
+
+def test_video_shards_merge_into_the_unsharded_table(video_flow):
+    """Every score of the merge equals the unsharded run's, byte for byte, and every
+    observation made from the compact modes is the very bytes the whole frame gave."""
+    root, merged = video_flow["root"], video_flow["merged"]
+    assert len(video_flow["whole"]) == 4
+    _same_table(read_results(root / "whole"), read_results(root / "merged"))
+    assert merged.attrs["differences"] == []
+    truth = merged.attrs["truth"]
+    assert truth["observations_same"] == truth["observations"] == 4
+    stats = merged.attrs["stats"]
+    assert stats["extract"]["computed"] == 0 and stats["extract"]["cached"] == 4
+    assert main(["check-results", str(root / "merged")]) == 0
+
+
+def test_extracted_modes_are_kept_where_their_readers_read(video_flow):
+    """One observation of one extraction: the shapes inside the box of what it samples and the
+    scores read; joined views read every pixel: the whole frame. Written back, the modes
+    equal the extraction's inside the box and are NaN outside."""
+    from vvtbench.bench.compact import COMPACT_NAME
+    from vvtbench.modes import ModeSet
+
+    root = video_flow["root"]
+    boxed = whole_frame = 0
+    for folder in sorted(video_flow["shards"].iterdir()):
+        for key, rec in _extractions(folder).items():
+            assert not (folder / key / "modes.npz").exists()
+            with np.load(folder / key / COMPACT_NAME) as z:
+                shapes, box = z["shapes"], [int(x) for x in z["box"]]
+            original = ModeSet.load(root / "whole" / "cache" / key)
+            height, width = original.image_shape
+            assert rec["modes"]["image_shape"] == [height, width]
+            if rec["modes"]["box"] is None:
+                whole_frame += 1
+                assert "joins views" in rec["modes"]["why"]
+                assert box == [0, height, 0, width]
+            else:
+                boxed += 1
+                assert box == rec["modes"]["box"]
+                assert (box[1] - box[0]) * (box[3] - box[2]) < 0.7 * height * width
+            r0, r1, c0, c1 = box
+            assert np.array_equal(shapes, original.shapes[:, r0:r1, c0:c1])
+            restored = ModeSet.load(root / "merged" / "cache" / key)
+            inside = restored.shapes[:, r0:r1, c0:c1]
+            assert np.array_equal(inside, original.shapes[:, r0:r1, c0:c1])
+            outside = restored.shapes.copy()
+            outside[:, r0:r1, c0:c1] = np.nan
+            assert np.isnan(outside).all()
+            assert np.array_equal(restored.power, original.power)
+            assert (root / "merged" / "cache" / key / "modes.json").read_bytes() == (
+                root / "whole" / "cache" / key / "modes.json").read_bytes()
+    assert (boxed, whole_frame) == (2, 2)  # one camera, its field video; the rig's two views
+
+
+def test_a_box_that_leaves_out_read_pixels_is_caught(video_flow, tmp_path):
+    """The check behind 'lossless': shapes cut into the object (past the box's margin, two
+    pixels more on every side) change the observation the merge recomputes (it no longer has
+    the bytes the shard recorded)."""
+    from vvtbench.bench.compact import COMPACT_NAME, MARGIN_PX, compact_arrays, expand_arrays
+    from vvtbench.io.files import write_npz
+    from vvtbench.samples.reader import sha256_file
+
+    copies = tmp_path / "shards"
+    shutil.copytree(video_flow["shards"], copies)
+    folder = next(f for f in sorted(copies.iterdir())
+                  if any(r["modes"]["box"] for r in _extractions(f).values()))
+    doc = json.loads((folder / "shard.json").read_text())
+    for key, rec in _extractions(folder).items():
+        if rec["modes"]["box"] is None:
+            continue
+        path = folder / key / COMPACT_NAME
+        with np.load(path) as z:
+            full = expand_arrays({k: z[k] for k in z.files})
+        r0, r1, c0, c1 = rec["modes"]["box"]
+        cut = MARGIN_PX + 2
+        write_npz(path, compact_arrays(full, (r0 + cut, r1 - cut, c0 + cut, c1 - cut)))
+        doc["files"][f"{key}/{COMPACT_NAME}"] = sha256_file(path)
+    (folder / "shard.json").write_text(json.dumps(doc))
+    merged = merge_shards([copies], tmp_path / "merged", progress=False)
+    truth = merged.attrs["truth"]
+    assert truth["observations_same"] < truth["observations"]
+
+
+def test_an_interrupted_video_shard_resumes_from_its_compact_modes(video_flow, tmp_path):
+    """On a machine without the run folder: the extractions come from the shard folder (none
+    computed again), the observations of them are recomputed to the same bytes, and the
+    shard folder is written again with the same boxes and shapes."""
+    from vvtbench.bench.compact import COMPACT_NAME
+
+    source = next(f for f in sorted(video_flow["shards"].iterdir())
+                  if any(r["modes"]["box"] for r in _extractions(f).values()))
+    copy = tmp_path / source.name
+    shutil.copytree(source, copy)
+    _edit(copy, complete=False)
+    spec = f"{source.name.split('-')[0]}/2"
+    df = run_suite(str(video_flow["suite"]), None, tmp_path / "fresh", progress=False,
+                   shard=spec, shard_dir=copy)
+    stats = df.attrs["stats"]
+    assert stats["extract"]["computed"] == 0 and df.attrs["shard"]["seeded"]["extract"] == 2
+    assert df.attrs["shard"]["seeded"]["without_frames"] == 1
+    _same_table(df, read_shard(source).rows)
+    after = read_shard(copy)
+    assert after.complete
+    for key, rec in _extractions(copy).items():
+        assert rec["modes"] == {**_extractions(source)[key]["modes"],
+                                "why": "as the shard folder it came from"}
+        with np.load(copy / key / COMPACT_NAME) as a, np.load(source / key / COMPACT_NAME) as b:
+            assert sorted(a.files) == sorted(b.files)
+            for name in a.files:
+                assert np.array_equal(a[name], b[name], equal_nan=True), name
+    tasks = after.tasks
+    before = read_shard(source).tasks
+    for k, rec in tasks.items():
+        if rec["stage"] == "observe":
+            assert rec["observation_sha256"] == before[k]["observation_sha256"]
+
+
+def test_footprint_modes_cut_joined_views_too(video_flow, tmp_path):
+    """``shard_modes="footprint"``: the joined views' extractions are cut to their object's
+    box as well; the merge recomputes their observations from less than the whole frame
+    (lossy: those bytes differ) and the scores agree within the check-results tolerance."""
+    root = video_flow["root"]
+    shards = tmp_path / "shards"
+    for k in (1, 2):
+        run_suite(str(video_flow["suite"]), None, root / "whole", progress=False,
+                  shard=f"{k}/2", shard_dir=shards / f"{k}-of-2", shard_modes="footprint")
+    records = [r for f in sorted(shards.iterdir()) for r in _extractions(f).values()]
+    assert all(r["modes"]["box"] is not None for r in records) and len(records) == 4
+    assert sum("lossy" in r["modes"]["why"] for r in records) == 2
+    sizes = {m: sum(p.stat().st_size for p in d.rglob("modes.box.npz"))
+             for m, d in (("exact", video_flow["shards"]), ("footprint", shards))}
+    assert sizes["footprint"] < sizes["exact"]
+    merged = merge_shards([shards], tmp_path / "merged", progress=False)
+    assert merged.attrs["differences"] == []
+    _same_table(read_results(root / "whole"), read_results(tmp_path / "merged"), exact=False)
+    with pytest.raises(ShardError, match="shard_modes='box' is not allowed"):
+        run_suite(str(video_flow["suite"]), None, root / "whole", progress=False,
+                  shard="1/2", shard_dir=tmp_path / "x", shard_modes="box")
+
+
+def test_a_large_shard_says_so_naming_its_largest_files(video_flow, tmp_path, capsys,
+                                                       monkeypatch):
+    from vvtbench.bench import shards as shard_module
+    from vvtbench.bench.compact import COMPACT_NAME
+
+    folder = video_flow["shards"] / "1-of-2"
+    doc = json.loads((folder / "shard.json").read_text())
+    assert shard_module.size_warning(folder, doc) is None  # under 50 MB
+    text = shard_module.size_warning(folder, doc, limit=1000, show=2)
+    largest = shard_module.file_sizes(folder, doc["files"])[0][0]
+    assert text.startswith(f"warning: shard folder {folder} holds ")
+    assert largest.endswith(COMPACT_NAME) and largest in text and "\n" not in text
+    monkeypatch.setattr(shard_module, "SIZE_WARNING_BYTES", 1000)
+    code = main(["run", str(video_flow["suite"]), "--shard", "1/2", "--shard-dir",
+                 str(tmp_path / "1-of-2"), "-o", str(video_flow["root"] / "whole"),
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 0 and "warning: shard folder" in err and COMPACT_NAME in err

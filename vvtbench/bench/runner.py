@@ -13,6 +13,7 @@ from .._version import __version__
 from ..io.files import write_json
 from ..io.lock import RunLock
 from .child import DEFAULT_TIMEOUT, default_memory_bytes
+from .compact import MODES_KEPT
 from .executors import Interrupted, execute_graph, make_executor
 from .graph import STAGES, Run, build_graph
 from .prune import VideoPlan
@@ -65,7 +66,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
               timeout: float | None = None, memory_gb: float | None = None,
               wait: bool = False, prune_videos: bool = False,
               shard: str | ShardSpec | None = None, shard_dir: str | Path | None = None,
-              retry_errors: bool = False):
+              retry_errors: bool = False, shard_modes: str = "exact"):
     """Run a suite; return the results table (a pandas DataFrame).
 
     ``solvers``: names or ``path/file.py:Class`` (default: the suite's ``solvers``);
@@ -100,6 +101,9 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
     ``shards/SUITE/K-of-N``) instead of ``OUT/results.*``; the cache of ``OUT`` is seeded
     from a result set found there. A shard that is complete is not run again (unless
     ``retry_errors`` and it has failed tasks): ``df.attrs["shard"]["nothing_to_do"]``.
+    ``shard_modes``: how the result set keeps the extracted mode shapes
+    (:func:`.compact.extraction_box`): ``"exact"`` (every score as from the whole frame) or
+    ``"footprint"`` (smaller; lossy for joined views, docs/suites.md).
     """
     if prune_videos and until not in ("observe", "evaluate"):
         raise SuiteError(f"prune_videos with until={until!r} is not allowed (allowed: until "
@@ -122,6 +126,9 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         if until != "evaluate":
             raise SuiteError(f"shard with until={until!r} is not allowed (allowed: until "
                              "'evaluate': a shard's result set is its rows)")
+        if shard_modes not in MODES_KEPT:
+            raise ShardError(f"shard_modes={shard_modes!r} is not allowed (allowed: "
+                             f"{', '.join(MODES_KEPT)})")
         spec = ShardSpec.parse(shard)
         selection = select_shard(tasks, runs, spec)
         tasks, runs = selection.tasks, selection.runs
@@ -155,7 +162,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         except Interrupted:
             if selection is not None:  # what is finished is kept in the shard's folder
                 _write_shard(shard_dir, cache, selection, suite, solvers, solver_config,
-                             limits)
+                             limits, modes=shard_modes)
             raise
         finally:
             executor.close()
@@ -181,7 +188,7 @@ def run_suite(suite: Suite | str | Path, solvers: list[str] | None = None,
         shard_doc = None
         if selection is not None:
             shard_doc = _write_shard(shard_dir, cache, selection, suite, solvers,
-                                     solver_config, limits, results)
+                                     solver_config, limits, results, modes=shard_modes)
         elif df is not None:
             df, kept = add_previous_rows(out_dir, df, runs, suite)
             df.attrs["kept"] = kept
@@ -240,8 +247,8 @@ def _found_shard(shard_dir: Path, suite: Suite, spec: ShardSpec) -> Shard | None
 
 
 def _write_shard(shard_dir: Path, cache: Path, selection, suite: Suite, solvers: list[str],
-                 solver_config: dict | None, limits: dict, results: dict | None = None
-                 ) -> dict:
+                 solver_config: dict | None, limits: dict, results: dict | None = None,
+                 modes: str = "exact") -> dict:
     """The shard's result set, written under a lock of its own (one writer per folder)."""
     from .shards import cache_statuses
 
@@ -253,7 +260,7 @@ def _write_shard(shard_dir: Path, cache: Path, selection, suite: Suite, solvers:
     meta = shard_meta(suite, solvers, selection.runs, solver_config or {}, limits)
     shard_dir.parent.mkdir(parents=True, exist_ok=True)
     with RunLock(shard_dir.parent, name=f".{shard_dir.name}.lock", remove=True):
-        return export_shard(shard_dir, cache, selection, meta, statuses)
+        return export_shard(shard_dir, cache, selection, meta, statuses, modes)
 
 
 def _instance(row) -> tuple:

@@ -13,15 +13,19 @@ scheduled: a shard runs the same on one process, a local pool or a Dask cluster.
 
 **The result set of a shard** (``shards/SUITE/K-of-N/``, small enough to commit): the shard's
 rows (``results.csv``), the output of each of its solve tasks (``solve/KEY/``: the estimate
-and its ``task.json``) and extract tasks (``extract/KEY/``: ``modes.json``, ``modes.npz``),
-the error record of each failed task (``STAGE/KEY.error/``), and ``shard.json``: the suite
-(file and sha256), the vvtbench version, the solvers with their versions and configs, the
-limits, the shard and its units, the status of every task of the shard, the sha256 each
-sample's files and each observation had, and the sha256 of every file of the folder. Never a
-video, a sample or an observation (they hold the truth).
+and its ``task.json``) and extract tasks (``extract/KEY/``: ``modes.json``, the mode shapes
+cut to the pixels their readers read, :mod:`.compact`, and ``task.json``), the error record
+of each failed task (``STAGE/KEY.error/``), and ``shard.json``: the suite (file and sha256),
+the vvtbench version, the solvers with their versions and configs, the limits, the shard and
+its units, the status of every task of the shard, the sha256 each sample's files and each
+observation had, the box each extraction's shapes were cut to, and the sha256 of every file
+of the folder. Never a video, a sample or an observation (they hold the truth). A result
+set over :data:`SIZE_WARNING_BYTES` is reported with its largest files
+(:func:`size_warning`).
 
 **Resuming.** A run of a shard seeds its cache from the shard folder it finds (estimates and
-extracted modes are not computed again) and regenerates the truth of a filmed sample without
+extracted modes are not computed again; the modes written back to the full frame, NaN outside
+their box) and regenerates the truth of a filmed sample without
 rendering its frames when every reader of its video is seeded. A shard that ran to its end is
 *complete*: running it again does nothing.
 
@@ -45,16 +49,23 @@ from pathlib import Path
 from .._version import __version__
 from ..io.files import write_json
 from ..samples.reader import sha256_file
+from .compact import extraction_box, restore, write_compact
 from .graph import Run, Task, content_hash
 from .suite import SUITES_DIR, Suite, SuiteError, observation_kind
 
-__all__ = ["CARRIED", "PARTITION", "SHARD_FORMAT", "Selection", "Shard", "ShardError",
-           "ShardSpec", "Unit", "cache_statuses", "default_shard_dir", "export_shard",
-           "partition", "read_shard", "seed_cache", "select_shard", "shard_meta",
-           "suite_ref", "suite_sha256", "unit_cost", "units"]
+__all__ = ["CARRIED", "PARTITION", "SHARD_FORMAT", "SIZE_WARNING_BYTES", "Selection", "Shard",
+           "ShardError", "ShardSpec", "Unit", "cache_statuses", "default_shard_dir",
+           "export_shard", "file_sizes", "partition", "read_shard", "seed_cache",
+           "select_shard", "shard_meta", "size_warning", "suite_ref", "suite_sha256",
+           "unit_cost", "units"]
 
-#: version of the shard folder's format (``shard.json`` ``format_version``)
-SHARD_FORMAT = 1
+#: version of the shard folder's format (``shard.json`` ``format_version``); 2: extracted
+#: modes compact (:mod:`.compact`)
+SHARD_FORMAT = 2
+#: the versions read (a version 1 folder carries each extraction's ``modes.npz`` as it is)
+SHARD_FORMATS_READ = (1, 2)
+#: a result set larger than this is reported with its largest files (:func:`size_warning`)
+SIZE_WARNING_BYTES = 50_000_000
 #: how the suite is cut: connected units of the graph, dealt largest first to the least
 #: loaded shard by :func:`unit_cost` (a new rule gets a new name: shards cut by different
 #: rules never merge)
@@ -336,9 +347,13 @@ def _copy_verified(src: Path, dest: Path, names: list[str], hashes: dict[str, st
 
 
 def export_shard(dest: Path, cache: Path, selection: Selection, meta: dict,
-                 statuses: dict[str, dict] | None = None) -> dict:
+                 statuses: dict[str, dict] | None = None, modes: str = "exact") -> dict:
     """Write the result set of a shard into ``dest`` (replacing what is there: built beside it
-    and renamed into place) from the run's ``cache``; returns its ``shard.json``."""
+    and renamed into place) from the run's ``cache``; returns its ``shard.json``.
+
+    ``modes``: how the extracted mode shapes are kept (:func:`.compact.extraction_box`):
+    ``"exact"`` (every score as the whole frame gives it) or ``"footprint"`` (lossy for
+    joined views)."""
     from .results import results_table
 
     dest = Path(dest)
@@ -355,7 +370,19 @@ def export_shard(dest: Path, cache: Path, selection: Selection, meta: dict,
                 if st.get(f):
                     rec[f] = st[f]
             folder = cache / k
-            if st["status"] == "ok" and t.stage in CARRIED:
+            if st["status"] == "ok" and t.stage == "extract":
+                info = json.loads((folder / "task.json").read_text())
+                shape = _image_shape(folder)
+                box, why = extraction_box(cache, selection.tasks, k, statuses, shape, modes)
+                written = write_compact(folder, tmp / k, info, box)
+                files.update({f"{k}/{n}": d for n, d in written.items()})
+                kept = (info.get("compact") or {}).get("box") or box
+                kept = [int(x) for x in kept] if kept else None
+                rec["modes"] = {"image_shape": list(shape),
+                                "box": None if kept == [0, shape[0], 0, shape[1]] else kept,
+                                "why": "as the shard folder it came from" if info.get("compact")
+                                else why}
+            elif st["status"] == "ok" and t.stage in CARRIED:
                 info = json.loads((folder / "task.json").read_text())
                 names = sorted(info.get("files") or {})
                 copied = _copy_verified(folder, tmp / k, [*names, "task.json"],
@@ -387,7 +414,7 @@ def export_shard(dest: Path, cache: Path, selection: Selection, meta: dict,
                   "tasks": len(records), "tasks_pending": pending,
                   "tasks_failed": sum(r["status"] == "error" for r in records.values())}
         doc = {"format": "vvtbench-shard", "format_version": SHARD_FORMAT,
-               "vvtbench": __version__, **meta,
+               "vvtbench": __version__, **meta, "extracted_modes": modes,
                "shard": {"k": selection.spec.k, "n": selection.spec.n, "partition": PARTITION,
                          "units": [u.id for u in selection.units],
                          "estimated_cost_s": round(selection.cost, 1),
@@ -400,6 +427,35 @@ def export_shard(dest: Path, cache: Path, selection: Selection, meta: dict,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return doc
+
+
+def _image_shape(folder: Path) -> tuple[int, int]:
+    """``(H, W)`` of an extraction's mode shapes (its ``modes.json``)."""
+    doc = json.loads((folder / "modes.json").read_text())
+    height, width = doc["image_shape"]
+    return int(height), int(width)
+
+
+def file_sizes(folder: Path, names) -> list[tuple[str, int]]:
+    """``[(name, bytes)]`` of the files ``names`` of ``folder``, largest first (ties by
+    name)."""
+    sizes = [(n, (Path(folder) / n).stat().st_size) for n in names]
+    return sorted(sizes, key=lambda x: (-x[1], x[0]))
+
+
+def size_warning(folder: Path, doc: dict, limit: int | None = None,
+                 show: int = 5) -> str | None:
+    """One line when the result set in ``folder`` (its ``shard.json`` ``doc``) is larger than
+    ``limit`` bytes (default :data:`SIZE_WARNING_BYTES`), naming its ``show`` largest files;
+    None when it is not."""
+    limit = SIZE_WARNING_BYTES if limit is None else limit
+    sizes = file_sizes(folder, [*doc.get("files", {}), "shard.json"])
+    total = sum(b for _, b in sizes)
+    if total <= limit:
+        return None
+    largest = ", ".join(f"{n} ({b / 1e6:.1f} MB)" for n, b in sizes[:show])
+    return (f"warning: shard folder {folder} holds {total / 1e6:.1f} MB, more than "
+            f"{limit / 1e6:.0f} MB; largest files: {largest}")
 
 
 def _swap_into_place(tmp: Path, dest: Path) -> None:
@@ -455,9 +511,10 @@ def read_shard(path: str | Path) -> Shard:
     if not isinstance(doc, dict) or doc.get("format") != "vvtbench-shard":
         raise ShardError(f"{doc_path}: not a shard record (key 'format' must be "
                          "'vvtbench-shard')")
-    if doc.get("format_version") != SHARD_FORMAT:
+    if doc.get("format_version") not in SHARD_FORMATS_READ:
         raise ShardError(f"{doc_path}: key 'format_version' = {doc.get('format_version')!r} "
-                         f"is not allowed (allowed: {SHARD_FORMAT}, what this vvtbench writes)")
+                         f"is not allowed (allowed: {', '.join(map(str, SHARD_FORMATS_READ))}; "
+                         f"this vvtbench writes {SHARD_FORMAT})")
     for key in ("shard", "tasks", "files", "suite", "solver_specs"):
         if key not in doc:
             raise ShardError(f"{doc_path}: key {key!r} missing")
@@ -523,7 +580,10 @@ def seed_cache(cache: Path, tasks: dict[str, Task], shards: list[Shard],
                 info, why = cached_state(cache, t)
                 if info is None or why is not None:
                     (cache / t.stage).mkdir(parents=True, exist_ok=True)
-                    _place(src, cache / k)
+                    if t.stage == "extract":
+                        restore(src, cache / k)
+                    else:
+                        _place(src, cache / k)
                     seeded[t.stage] += 1
             elif rec.get("status") == "error" and errors and (shard.path / f"{k}.error").is_dir():
                 (cache / t.stage).mkdir(parents=True, exist_ok=True)

@@ -180,6 +180,12 @@ def main_run(argv: list[str] | None = None) -> int:
                         "shard is not run again; an interrupted one resumes, from the cache "
                         "or from what its shard folder holds. Merge with `vvtbench "
                         "merge-shards`")
+    p.add_argument("--shard-modes", default="exact", choices=["exact", "footprint"],
+                   help="with --shard: how the result set keeps each extracted mode shape: "
+                        "'exact' (default) only the pixels its readers read where that "
+                        "changes no score, the whole frame for joined views; 'footprint' the "
+                        "object's box for joined views too (smaller, lossy: scores of joined "
+                        "views may change, docs/suites.md)")
     p.add_argument("--shard-dir", default=None, metavar="DIR",
                    help="where --shard writes its result set (default shards/SUITE/K-of-N); "
                         "videos and truth never go there")
@@ -188,8 +194,10 @@ def main_run(argv: list[str] | None = None) -> int:
                         "(default: a complete shard is left as it is)")
     p.add_argument("--no-progress", action="store_true", help="no progress display")
     args = p.parse_args(argv)
-    if args.shard is None and (args.shard_dir is not None or args.retry_errors):
-        flag = "--shard-dir" if args.shard_dir is not None else "--retry-errors"
+    if args.shard is None and (args.shard_dir is not None or args.retry_errors
+                               or args.shard_modes != "exact"):
+        flag = ("--shard-dir" if args.shard_dir is not None else "--retry-errors"
+                if args.retry_errors else "--shard-modes")
         print(f"error: {flag} needs --shard K/N", file=sys.stderr)
         return 2
     try:
@@ -209,7 +217,8 @@ def main_run(argv: list[str] | None = None) -> int:
                        solver_config=overrides, progress=not args.no_progress,
                        timeout=args.timeout, memory_gb=args.memory_gb, wait=args.wait,
                        prune_videos=args.prune_videos, shard=args.shard,
-                       shard_dir=args.shard_dir, retry_errors=args.retry_errors)
+                       shard_dir=args.shard_dir, retry_errors=args.retry_errors,
+                       shard_modes=args.shard_modes)
     except Interrupted as stop:
         resume = f"vvtbench run {args.suite} -o {shlex.quote(str(out))}"
         if args.shard is not None:
@@ -285,6 +294,7 @@ def _human_bytes(n: float) -> str:
 def _report_shard(df, args) -> int:
     """What a shard run says: its rows, its folder and what to do next; exit 1 when a row
     failed."""
+    from ..bench.shards import size_warning
     from ..io.files import tree_bytes
 
     info = df.attrs["shard"]
@@ -310,6 +320,10 @@ def _report_shard(df, args) -> int:
         print(f"\nshard {info['spec']}: {len(df)} rows in {df.attrs.get('wall_s', 0):.1f} s "
               f"({summary}) -> {folder} ({_human_bytes(tree_bytes(folder))}: rows, "
               "estimates, extracted modes, sha256; no video, no truth)")
+        warning = size_warning(Path(folder), meta)
+        if warning:
+            print(f"{warning}; see docs/suites.md \"Running a suite in shards\" before "
+                  "committing it", file=sys.stderr)
         print(f"next: `git add {q} && git commit -m 'shard {info['spec']} of "
               f"{meta['suite']['name']}'`; when all {meta['shard']['n']} shards are in, "
               f"`vvtbench merge-shards {shlex.quote(str(Path(folder).parent))} -o RUN_DIR` "
