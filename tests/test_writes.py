@@ -169,3 +169,25 @@ def test_generate_takes_the_folder_lock_run_takes(tmp_path, capsys):
         assert not (tmp_path / "jello_cube_defect_top").exists()
     finally:
         held.release()
+
+
+def test_an_npz_has_the_same_bytes_whenever_it_is_written(tmp_path, monkeypatch):
+    """Equal arrays give equal bytes: no member carries the clock's time (a zip member's
+    stamp has a 2-s resolution, so the clock is moved by a day between the writes)."""
+    import time
+
+    import numpy as np
+
+    from vvtbench.io.files import write_npz
+
+    arrays = {"w": np.linspace(0, 1, 7), "shape": np.arange(6, dtype=np.int32).reshape(2, 3)}
+    for compressed in (True, False):
+        write_npz(tmp_path / "a.npz", arrays, compressed=compressed)
+        real = time.time
+        monkeypatch.setattr(time, "time", lambda: real() + 86400.0)
+        write_npz(tmp_path / "b.npz", arrays, compressed=compressed)
+        monkeypatch.undo()
+        assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
+        with np.load(tmp_path / "b.npz") as z:
+            assert sorted(z.files) == ["shape", "w"]
+            assert np.array_equal(z["w"], arrays["w"]) and z["shape"].dtype == np.int32
