@@ -44,19 +44,18 @@ PICKER_KEYS = ("weighting", "faint_product_ratio", "product_scaling", "line_fit"
                "product_roughness")
 
 
-def displacements(sample, store: DisplacementStore):
-    """The phase extractor's displacements of the sample's video into ``store``; returns the
-    motion object (grid confidence, output shape)."""
-    video = open_video(sample.video_path)
-    frames = iter(video.frames)
-    ref = next(frames)
+def displacements(sample, store: DisplacementStore, reference: str = "mean"):
+    """The phase extractor's displacements of the sample's video into ``store``, against the
+    temporal mean frame (``extract_modes``' default) or the first frame; returns the motion
+    object (grid confidence, output shape)."""
+    from vvtbench.video.files import mean_frame
+
+    if reference == "mean":
+        ref, _ = mean_frame(open_video(sample.video_path).frames)
+    else:
+        ref = next(iter(open_video(sample.video_path).frames))
     motion = make_extractor("phase", {"workers": 1}).prepare(ref)
-
-    def chain():
-        yield ref
-        yield from frames
-
-    for d in motion.iter_displacements(chain(), batch=32):
+    for d in motion.iter_displacements(iter(open_video(sample.video_path).frames), batch=32):
         store.append(d)
     return motion
 
@@ -80,6 +79,8 @@ def main() -> None:
                     "one peak-picker run each; a suite without tracks: SUITE:)")
     ap.add_argument("--identifiers", nargs="+", default=["era", "auto"])
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
+    ap.add_argument("--reference", choices=("mean", "first"), default="mean",
+                    help="the motion's reference frame (extract_modes' default: mean)")
     args = ap.parse_args()
     runs = []
     for spec in args.baseline:
@@ -97,7 +98,7 @@ def main() -> None:
         excitation = getattr(sample.scene.excitation, "kind", None)
         with DisplacementStore() as store:
             t0 = time.perf_counter()
-            motion = displacements(sample, store)
+            motion = displacements(sample, store, args.reference)
             t_motion = time.perf_counter() - t0
             conf = motion.grid_confidence
             cw = confidence_weights(conf)
