@@ -362,9 +362,9 @@ def median_relative_damping_error(matching: list[dict]) -> float:
 
     Examples
     --------
-    >>> median_relative_damping_error([{"damping": 0.011, "true_damping": 0.01},
-    ...                                {"damping": 0.03, "true_damping": 0.02},
-    ...                                {"damping": 0.5, "true_damping": 0.0}])
+    >>> round(median_relative_damping_error([{"damping": 0.011, "true_damping": 0.01},
+    ...                                      {"damping": 0.03, "true_damping": 0.02},
+    ...                                      {"damping": 0.5, "true_damping": 0.0}]), 6)
     0.3
     >>> median_relative_damping_error([])
     nan
