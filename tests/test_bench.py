@@ -424,3 +424,72 @@ def test_default_extractor_configured_changes_only_extracted_keys():
     assert keys(plain) == keys(smoke)
     changed = {s for s, _ in keys(tuned) ^ keys(smoke)}
     assert changed == {"extract", "observe", "solve", "evaluate"}
+
+
+def test_extraction_variant_runs_on_the_same_video_and_pairs_with_its_base(micro, tmp_path):
+    """An ``extracted@NAME`` source extracts the cached video again with the variant's options:
+    no second render, its own extraction and ranking table, rows paired with the base's; the
+    leaderboard shows both sources and the paired difference."""
+    from vvtbench.reporting.leaderboard import (
+        build,
+        extraction_sources,
+        extraction_variants,
+        extractor_ranking,
+    )
+
+    suite_file, out, _ = micro
+    run = tmp_path / "run"
+    shutil.copytree(out, run)  # the micro run's cache: its video is rendered already
+    two = tmp_path / "two.toml"
+    two.write_text(suite_file.read_text()
+                   .replace('observations = ["true", "extracted"]',
+                            'observations = ["extracted", "extracted@few"]')
+                   .replace("[solver.vvt]", "[extract.variants.few]\nmax_modes = 3\n\n"
+                            "[solver.vvt]"))
+    df = run_suite(str(two), ["homogeneous", "vvt"], run, progress=False)
+    assert _computed(df) == {"generate": 0, "extract": 1, "observe": 1, "solve": 2,
+                             "evaluate": 2}
+    assert (df.status == "ok").all() and check_results(df) == []
+    assert set(df.observation) == {"extracted", "extracted@few"}
+    base, few = (df[df.observation == o].set_index(["solver", "scene", "variation", "seed"])
+                 for o in ("extracted", "extracted@few"))
+    assert sorted(base.index) == sorted(few.index)  # the same instances
+    assert (few.n_modes_observed <= 3).all()
+    assert set(df.dataset_revision) == {df.dataset_revision.iloc[0]}  # one video
+    # undamped truth: the damping error is undefined, never a number
+    assert df.extraction_median_rel_damping_error.isna().all()
+
+    sources = extraction_sources(df, "main")
+    assert sources.observation.tolist() == ["extracted", "extracted@few"]
+    assert {"precision", "recall (detectable)", "damping error", "NC w vvt",
+            "NC w homogeneous"} <= set(sources.columns)
+    assert (sources["damping error"] == "–").all()
+    paired = extraction_variants(df, "main")
+    assert paired.observation.tolist() == ["extracted@few"]
+    assert paired.against.tolist() == ["extracted"] and paired.videos.tolist() == [1]
+    assert paired["Δ NC w homogeneous"].iloc[0] == "+0.000 (n=1)"
+    assert paired["Δ damping error"].iloc[0] == "–"
+    assert paired["Δ precision"].iloc[0].endswith("(n=1)")
+    ranked = extractor_ranking(df, "main")
+    assert set(ranked.extractor) == {"phase (default)", "phase (default), variant few"}
+    assert extraction_variants(df[df.observation == "extracted"], "main") is None
+
+    lb = build(run / "results.parquet", tmp_path / "lb")
+    text = (lb / "README.md").read_text()
+    assert "main — extracted@few modes: ranking by mean NC w" in text
+    assert "main — extraction and NC w from each source" in text
+    assert "main — extraction variants against their base (paired, same videos)" in text
+    assert "+0.000 (n=1)" in text
+
+
+def test_an_unknown_extraction_variant_is_a_one_line_error(tmp_path):
+    from vvtbench.bench import SuiteError
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text(MICRO.replace('observations = ["true", "extracted"]',
+                                 'observations = ["extracted", "extracted@nope"]'))
+    with pytest.raises(SuiteError) as error:
+        load_suite(bad)
+    msg = str(error.value)
+    assert "\n" not in msg and str(bad) in msg and "key 'observations[1]'" in msg
+    assert "'nope'" in msg and "[extract.variants.NAME]" in msg

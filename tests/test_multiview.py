@@ -457,7 +457,10 @@ def test_the_standard_views_tracks_film_each_instance_with_a_ring_of_four(name):
 
     tracks = {t.name: t for t in load_suite(name).tracks}
     for track in (tracks[n] for n in VIEWS_TRACKS):
-        assert track.observations == ["extracted"] and "learned" not in track.solvers
+        # the damped track also extracts its videos with the old peak picker (paired on the board)
+        assert track.observations == (["extracted", "extracted@picker"]
+                                      if track.name == "damped_views_video" else ["extracted"])
+        assert "learned" not in track.solvers
         assert [v.inference["views"] for v in track.variations] == [1, 2, 3, 4]
         assert {v.scene_overrides["camera.rig.views"] for v in track.variations} == {4}
         split = "val" if name == "standard_val" else "test"
@@ -482,7 +485,8 @@ def test_a_views_track_renders_once_extracts_each_view_once_and_nests_the_views(
 
     suite = load_suite(name)
     track = next(t for t in suite.tracks if t.name == "damped_views_video")
-    one = dataclasses.replace(suite, tracks=[dataclasses.replace(track, scenes=track.scenes[:1])])
+    one = dataclasses.replace(suite, tracks=[dataclasses.replace(
+        track, scenes=track.scenes[:1], observations=["extracted"])])
     tasks, _ = build_graph(one, ["homogeneous"], until="observe")
     by_stage = {s: [t for t in tasks.values() if t.stage == s]
                 for s in ("generate", "extract", "observe")}
@@ -497,3 +501,14 @@ def test_a_views_track_renders_once_extracts_each_view_once_and_nests_the_views(
     for t in observes:
         n = t.payload["inference"]["views"]
         assert t.deps[0] == gen.key and [view_of[k] for k in t.deps[1:]] == list(range(n))
+    # the peak-picker variant: the same render, its own extraction of each view
+    both = dataclasses.replace(one, tracks=[dataclasses.replace(
+        one.tracks[0], observations=["extracted", "extracted@picker"])])
+    tasks2, _ = build_graph(both, ["homogeneous"], until="observe")
+    assert {k for k, t in tasks2.items() if t.stage != "extract" and
+            t.payload.get("observation") != "extracted@picker"} == {
+        k for k, t in tasks.items() if t.stage != "extract"}
+    picker = [t for t in tasks2.values() if t.stage == "extract" and t.key not in tasks]
+    assert len(picker) == 4 and all(t.deps == [gen.key] for t in picker)
+    assert {t.payload["options"]["identifier"] for t in picker} == {"peaks"}
+    assert {t.payload["options"]["identifier"] for t in extracts} == {"auto"}

@@ -19,6 +19,7 @@ from .suite import (
     apply_overrides,
     observation_extractor,
     observation_kind,
+    observation_variant,
     scene_ref,
 )
 
@@ -48,12 +49,20 @@ def extract_options(suite: Suite, observation: str,
                     track_extract: dict | None = None) -> tuple[dict, dict]:
     """(the ``extract_modes`` options of an observation source, their form in task keys).
 
-    The suite's ``[extract]`` table with a track's ``[tracks.extract]`` over it, plus the
-    extractor an ``"extracted:NAME"`` source names and its ``[extract.extractor.NAME]``
-    overrides; the default extractor with no overrides adds nothing, so such runs keep their
-    cache. Keys name the extractor by name and version (not by a path, which differs between
-    machines)."""
-    opts = {**suite.extract, **(track_extract or {})}
+    The suite's ``[extract]`` table with a track's ``[tracks.extract]`` over it, the options
+    of the variant an ``"extracted@VARIANT"`` source names (``[extract.variants.VARIANT]``)
+    over those, plus the extractor an ``"extracted:NAME"`` source names and its
+    ``[extract.extractor.NAME]`` overrides; the default extractor with no overrides adds
+    nothing, so such runs keep their cache. A variant's key is its options as they are: it
+    is the key of the extraction without the variant that has the same options. Keys name
+    the extractor by name and version (not by a path, which differs between machines)."""
+    variant = observation_variant(observation)
+    if variant is not None and variant not in suite.extract_variants:
+        raise SuiteError(f"{suite.source or '<suite>'}: observation {observation!r}: no "
+                         f"extraction variant {variant!r} (allowed: "
+                         f"{', '.join(sorted(suite.extract_variants)) or 'none defined'})")
+    opts = {**suite.extract, **(track_extract or {}),
+            **(suite.extract_variants.get(variant, {}) if variant else {})}
     spec = observation_extractor(observation) or "phase"
     ext = suite.extractors.get(spec)
     if observation_kind(observation) != "extracted" or ext is None or (

@@ -220,7 +220,7 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
 
 
 EXTRACTION_KEYS = ("precision", "recall", "recall_all", "n_detectable", "mean_rel_freq_error",
-                   "mean_abs_damping_error", "mean_mac", "n_detected", "n_true_in_band",
+                   "mean_abs_damping_error", "median_rel_damping_error", "mean_mac", "n_detected", "n_true_in_band",
                    "detectability", "n_below_limit", "crb_threshold")
 
 

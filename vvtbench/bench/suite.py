@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,10 +21,15 @@ from ..scene.scene import SCENES_DIR
 SUITES_DIR = SCENES_DIR / "suites"
 OBSERVATIONS = ("true", "extracted")
 #: an observation source: "true", "extracted" (the default extractor, phase) or
-#: "extracted:EXTRACTOR" (a registered extractor name, ``module:Class`` or ``path.py:Class``)
-OBSERVATION_PATTERN = r"^(true|extracted(:\S+)?)$"
+#: "extracted:EXTRACTOR" (a registered extractor name, ``module:Class`` or ``path.py:Class``),
+#: either extracted one optionally with "@VARIANT" (a named extraction variant,
+#: ``[extract.variants.VARIANT]``)
+OBSERVATION_PATTERN = r"^(true|extracted(:[^@\s]+)?(@[A-Za-z0-9_.-]+)?)$"
 _OBSERVATION = ("'true', 'extracted' or 'extracted:EXTRACTOR' (a registered extractor name, "
-                "module:Class or path/to/file.py:Class)")
+                "module:Class or path/to/file.py:Class), an extracted one optionally with "
+                "'@VARIANT' (a table [extract.variants.VARIANT])")
+#: the name of an extraction variant (``[extract.variants.NAME]``, ``extracted@NAME``)
+VARIANT_PATTERN = r"[A-Za-z0-9_.-]+"
 SCENE_SECTIONS = ("seed", "description", "geometry", "material", "boundary", "damping",
                   "excitation", "simulation", "camera", "render")
 
@@ -93,8 +99,9 @@ class InferenceOptions(_Strict):
         None, description="a number in (0, 360] (degrees the ring of cameras spans)")
 
 
-class ExtractOptions(_Strict):
-    """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging."""
+class ExtractVariant(_Strict):
+    """A ``[extract.variants.NAME]`` table: extraction options over a track's (the options of
+    :func:`vvtbench.modes.extract_modes` and merging; the same keys as ``[extract]``)."""
 
     fmin: Frequency | None = Field(None, description="a frequency > 0 (Hz, at most 1e7)")
     fmax: Frequency | None = Field(None, description="a frequency > 0 (Hz, at most 1e7)")
@@ -142,9 +149,18 @@ class ExtractOptions(_Strict):
     merge_freq_tol: PositiveNumber | None = Field(
         None, description="a relative frequency tolerance > 0")
     merge_min_mac: Fraction | None = Field(None, description="a MAC in [0, 1]")
+
+
+class ExtractOptions(ExtractVariant):
+    """The ``[extract]`` table: options of :func:`vvtbench.modes.extract_modes` and merging,
+    motion extractor overrides and named extraction variants."""
+
     extractor: dict[Name, Options] = Field(
         default_factory=dict, description="tables [extract.extractor.NAME] of motion extractor "
         "config overrides (key = value); the extractor of an observation 'extracted:NAME'")
+    variants: dict[Name, ExtractVariant] = Field(
+        default_factory=dict, description="tables [extract.variants.NAME] of extraction "
+        "options over a track's; the extraction of an observation 'extracted@NAME'")
 
 
 class FieldOptions(_Strict):
@@ -261,7 +277,7 @@ class SuiteFile(_Strict):
 INFERENCE_KEYS = tuple(InferenceOptions.model_fields)
 EXTRACT_KEYS = tuple(ExtractOptions.model_fields)
 _PARENTS = {"": SuiteFile, "tracks": TrackFile, "extract": ExtractOptions,
-            "field": FieldOptions}
+            "field": FieldOptions, "variants": ExtractVariant}
 _DESCRIPTIONS = {name: f.description for model in (SuiteFile, TrackFile, ExtractOptions,
                                                    InferenceOptions, FieldOptions)
                  for name, f in model.model_fields.items()}
@@ -444,6 +460,9 @@ class Suite:
     #: extractor as written -> {"spec" (loadable), "name", "version", "config" (overrides)}, for
     #: every extractor an observation names or ``[extract.extractor.NAME]`` configures
     extractors: dict[str, dict] = field(default_factory=dict)
+    #: ``[extract.variants.NAME]``: NAME -> extraction options over a track's (the extraction
+    #: of an observation ``"extracted@NAME"``)
+    extract_variants: dict[str, dict] = field(default_factory=dict)
 
     @property
     def scene_names(self) -> list[str]:
@@ -548,6 +567,11 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
     extract = dict(data.get("extract", {}))
     extractors = {name: _check_extractor(name, table, source, f"extract.extractor.{name}")
                   for name, table in extract.pop("extractor", {}).items()}
+    variants = {name: dict(table) for name, table in extract.pop("variants", {}).items()}
+    for vname in variants:
+        if not re.fullmatch(VARIANT_PATTERN, vname):
+            raise SuiteError(f"{source}: key 'extract.variants.{vname}': {vname!r} is not "
+                             "allowed (allowed: a name of letters, digits, '-', '_' and '.')")
     solver_config = data.get("solver", {})
     solvers = data.get("solvers", [])
     seeds = data.get("seeds", [0])
@@ -594,6 +618,8 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
                              f"{sorted({o for o in obs if obs.count(o) > 1})} (allowed: "
                              "distinct sources)")
         for j, o in enumerate(obs):
+            _check_variant(o, variants, source, f"{_join(path, 'observations')}[{j}]"
+                           if "observations" in t else f"observations[{j}]")
             ext_name = observation_extractor(o)
             if ext_name is not None and ext_name not in extractors:
                 extractors[ext_name] = _check_extractor(
@@ -615,6 +641,14 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
             raise SuiteError(f"{source}: key '{_join(path, 'extract.extractor')}': motion "
                              "extractors are configured in the suite's [extract.extractor.NAME] "
                              "(allowed here: the extraction options of [extract])")
+        if "variants" in textract:
+            raise SuiteError(f"{source}: key '{_join(path, 'extract.variants')}': extraction "
+                             "variants are named in the suite's [extract.variants.NAME] "
+                             "(allowed here: the extraction options of [extract])")
+        for j, o in enumerate(obs):
+            _check_variant_differs(o, {**extract, **textract}, variants, source,
+                                   f"{_join(path, 'observations')}[{j}]" if "observations" in t
+                                   else f"observations[{j}]", tname)
         tfield = t.get("field")
         if tfield is not None:
             _check_field_track(obs, source, path, "observations" in t)
@@ -631,7 +665,7 @@ def parse_suite(data: dict, source: str = "<suite>") -> Suite:
     return Suite(name, tracks, list(solvers), solver_config, extract,
                  data.get("description", ""), source, data,
                  None if timeout is None else float(timeout),
-                 None if memory_gb is None else float(memory_gb), extractors)
+                 None if memory_gb is None else float(memory_gb), extractors, variants)
 
 
 def _check_field_track(observations: list[str], source: str, path: str, own: bool) -> None:
@@ -658,9 +692,60 @@ def observation_extractor(observation: str) -> str | None:
 
     >>> observation_extractor("extracted:path/to/flow.py:Flow"), observation_extractor("true")
     ('path/to/flow.py:Flow', None)
+    >>> observation_extractor("extracted:farneback@picker"), observation_extractor("extracted@a")
+    ('farneback', None)
     """
-    head, _, name = observation.partition(":")
+    head, _, name = observation_base(observation).partition(":")
     return name if head == "extracted" and name else None
+
+
+def observation_variant(observation: str) -> str | None:
+    """The extraction variant an observation names (``"extracted@NAME"``,
+    ``"extracted:EXTRACTOR@NAME"`` -> ``NAME``), else None.
+
+    >>> observation_variant("extracted:farneback@picker"), observation_variant("extracted")
+    ('picker', None)
+    """
+    if not observation.startswith("extracted"):
+        return None
+    _, at, name = observation.rpartition("@")
+    return name if at and name else None
+
+
+def observation_base(observation: str) -> str:
+    """The source an observation's variant is paired with: the observation without its
+    ``@VARIANT`` (the same extractor with the track's own extraction options).
+
+    >>> observation_base("extracted:farneback@picker"), observation_base("true")
+    ('extracted:farneback', 'true')
+    """
+    variant = observation_variant(observation)
+    return observation[:-len(variant) - 1] if variant else observation
+
+
+def _check_variant(observation: str, variants: dict, source: str, key: str) -> None:
+    """An observation's ``@VARIANT`` names a table ``[extract.variants.VARIANT]``."""
+    name = observation_variant(observation)
+    if name is not None and name not in variants:
+        raise SuiteError(f"{source}: key '{key}': {observation!r} names the extraction variant "
+                         f"{name!r}, which the suite does not define (allowed: "
+                         f"{', '.join(sorted(variants)) or 'none defined'}; a variant is a "
+                         "table [extract.variants.NAME])")
+
+
+def _check_variant_differs(observation: str, base: dict, variants: dict, source: str,
+                           key: str, track: str) -> None:
+    """A variant changes the extraction of ``track``: the same options as the track's base
+    would repeat its extraction under another name."""
+    name = observation_variant(observation)
+    if name is None:
+        return
+    over = variants[name]
+    if {**base, **over} == base:
+        raise SuiteError(f"{source}: key '{key}': the extraction variant {name!r} sets the "
+                         f"options track {track!r} already extracts with "
+                         f"({', '.join(f'{k} = {v!r}' for k, v in over.items()) or 'none'}); "
+                         "allowed: a variant that changes an extraction option")
 
 
 def _check_extractor(name: str, table: dict, source: str, key: str) -> dict:

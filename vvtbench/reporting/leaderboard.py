@@ -978,6 +978,9 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs, headroom=No
             **({} if room is None else {"headroom": room[2]})})
         for title, frame in (
                 ("extractors ranked on the same videos", extractor_ranking(df, track)),
+                ("extraction and NC w from each source", extraction_sources(df, track)),
+                ("extraction variants against their base (paired, same videos)",
+                 extraction_variants(df, track)),
                 ("extraction (detected modes against the true ones)",
                  extraction_table(df, track))):
             if frame is not None:
@@ -1062,7 +1065,14 @@ _EXTRACTION_NAMES = {"extraction_precision": "precision",
                      "extraction_recall": "recall (detectable)",
                      "extraction_recall_all": "recall (all in band)",
                      "extraction_mean_rel_freq_error": "freq error (rel.)",
+                     "extraction_median_rel_damping_error": "damping error (median rel.)",
                      "extraction_mean_mac": "mean MAC"}
+#: the extraction scores of the per-source and paired variant tables
+_SOURCE_METRICS = {"extraction_precision": "precision",
+                   "extraction_recall": "recall (detectable)",
+                   "extraction_median_rel_damping_error": "damping error"}
+#: a video of a track: one extraction per scene, variation and seed
+_VIDEO = ["scene", "variation", "seed"]
 
 
 def _extractions(df, track: str):
@@ -1131,7 +1141,6 @@ def extractor_ranking(df, track: str):
     sources = list(dict.fromkeys(t.observation))
     if len(sources) < 2:
         return None
-    from ..bench.suite import observation_extractor
     from ..scoring.extraction import f1_score
     from ..scoring.stats import paired_comparison
 
@@ -1143,7 +1152,7 @@ def extractor_ranking(df, track: str):
     for src in order:
         ts = t[t.observation == src]
         row = {"observation": src,
-               "extractor": observation_extractor(src) or "phase (default)",
+               "extractor": _extractor_label(src),
                "videos": len(ts), "F1": _mean_cell(ts.f1)}
         if src == best:
             row[f"ΔF1 vs {best}"] = "–"
@@ -1159,6 +1168,147 @@ def extractor_ranking(df, track: str):
     return pd.DataFrame(rows).astype(object)
 
 
+def _extractor_label(source: str) -> str:
+    """The extractor of an extracted source, with its extraction variant.
+
+    >>> _extractor_label("extracted"), _extractor_label("extracted:farneback@picker")
+    ('phase (default)', 'farneback, variant picker')
+    """
+    from ..bench.suite import observation_extractor, observation_variant
+
+    variant = observation_variant(source)
+    return ((observation_extractor(source) or "phase (default)")
+            + (f", variant {variant}" if variant else ""))
+
+
+def _stat_cell(values) -> str:
+    """The mean of the finite ``values`` with its bootstrap interval and, when some are
+    undefined, over how many: ``0.812 [0.74, 0.88]``, ``0.10 (n=3 of 4)``; ``–`` when none is
+    finite (an undefined metric is never a number)."""
+    from ..scoring.stats import summarize
+
+    x = np.asarray(values, dtype=float)
+    st = summarize(x)
+    if st["n"] == 0:
+        return "–"
+    cell = f"{st['mean']:.3f}"
+    if np.isfinite(st["mean_ci_low"]):
+        cell += f" [{st['mean_ci_low']:.2f}, {st['mean_ci_high']:.2f}]"
+    return cell + (f" (n={st['n']} of {x.size})" if st["n"] < x.size else "")
+
+
+def _diff_cell(a, b) -> str:
+    """``a - b`` paired over the items where both are finite: the mean difference, its
+    bootstrap interval and the number of pairs (``+0.120 [+0.05, +0.19] (n=8)``); ``–`` when
+    no pair is finite."""
+    from ..scoring.stats import paired_comparison
+
+    pc = paired_comparison(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    if pc["n"] == 0:
+        return "–"
+    ci = (f" [{pc['ci_low']:+.2f}, {pc['ci_high']:+.2f}]" if np.isfinite(pc["ci_low"])
+          else "")
+    return f"{pc['mean_diff']:+.3f}{ci} (n={pc['n']})"
+
+
+def _source_frames(df, track: str):
+    """(per extracted source of ``track``: its videos with the extraction scores, indexed by
+    scene, variation and seed; per source and solver: its valid NC w over the same index; the
+    solvers) or None when the track has no extraction scores."""
+    from ..bench.suite import observation_kind
+
+    if "extraction_recall" not in df.columns:
+        return None
+    d = df[(df.track == track)
+           & df.observation.map(lambda o: observation_kind(str(o)) == "extracted")]
+    if d.empty or d.extraction_recall.isna().all():
+        return None
+    cols = [c for c in _SOURCE_METRICS if c in d.columns]
+    ok = d[d.status == "ok"]
+    scores, nc = {}, {}
+    for src, ds in d.groupby("observation", sort=False):
+        scores[src] = ds.dropna(subset=["extraction_recall"]).groupby(_VIDEO)[cols].first()
+        for solver, dv in ok[ok.observation == src].groupby("solver", sort=False):
+            nc[(src, solver)] = dv.groupby(_VIDEO).nc_w.first()
+    solvers = _solver_order(d)[::-1]  # competitors by name, then the references
+    return scores, nc, solvers
+
+
+def _variation_groups(index) -> list[str]:
+    return list(dict.fromkeys(index.get_level_values("variation")))
+
+
+def extraction_sources(df, track: str):
+    """Per extracted source of ``track`` (and variation, when it has several): the videos,
+    the means over them of precision, recall over the detectable modes and the median relative
+    damping error of the matched modes (undamped truth: ``–``), then each solver's mean NC w
+    from that source over its valid instances; every mean with its bootstrap interval. None
+    when the track has no extraction scores."""
+    got = _source_frames(df, track)
+    if got is None:
+        return None
+    scores, nc, solvers = got
+    variations = list(dict.fromkeys(df[df.track == track].variation))
+    rows = []
+    for src, t in scores.items():
+        for var in _variation_groups(t.index):
+            tv = t.xs(var, level="variation", drop_level=False)
+            row = {"observation": src, "variation": var, "videos": len(tv)}
+            row |= {name: _stat_cell(tv[c]) if c in tv else "–"
+                    for c, name in _SOURCE_METRICS.items()}
+            for solver in solvers:
+                s = nc.get((src, solver))
+                vals = [] if s is None else s[s.index.get_level_values("variation") == var]
+                row[f"NC w {solver}"] = _stat_cell(vals) if len(vals) else "–"
+            rows.append(row)
+    import pandas as pd
+
+    t = pd.DataFrame(rows).astype(object)
+    return t.drop(columns="variation") if len(variations) < 2 else t
+
+
+def extraction_variants(df, track: str):
+    """Each extraction variant of ``track`` (``extracted@NAME``) against its base (the same
+    source without ``@NAME``), paired over the same videos (scene, variation, seed): per
+    variation, the mean difference variant - base of precision, recall over the detectable
+    modes, the median relative damping error and each solver's NC w, with its bootstrap
+    interval and the number of pairs. None when no variant has its base in the track."""
+    from ..bench.suite import observation_base, observation_variant
+
+    got = _source_frames(df, track)
+    if got is None:
+        return None
+    scores, nc, solvers = got
+    variations = list(dict.fromkeys(df[df.track == track].variation))
+    rows = []
+    for src, t in scores.items():
+        base = observation_base(src)
+        if observation_variant(src) is None or base not in scores:
+            continue
+        a, b = t.align(scores[base], join="inner")
+        for var in _variation_groups(a.index) if len(a) else []:
+            at = a.index.get_level_values("variation") == var
+            row = {"observation": src, "against": base, "variation": var,
+                   "videos": int(at.sum())}
+            row |= {f"Δ {name}": _diff_cell(a.loc[at, c], b.loc[at, c]) if c in a else "–"
+                    for c, name in _SOURCE_METRICS.items()}
+            for solver in solvers:
+                x, y = nc.get((src, solver)), nc.get((base, solver))
+                if x is None or y is None:
+                    row[f"Δ NC w {solver}"] = "–"
+                    continue
+                x, y = x.align(y, join="inner")
+                on = x.index.get_level_values("variation") == var
+                row[f"Δ NC w {solver}"] = _diff_cell(x[on], y[on])
+            rows.append(row)
+    if not rows:
+        return None
+    import pandas as pd
+
+    t = pd.DataFrame(rows).astype(object)
+    return t.drop(columns="variation") if len(variations) < 2 else t
+
+
 def _with_row(t, row: dict):
     """``t`` with one more row (object columns where the new row holds text)."""
     import pandas as pd
@@ -1166,6 +1316,7 @@ def _with_row(t, row: dict):
     return pd.concat([t.astype(object), pd.DataFrame([row])], ignore_index=True)
 
 
-__all__ = ["LeaderboardError", "build", "extraction_table", "extractor_ranking",
+__all__ = ["LeaderboardError", "build", "extraction_sources", "extraction_table",
+           "extraction_variants", "extractor_ranking",
            "prepare_output", "ranking",
            "summary"]

@@ -324,6 +324,7 @@ def score_extraction(
         "mean_rel_freq_error": _nanmean([m["rel_freq_error"] for m in matching]),
         "mean_abs_damping_error": _nanmean(damp_abs),
         "mean_rel_damping_error": _nanmean(damp_rel),
+        "median_rel_damping_error": median_relative_damping_error(matching),
         "mean_mac": _nanmean([m["mac"] for m in matching]),
         "n_detected": int(n_detected),
         "n_matched": int(n_matched),
@@ -343,6 +344,34 @@ def score_extraction(
         "unmatched": unmatched,
         "missed": missed,
     }
+
+
+def median_relative_damping_error(matching: list[dict]) -> float:
+    """The median of ``|zeta - zeta_true| / zeta_true`` over the matched pairs whose true
+    damping is > 0 and whose detection has a finite damping; NaN when there is none (an
+    undamped scene, or no matched pair with a damping).
+
+    Parameters
+    ----------
+    matching : list of dict
+        The ``matching`` list of :func:`score_extraction` (``damping``, ``true_damping``).
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> round(median_relative_damping_error([{"damping": 0.011, "true_damping": 0.01},
+    ...                                      {"damping": 0.03, "true_damping": 0.02},
+    ...                                      {"damping": 0.5, "true_damping": 0.0}]), 6)
+    0.3
+    >>> median_relative_damping_error([])
+    nan
+    """
+    rel = [abs(m["damping"] - m["true_damping"]) / m["true_damping"] for m in matching
+           if m["true_damping"] > 0 and math.isfinite(m["damping"])]
+    return float(np.median(rel)) if rel else float("nan")
 
 
 def _assign(feasible: NDArray[np.bool_], macs: NDArray[np.float64]
