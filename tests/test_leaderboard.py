@@ -746,3 +746,23 @@ def test_a_table_that_ranks_nothing_is_titled_a_reproduction(table, tmp_path):
     assert page.startswith("# vvtbench results: a reproduction, not a ranking")
     assert "ranks nothing" in page and "<h1>vvtbench results: a reproduction" in (
         out / "index.html").read_text()
+
+
+def test_an_extraction_per_seed_is_its_own_video():
+    """Two seeds of one scene are two videos: the extraction table and the extractor
+    ranking keep both (not the first seed's alone); one seed shows no seed column."""
+    from vvtbench.reporting.leaderboard import extraction_table, extractor_ranking
+
+    rows = []
+    for obs, shift in (("extracted", 0.0), ("extracted:farneback", -0.1)):
+        for seed, recall in ((0, 0.4), (1, 0.8)):
+            rows.append({"track": "v", "solver": "vvt", "observation": obs, "scene": "a",
+                         "variation": "base", "seed": seed, "extraction_precision": 1.0,
+                         "extraction_recall": recall + shift})
+    df = pd.DataFrame(rows)
+    table = extraction_table(df, "v")
+    videos = table[~table.scene.astype(str).str.startswith("mean")]
+    assert len(videos) == 4 and sorted(set(videos.seed)) == [0, 1]
+    ranked = extractor_ranking(df, "v").set_index("observation")
+    assert ranked.videos.tolist() == [2, 2]
+    assert "seed" not in extraction_table(df[df.seed == 0], "v").columns

@@ -1088,7 +1088,7 @@ def _extractions(df, track: str):
     d = d.dropna(subset=["extraction_recall"])
     if d.empty:
         return None
-    keys = ["observation", "scene", "variation"]
+    keys = ["observation"] + [k for k in _VIDEO if k in d.columns]
     return d.groupby(keys, sort=False)[cols].first().reset_index(), cols
 
 
@@ -1112,13 +1112,16 @@ def extraction_table(df, track: str):
     if got is None:
         return None
     t, cols = got
+    if "seed" in t.columns and t.seed.nunique() <= 1:  # one video per scene and variation
+        t = t.drop(columns="seed")
+    blank = {k: "" for k in ("variation", "seed") if k in t.columns}
     sources = list(dict.fromkeys(t.observation))
     parts = []
     for src in sources:
         ts = t[t.observation == src]
         if len(ts) > 1:
             ts = _with_row(ts, {"observation": src, "scene": f"mean of {len(ts)} [{_PCT} CI]",
-                                "variation": "", **{c: _mean_cell(ts[c]) for c in cols}})
+                                **blank, **{c: _mean_cell(ts[c]) for c in cols}})
         parts.append(ts)
     import pandas as pd
 
@@ -1145,7 +1148,8 @@ def extractor_ranking(df, track: str):
     from ..scoring.stats import paired_comparison
 
     t = t.assign(f1=f1_score(t.extraction_precision, t.extraction_recall))
-    per = {s: t[t.observation == s].set_index(["scene", "variation"]).f1 for s in sources}
+    video = [k for k in _VIDEO if k in t.columns]
+    per = {s: t[t.observation == s].set_index(video).f1 for s in sources}
     order = sorted(sources, key=lambda s: -np.nan_to_num(np.nanmean(per[s]), nan=-1))
     best = order[0]
     rows = []
