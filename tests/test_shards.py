@@ -583,3 +583,20 @@ def test_a_large_shard_says_so_naming_its_largest_files(video_flow, tmp_path, ca
                  "--no-progress"])
     err = capsys.readouterr().err
     assert code == 0 and "warning: shard folder" in err and COMPACT_NAME in err
+
+
+def _committed_shards() -> list[Path]:
+    root = Path(__file__).resolve().parent.parent / "shards"
+    return sorted(p.parent for p in root.glob("*/*-of-*/shard.json")) if root.exists() else []
+
+
+@pytest.mark.parametrize("folder", _committed_shards(), ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_a_committed_shard_is_intact(folder):
+    """A shard folder committed to the repository reads back: every file it lists has its
+    sha256, it is complete, it is the shard its folder names, and its rows are valid."""
+    from vvtbench.bench.results import check_results
+
+    shard = read_shard(folder)
+    assert shard.complete, f"{folder}: incomplete"
+    assert folder.name == shard.spec.name and folder.parent.name == shard.meta["suite"]["name"]
+    assert len(shard.rows) > 0 and check_results(shard.rows) == []
