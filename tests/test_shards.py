@@ -593,10 +593,18 @@ def _committed_shards() -> list[Path]:
 @pytest.mark.parametrize("folder", _committed_shards(), ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_a_committed_shard_is_intact(folder):
     """A shard folder committed to the repository reads back: every file it lists has its
-    sha256, it is complete, it is the shard its folder names, and its rows are valid."""
+    sha256, it is complete, it is the shard its folder names, its rows are valid, and the
+    suite file is still the one it was run on (a merge needs all of them on one file)."""
     from vvtbench.bench.results import check_results
 
     shard = read_shard(folder)
     assert shard.complete, f"{folder}: incomplete"
     assert folder.name == shard.spec.name and folder.parent.name == shard.meta["suite"]["name"]
     assert len(shard.rows) > 0 and check_results(shard.rows) == []
+    from vvtbench.bench.shards import suite_sha256
+
+    suite = load_suite(shard.meta["suite"]["ref"])
+    assert suite_sha256(suite) == shard.meta["suite"]["sha256"], (
+        f"{folder}: {suite.source} is not the file this shard was run on, so the committed "
+        "shards no longer merge: restore the file, or remove the suite's shards and run them "
+        "again")
