@@ -188,12 +188,10 @@ def test_hostile_plugins_become_their_rows(tiny, tmp_path, workers):
 
     suite, plugin, base, df0 = tiny
     out = _copy_cache(base, tmp_path / "run")
-    t0 = time.perf_counter()
     # the limit (10 s) is far above what the innocent row needs on a loaded machine (its
     # child's start-up is not counted), and is what the sleeping row waits
     df = run_suite(str(suite), ["homogeneous", *_specs(plugin, ALL)], out, workers=workers,
                    progress=False, timeout=10, memory_gb=1.5)
-    wall = time.perf_counter() - t0
     rows = df.set_index("solver")
     for name, (status, text) in EXPECT.items():
         assert rows.loc[name, "status"] == status, (name, rows.loc[name, "error"])
@@ -201,7 +199,7 @@ def test_hostile_plugins_become_their_rows(tiny, tmp_path, workers):
     good = rows.loc["homogeneous"]
     assert good.status == "ok"
     assert good.nc_w == pytest.approx(df0.set_index("solver").loc["homogeneous", "nc_w"])
-    assert wall < 900  # the sleeping row never ends by itself; a generous bound for load
+    # the sleeping row was ended by the limit: its status says so (no wall-clock bound)
     # the error rows have a traceback file; the segfault's shows the Python stack
     assert "string_at" in (out / rows.loc["segv", "traceback_path"]).read_text()
     assert not list((out / "cache").rglob("*.tmp-*"))
