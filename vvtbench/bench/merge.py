@@ -168,17 +168,17 @@ def compare_rows(merged, shards: list[Shard]) -> list[str]:
     estimate it scored, or a score beyond the tolerance of ``check-results`` (the
     observation's bytes may differ: eigen-solves differ in their last bits between machines
     and thread counts; :func:`merge_shards` counts those apart)."""
-    import pandas as pd
-
     from .rescore import _same
     from .results import METRIC_COLUMNS
 
-    stated = pd.concat([s.rows for s in shards], ignore_index=True)
-    index = {tuple(r[c] for c in _ROW_KEY): r for _, r in stated.iterrows()}
+    index = {}  # each stated row, with the scores its shard states (an older one: fewer)
+    for s in shards:
+        cols = [c for c in METRIC_COLUMNS if c in s.rows.columns]
+        index.update({tuple(r[c] for c in _ROW_KEY): (r, cols) for _, r in s.rows.iterrows()})
     out = []
     for i, row in merged.iterrows():
         key = tuple(row[c] for c in _ROW_KEY)
-        old = index.get(key)
+        old, cols = index.get(key, (None, ()))
         where = (f"row {i} ({row['solver']}, {row['scene']}, {row['variation']}, "
                  f"{row['observation']})")
         if old is None:
@@ -191,7 +191,7 @@ def compare_rows(merged, shards: list[Shard]) -> list[str]:
         a, b = row.get("estimate_sha256"), old.get("estimate_sha256")
         if isinstance(a, str) and isinstance(b, str) and a != b:
             out.append(f"{where}: estimate_sha256 {a[:12]}... scored, {b[:12]}... in the shard")
-        wrong = [c for c in METRIC_COLUMNS if not _same(row[c], old.get(c))]
+        wrong = [c for c in cols if not _same(row[c], old.get(c))]
         if wrong:
             c = wrong[0]
             out.append(f"{where}: {len(wrong)} score(s) differ from the shard's, e.g. {c} "

@@ -18,7 +18,8 @@ METRIC_COLUMNS = ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_uncentered", "sigma_s
                   "freq_err_raw", "freq_err_scaled", "mode_mac_true", "freq_err_true_scaled",
                   "extraction_precision", "extraction_recall", "extraction_recall_all",
                   "extraction_mean_rel_freq_error", "extraction_mean_mac",
-                  "extraction_median_rel_damping_error",
+                  "extraction_median_rel_damping_error", "extraction_frequency_efficiency",
+                  "extraction_damping_efficiency",
                   "false_contrast_w", "false_contrast_v",
                   "interval_coverage_w", "interval_coverage_v", "observed_dof_fraction")
 
@@ -131,7 +132,8 @@ _OPTIONAL_STR = ("estimate_path", "traceback_path", "estimate_sha256", "observat
 # Columns a table may lack (tables written before they existed); every other column is
 # required.
 OPTIONAL = ("reference", "estimate_sha256", "observation_sha256", "sandbox",
-            "observed_dof_fraction", "split_kind", "extraction_median_rel_damping_error")
+            "observed_dof_fraction", "split_kind", "extraction_median_rel_damping_error",
+            "extraction_frequency_efficiency", "extraction_damping_efficiency")
 
 
 def _parse_csv(raw) -> tuple[object, list[str]]:
@@ -212,6 +214,8 @@ _RANGES = {**{c: (-1.0, 1.0) for c in ("nc_w", "nc_v", "nc_w_uncentered", "nc_v_
            "extraction_recall_all": (0.0, 1.0),
            "extraction_mean_rel_freq_error": (0.0, None), "extraction_mean_mac": (0.0, 1.0),
            "extraction_median_rel_damping_error": (0.0, None),
+           "extraction_frequency_efficiency": (0.0, None),
+           "extraction_damping_efficiency": (0.0, None),
            "false_contrast_w": (0.0, None), "false_contrast_v": (0.0, None),
            "interval_coverage_w": (0.0, 1.0), "interval_coverage_v": (0.0, 1.0),
            "observed_dof_fraction": (0.0, 1.0),

@@ -221,7 +221,9 @@ def _field_observe(cache: Path, task: Task, out: Path) -> dict:
 
 EXTRACTION_KEYS = ("precision", "recall", "recall_all", "n_detectable", "mean_rel_freq_error",
                    "mean_abs_damping_error", "median_rel_damping_error", "mean_mac", "n_detected", "n_true_in_band",
-                   "detectability", "n_below_limit", "crb_threshold")
+                   "detectability", "n_below_limit", "crb_threshold", "frequency_efficiency",
+                   "damping_efficiency", "n_frequency_efficiency", "n_damping_efficiency",
+                   "efficiency_note")
 
 
 def extraction_scores(s, modes: tuple, fmax: float | None) -> dict:

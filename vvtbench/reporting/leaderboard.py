@@ -1059,18 +1059,28 @@ RULER_NOTE = ("A true mode is detectable when its Cramér-Rao-limited SNR over t
               "pixels in the recorded length exceeds the sample's threshold (docs/dataset.md, "
               "'The Cramér–Rao ruler'): recall (detectable) below 1 is how far an extractor "
               "is from what the video physically allows; recall (all in band) also counts the "
-              "modes below that limit, which no extractor is expected to find.")
+              "modes below that limit, which no extractor is expected to find. Frequency and "
+              "damping efficiency: the Cramér-Rao bound of each one-to-one matched, detectable "
+              "mode's frequency (damping ratio) over its squared error, 1 / mean(error^2 / "
+              "CRB) over those modes (docs/metrics.md, 'Efficiency of an extraction'): 1 at "
+              "the bound, 0.01 a mean squared error 100 times it; blank where no mode of the "
+              "video qualifies (a forced response, several views pooled, an undamped scene's "
+              "damping).")
 
 _EXTRACTION_NAMES = {"extraction_precision": "precision",
                      "extraction_recall": "recall (detectable)",
                      "extraction_recall_all": "recall (all in band)",
                      "extraction_mean_rel_freq_error": "freq error (rel.)",
                      "extraction_median_rel_damping_error": "damping error (median rel.)",
+                     "extraction_frequency_efficiency": "frequency efficiency",
+                     "extraction_damping_efficiency": "damping efficiency",
                      "extraction_mean_mac": "mean MAC"}
 #: the extraction scores of the per-source and paired variant tables
 _SOURCE_METRICS = {"extraction_precision": "precision",
                    "extraction_recall": "recall (detectable)",
-                   "extraction_median_rel_damping_error": "damping error"}
+                   "extraction_median_rel_damping_error": "damping error",
+                   "extraction_frequency_efficiency": "frequency efficiency",
+                   "extraction_damping_efficiency": "damping efficiency"}
 #: a video of a track: one extraction per scene, variation and seed
 _VIDEO = ["scene", "variation", "seed"]
 

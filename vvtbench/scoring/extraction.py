@@ -30,6 +30,7 @@ __all__ = [
     "DEFAULT_FLOOR_PX",
     "clusters_by_resolution",
     "f1_score",
+    "parameter_efficiency",
     "score_extraction",
     "score_sample_extraction",
     "subspace_mac",
@@ -404,7 +405,8 @@ def _modal_coordinates_fit(surface_modes: NDArray[np.float64]) -> NDArray[np.flo
     return np.linalg.pinv(surface_modes.reshape(surface_modes.shape[0], -1).T)
 
 
-def true_mode_amplitudes(sample: Any, *, chunk_frames: int = 2048) -> dict[str, Any]:
+def true_mode_amplitudes(sample: Any, *, chunk_frames: int = 2048,
+                         keep_coordinates: bool = False) -> dict[str, Any]:
     """How large each true mode actually is in the sample's video, from the truth alone.
 
     The modal coordinates ``q_i(t)`` (m kg^1/2) of the filmed motion are the least-squares
@@ -431,13 +433,16 @@ def true_mode_amplitudes(sample: Any, *, chunk_frames: int = 2048) -> dict[str, 
         ``image/modes``.
     chunk_frames : int, default 2048
         Frames read at a time.
+    keep_coordinates : bool, default False
+        Also return the coordinates ``q_i(t)`` themselves.
 
     Returns
     -------
     dict
         ``peak_px``, ``line_px``, ``modal_peak`` (``max_t |q_i|``), ``gain_px`` (``g_i``),
         each ``(n,)`` float64; ``fit_residual`` (relative RMS of the displacements the modes
-        do not explain), ``motion_scale``.
+        do not explain), ``motion_scale``; with ``keep_coordinates``, ``coordinates``
+        ``(T, n)`` and ``times`` ``(T,)`` (s).
 
     Raises
     ------
@@ -461,11 +466,14 @@ def true_mode_amplitudes(sample: Any, *, chunk_frames: int = 2048) -> dict[str, 
     fd = f * np.sqrt(np.clip(1.0 - zeta**2, 0.0, None))
     peak_q = np.zeros(f.size)
     line = np.zeros(f.size, dtype=np.complex128)
+    coordinates = np.zeros((n_t, f.size)) if keep_coordinates else None
     res2 = tot2 = 0.0
     for k0 in range(0, n_t, max(1, int(chunk_frames))):
         k1 = min(n_t, k0 + max(1, int(chunk_frames)))
         u = np.asarray(disp[k0:k1], dtype=np.float64).reshape(k1 - k0, -1)  # (t, 3 S)
         q = u @ pinv.T  # (t, n)
+        if coordinates is not None:
+            coordinates[k0:k1] = q
         peak_q = np.maximum(peak_q, np.abs(q).max(axis=0))
         line += np.einsum("tn,tn->n", q, np.exp(-2j * np.pi * np.outer(times[k0:k1], fd)))
         r = u - q @ surf.reshape(f.size, -1)
@@ -487,6 +495,7 @@ def true_mode_amplitudes(sample: Any, *, chunk_frames: int = 2048) -> dict[str, 
         "gain_px": g,
         "fit_residual": float(np.sqrt(res2 / tot2)) if tot2 > 0 else 0.0,
         "motion_scale": scale,
+        **({"coordinates": coordinates, "times": times} if keep_coordinates else {}),
     }
 
 
@@ -552,7 +561,9 @@ def score_sample_extraction(
     freqs = np.asarray(sample.frequencies_hz, dtype=np.float64)
     top = float(freqs.max())
     band = top if not fmax else min(float(fmax), top)
-    amps = true_mode_amplitudes(sample) if amplitudes is None else amplitudes
+    if amplitudes is None or "coordinates" not in amplitudes:
+        amplitudes = true_mode_amplitudes(sample, keep_coordinates=True)
+    amps = amplitudes
     snr = threshold = None
     if use_crb and "modes/crb_snr" in sample:
         from ..render.crb import detection_snr_threshold
@@ -565,4 +576,103 @@ def score_sample_extraction(
                           crb_threshold=threshold)
     sc["amplitudes_px"] = [float(a) for a in amps["line_px"]]
     sc["amplitude_fit_residual"] = float(amps["fit_residual"])
+    if len(sets) > 1:
+        why = "several views pooled: the ruler's SNR is one view's"
+    elif snr is None:
+        why = "a sample without the Cramér-Rao ruler"
+    else:
+        why = None
+    sc.update(parameter_efficiency(
+        sc["matching"], freqs, sample.damping_ratios, amps["times"], amps["coordinates"],
+        snr, threshold, unavailable=why))
     return sc
+
+
+def parameter_efficiency(matching: list[dict], frequencies_hz: ArrayLike,
+                         damping_ratios: ArrayLike | None, times: ArrayLike,
+                         coordinates: ArrayLike, crb_snr: ArrayLike | None,
+                         crb_threshold: float | None, *,
+                         unavailable: str | None = None) -> dict[str, Any]:
+    """How close the matched modes' frequencies and damping ratios come to their Cramér-Rao
+    bound (:func:`vvtbench.render.pole_crb.free_decay_bound`).
+
+    Over the detections matched one to one (``kind == "mode"``) to a detectable true mode
+    whose coordinate is a free vibration (fit residual at most
+    :data:`~vvtbench.render.pole_crb.FREE_DECAY_RESIDUAL`), each error is normalised by its
+    bound, ``NSE = (x_hat - x)^2 / CRB_x``, and the efficiency is ``1 / mean(NSE)``: 1 for an
+    unbiased estimator at the bound, below 1 by the factor its mean squared error exceeds the
+    bound (bias included).  Damping: only where the true damping is > 0 and the detection
+    has a finite one.  Each used entry of ``matching`` gains ``frequency_crb_hz`` and
+    ``damping_crb`` (standard deviations).
+
+    Parameters
+    ----------
+    matching : list of dict
+        :func:`score_extraction`'s ``matching`` (updated in place).
+    frequencies_hz, damping_ratios : array_like
+        The true modes' ``(n,)`` frequencies and damping ratios (``None``: undamped).
+    times, coordinates : array_like
+        ``(T,)`` frame times and ``(T, n)`` modal coordinates (:func:`true_mode_amplitudes`
+        with ``keep_coordinates``).
+    crb_snr, crb_threshold
+        The true modes' CRB-limited SNR and the detection SNR (None: no ruler).
+    unavailable : str, optional
+        Why no efficiency is defined (given: NaN with that reason).
+
+    Returns
+    -------
+    dict
+        ``frequency_efficiency``, ``damping_efficiency`` (NaN where no mode qualifies),
+        ``n_frequency_efficiency``, ``n_damping_efficiency`` (modes averaged) and
+        ``efficiency_note`` (why a NaN, or "").
+
+    Examples
+    --------
+    >>> t = np.arange(2000) / 1000.0
+    >>> q = np.cos(2 * np.pi * 10.0 * t)[:, None]
+    >>> m = [{"kind": "mode", "nearest_true": 0, "frequency_hz": 10.001, "damping": 0.0}]
+    >>> out = parameter_efficiency(m, [10.0], [0.0], t, q, [50.0], 10.0)
+    >>> round(out["frequency_efficiency"] * (0.001 / m[0]["frequency_crb_hz"]) ** 2, 6)
+    1.0
+    >>> out["damping_efficiency"], out["efficiency_note"]
+    (nan, 'no matched mode with a true damping above 0')
+    """
+    from ..render.pole_crb import FREE_DECAY_RESIDUAL, free_decay_bound
+
+    out = {"frequency_efficiency": float("nan"), "damping_efficiency": float("nan"),
+           "n_frequency_efficiency": 0, "n_damping_efficiency": 0, "efficiency_note": ""}
+    if unavailable:
+        out["efficiency_note"] = unavailable
+        return out
+    ft = np.asarray(frequencies_hz, dtype=np.float64)
+    zt = np.zeros_like(ft) if damping_ratios is None else np.asarray(damping_ratios, np.float64)
+    snr = np.asarray(crb_snr, dtype=np.float64)
+    q = np.asarray(coordinates, dtype=np.float64)
+    bounds: dict[int, dict[str, float]] = {}
+    nse_f, nse_z, forced = [], [], 0
+    for m in matching:
+        k = int(m["nearest_true"])
+        if m.get("kind") != "mode" or not snr[k] >= float(crb_threshold):
+            continue
+        if k not in bounds:
+            bounds[k] = free_decay_bound(times, q[:, k], float(snr[k]), float(ft[k]),
+                                         float(zt[k]))
+        b = bounds[k]
+        if not b["fit_residual"] <= FREE_DECAY_RESIDUAL:
+            forced += 1
+            continue
+        m["frequency_crb_hz"], m["damping_crb"] = b["frequency_std_hz"], b["damping_std"]
+        nse_f.append((m["frequency_hz"] - ft[k]) ** 2 / b["frequency_std_hz"] ** 2)
+        if zt[k] > 0 and math.isfinite(m.get("damping", math.nan)):
+            nse_z.append((m["damping"] - zt[k]) ** 2 / b["damping_std"] ** 2)
+    for key, nse in (("frequency", nse_f), ("damping", nse_z)):
+        out[f"n_{key}_efficiency"] = len(nse)
+        if nse:
+            out[f"{key}_efficiency"] = 1.0 / max(float(np.mean(nse)), 1e-300)
+    if not nse_f:
+        out["efficiency_note"] = (
+            f"{forced} matched mode(s) not in free vibration (a forced response)" if forced
+            else "no detection matched one to one to a detectable true mode")
+    elif not nse_z:
+        out["efficiency_note"] = "no matched mode with a true damping above 0"
+    return out

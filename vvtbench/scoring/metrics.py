@@ -264,7 +264,8 @@ def evaluate(problem, truth, w: np.ndarray, v: np.ndarray, modes: bool = True,
                                         and np.isfinite(dof) else None)
     for key, val in (truth.meta.get("extraction") or {}).items():
         if key in ("precision", "recall", "recall_all", "mean_rel_freq_error", "mean_mac",
-                   "median_rel_damping_error"):
+                   "median_rel_damping_error", "frequency_efficiency",
+                   "damping_efficiency"):
             metrics[f"extraction_{key}"] = val
     return {"metrics": metrics, "curves": curves, "notes": notes}
 
