@@ -184,3 +184,23 @@ def test_track_extraction_options_override_the_suite_and_only_that_track_s_keys(
     msg = error_of("[[tracks]]\nscenes = ['jello_cube_homogeneous']\n"
                    "[tracks.extract.extractor.phase]\nsigma = 3.0\n")
     assert "key 'tracks[0].extract.extractor'" in msg and "[extract.extractor.NAME]" in msg
+
+
+def test_the_quick_suite_is_the_standard_suite_on_fewer_instances():
+    """Every task of `quick` (generation, extraction, observation, solve, evaluation) has the
+    cache key of a task of `standard`: the same instance, options and solver config, so the
+    quick ranking is read on a subset of the standard one's rows."""
+    import dataclasses
+
+    from vvtbench.bench import build_graph
+
+    solvers = ["homogeneous", "learned", "oracle", "sensitivity", "vvt"]
+    q = load_suite("quick")
+    s = load_suite("standard")
+    kept = {t.name for t in q.tracks}
+    assert kept <= {t.name for t in s.tracks}
+    quick, _ = build_graph(q, solvers)
+    standard, _ = build_graph(dataclasses.replace(
+        s, tracks=[t for t in s.tracks if t.name in kept]), solvers)
+    assert {t.stage for t in quick.values()} >= {"generate", "extract", "solve", "evaluate"}
+    assert set(quick) <= set(standard), sorted(set(quick) - set(standard))[:3]
