@@ -402,6 +402,27 @@ def _headroom_rows(t) -> tuple[list[str], list[tuple[list[str], str]]]:
     return head, rows
 
 
+def _without_ceiling(df, ceilings, track: str) -> str:
+    """Why the track's other instances have no ceiling of NC w: a constant true w (every
+    valid row's NC w undefined, its false contrast defined) has none; the rest none yet."""
+    d = df[df.track == track]
+    have = set(ceilings.loc[(ceilings.track == track) & (ceilings.kind == "w_view"), "instance"])
+    rest = d[~d.scene.astype(str).isin(have)]
+    if rest.empty:
+        return ""
+    fc = rest["false_contrast_w"] if "false_contrast_w" in rest.columns else rest.nc_w * np.nan
+    constant = {str(sc) for sc, g in rest.assign(_fc=fc).groupby("scene")
+                if g.nc_w.isna().all() and g._fc.notna().any()}
+    pending = rest.scene.astype(str).nunique() - len(constant)
+    parts = []
+    if constant:
+        parts.append(f"{len(constant)} have no defect in w (a constant true w: NC w undefined, "
+                     "so no ceiling)")
+    if pending:
+        parts.append(f"{pending} have no ceiling yet")
+    return "; ".join(parts) + "."
+
+
 def headroom_section(headroom, df, track: str):
     """(Markdown, HTML, records for leaderboard.json) of ``track``'s headroom section, or None
     when ``headroom`` (:func:`read_headroom`) has no row of the track: a track none of whose
@@ -419,8 +440,8 @@ def headroom_section(headroom, df, track: str):
     have, total = track_coverage(df, ceilings, track)
     title = (f"{track} — headroom to the ceiling ({have} of {total} instances have a ceiling "
              "of NC w)")
-    note = HEADROOM_NOTE + (f" Over {have} of the track's {total} instances; the others have "
-                            "no ceiling yet." if have < total else "")
+    note = HEADROOM_NOTE + (f" Over {have} of the track's {total} instances; "
+                            + _without_ceiling(df, ceilings, track) if have < total else "")
     head, rows = _headroom_rows(t)
     md = f"### {md_cell(title)}\n\n" + _md(head, rows) + "\n\n" + note + "\n"
     page = (f"<h3>{html.escape(title)}</h3>" + _html(head, rows, left=3)
