@@ -122,7 +122,7 @@ def main() -> None:
             else:
                 ms = ModeSet.load(folder)
             t_ex = time.perf_counter() - t0
-            amps = true_mode_amplitudes(s)
+            amps = true_mode_amplitudes(s, keep_coordinates=True)
             res = {fl: score_sample_extraction(s, ms, options.get("fmax"), floor_px=fl,
                                                amplitudes=amps) for fl in args.floors}
             r0 = res[args.floors[0]]

@@ -94,7 +94,7 @@ def main() -> None:
     rows = []
     for path in args.samples:
         sample = open_sample(path)
-        amps = true_mode_amplitudes(sample)
+        amps = true_mode_amplitudes(sample, keep_coordinates=True)
         excitation = getattr(sample.scene.excitation, "kind", None)
         with DisplacementStore() as store:
             t0 = time.perf_counter()
