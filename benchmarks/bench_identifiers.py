@@ -14,6 +14,9 @@ Usage::
     python benchmarks/bench_identifiers.py SAMPLE [SAMPLE ...] \
         [--baseline paper:damping] [--identifiers era auto] [--json OUT.json]
 
+An identifier may carry options of the pole scan (``vvtbench.modes.poles.scan_poles``) as
+JSON after a colon, e.g. ``'plscf:{"oversampling": 4}'``; each spelling is one row per sample.
+
 ``--baseline SUITE:TRACK`` picks the peak picker's options (the ``paper`` suite's damping
 track: the line fit and the reliable-pixel tests; ``standard:cube_video``: the standard
 suite's pinned options). Prints one row per sample and identifier and the pooled scores.
@@ -90,7 +93,9 @@ def main() -> None:
         picker = extract_options(suite, "extracted", track.extract if track else None)[0]
         picker = {k: v for k, v in picker.items() if k in PICKER_KEYS}
         runs.append((f"peaks[{spec}]" if len(args.baseline) > 1 else "peaks", picker))
-    runs += [(i, {}) for i in args.identifiers]
+    for spec in args.identifiers:
+        name, _, opts = spec.partition(":")
+        runs.append((spec, {"pole_options": json.loads(opts)} if opts else {}))
     rows = []
     for path in args.samples:
         sample = open_sample(path)
@@ -108,7 +113,7 @@ def main() -> None:
                 sw = None if o.pop("weighting", "noise") == "confidence" else nw
                 fmax = o.pop("fmax", FMAX)
                 t0 = time.perf_counter()
-                ident = "peaks" if name.startswith("peaks") else name
+                ident = "peaks" if name.startswith("peaks") else name.partition(":")[0]
                 ms = modes_from_displacements(
                     store, sample.fps, weights=cw, spectrum_weights=sw, fmax=fmax,
                     output_shape=tuple(motion.shape), confidence=motion.confidence,

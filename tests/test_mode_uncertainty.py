@@ -78,6 +78,34 @@ def test_clusters_widen_the_interval_of_spatially_correlated_noise():
     assert 1 / 1.5 < spread / np.mean(clustered) < 1.5
 
 
+def test_uncertainty_in_blocks_of_channels_equals_one_block(monkeypatch):
+    """A field of many channels is read in blocks (bounded memory); the blocks change no
+    value: the same covariance as one block over every channel, with clusters or without."""
+    import vvtbench.modes.uncertainty as unc
+
+    rng = np.random.default_rng(SEED + 3)
+    T, P = 256, 3000
+    shapes = rng.normal(size=(3, P))
+    x = _record(T, P, [(30.3, 0.4, 1.0, shapes[0]), (33.1, 0.5, 0.7, shapes[1]),
+                       (37.8, 0.3, 0.5, shapes[2])], 0.3, rng)
+    bins = np.arange(25, 44)
+    Z = np.fft.fft(_hann(T)[:, None] * x, axis=0)[bins]
+    f = fit_group(bin_gram(Z), bins, [30.3, 33.1, 37.8], T, half_width0=[0.4, 0.5, 0.3])
+    w = rng.uniform(0.2, 1.0, P)
+    lab = np.arange(P) // 16
+    blocks = []
+    for step in (P, 960, 7):
+        monkeypatch.setattr(unc, "_channel_block", lambda m, b, step=step: step)
+        blocks.append([line_uncertainty(Z, bins, f.kappa, f.half_width, T, weights=w,
+                                        clusters=c) for c in (None, lab)])
+    for other in blocks[1:]:
+        for one, many in zip(blocks[0], other, strict=True):
+            for name in ("kappa_std", "half_width_std", "cov_kappa_half_width",
+                         "max_correlation", "shape_mac"):
+                np.testing.assert_allclose(getattr(many, name), getattr(one, name),
+                                           rtol=1e-10, atol=0, err_msg=name)
+
+
 def _close_pair(rng, envelope=None):
     T, P = 512, 32
     s1, s2 = rng.normal(size=P), rng.normal(size=P)

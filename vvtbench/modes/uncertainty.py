@@ -63,6 +63,22 @@ def block_clusters(shape: tuple[int, ...], block: int = 8) -> NDArray[np.int64]:
     return np.repeat(lab.reshape(-1), C).astype(np.int64)
 
 
+#: blocks of channels are a multiple of this: of every BLAS kernel's column unroll (2, 4, 6,
+#: 8, 16, ...), so a block's product is the whole array's, bit for bit
+_BLOCK_QUANTUM = 960
+
+
+def _channel_block(n_lines: int, n_bins: int, budget_bytes: int = 64 * 2**20) -> int:
+    """Channels per block of :func:`line_uncertainty`: its complex temporaries of
+    ``(2 n_lines + n_bins)`` rows stay near ``budget_bytes``.
+
+    >>> _channel_block(241, 300), _channel_block(3, 40)
+    (4800, 90240)
+    """
+    per = budget_bytes // (16 * (2 * int(n_lines) + int(n_bins)))
+    return max(1, per // _BLOCK_QUANTUM) * _BLOCK_QUANTUM
+
+
 def _window_noise_cov(n_bins: int, window: str) -> NDArray[np.float64]:
     """Correlation of the windowed DFT of white noise between consecutive bins."""
     if window == "none":
@@ -108,21 +124,31 @@ def line_uncertainty(Z: ArrayLike, bins: ArrayLike, kappa: ArrayLike, half_width
     K = line_kernel(k, h, b, n_frames, window)
     Kp = np.linalg.pinv(K)
     A = Kp @ Zc
-    R = Zc - K @ A
     Pperp = np.eye(b.size) - K @ Kp
     dk = (line_kernel(k + eps, h, b, n_frames, window) - K) / eps
     dh = (line_kernel(k, h + eps, b, n_frames, window) - K) / eps
     D = np.concatenate([dk, dh], axis=1)
+    Dh = D.conj().T
     m_of = np.concatenate([np.arange(M), np.arange(M)])
     Aw = A * w[None, :]
     Cm = (A.conj() @ Aw.T)[np.ix_(m_of, m_of)]
-    Hs = 2.0 * np.real((D.conj().T @ Pperp @ D) * Cm)
-    scores = 2.0 * np.real(Aw[m_of].conj() * (D.conj().T @ R))
-    if clusters is not None:
-        lab = np.unique(np.asarray(clusters), return_inverse=True)[1]
-        summed = np.zeros((2 * M, int(lab.max()) + 1 if lab.size else 0))
-        np.add.at(summed.T, lab, scores.T)
-        scores = summed
+    Hs = 2.0 * np.real((Dh @ Pperp @ D) * Cm)
+    lab = (None if clusters is None
+           else np.unique(np.asarray(clusters), return_inverse=True)[1])
+    scores = np.zeros((2 * M, P if lab is None else int(lab.max()) + 1 if lab.size else 0))
+    sigma2 = np.empty(P)
+    # channel by channel in blocks: every column below depends on its own channel only, so
+    # the values are those of the whole-array expressions, with (2M + B) x block temporaries
+    step = _channel_block(M, b.size)
+    for c0 in range(0, P, step):
+        c = slice(c0, min(P, c0 + step))
+        R = Zc[:, c] - K @ A[:, c]
+        s = 2.0 * np.real(Aw[m_of, c].conj() * (Dh @ R))
+        if lab is None:
+            scores[:, c] = s
+        else:
+            np.add.at(scores.T, lab[c], s.T)
+        sigma2[c] = np.sum(np.abs(R) ** 2, axis=0)
     G = scores.shape[1]
     V = scores @ scores.T * (G / (G - 1.0) if G > 1 else 1.0)
     Hi = np.linalg.pinv(Hs)
@@ -135,7 +161,7 @@ def line_uncertainty(Z: ArrayLike, bins: ArrayLike, kappa: ArrayLike, half_width
     max_corr = np.maximum(corr[:M].max(axis=1), corr[M:].max(axis=1)) if M > 1 else np.zeros(M)
     Sb = _window_noise_cov(b.size, window)
     dof = max(float(np.real(np.trace(Pperp @ Sb))), 1e-12)
-    sigma2 = np.sum(np.abs(R) ** 2, axis=0) / dof
+    sigma2 = sigma2 / dof
     varA = np.real(np.einsum("mb,bc,mc->m", Kp, Sb, Kp.conj()))
     noise = varA * float(np.sum(w * sigma2))
     signal = np.sum(w[None, :] * np.abs(A) ** 2, axis=1)
