@@ -101,7 +101,18 @@ def main() -> int:
     ap.add_argument("quick")
     ap.add_argument("standard")
     args = ap.parse_args()
-    quick, standard = read_results(args.quick), read_results(args.standard)
+    try:
+        quick, standard = read_results(args.quick), read_results(args.standard)
+    except (OSError, ValueError, KeyError) as error:
+        print(f"compare_quick: cannot read a results table ({args.quick}, {args.standard}): "
+              f"{error}", file=sys.stderr)
+        return 2
+    for name, df in (("quick", quick), ("standard", standard)):
+        missing = [c for c in KEY if c not in df.columns]
+        if missing:
+            print(f"compare_quick: the {name} table lacks the columns {', '.join(missing)} "
+                  f"(a results table of `vvtbench run` has them)", file=sys.stderr)
+            return 2
     agree, diffs, alone = same_rows(quick, standard)
     print(f"rows: {len(quick)} of quick; {agree} agree with standard's in every score, "
           f"{len(diffs)} differ, {alone} without a standard row")
