@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from vvtbench.bench import read_results
+from vvtbench.reporting.leaderboard import number_text
 from vvtbench.scoring.stats import paired_comparison, summarize, win_rate_text
 
 
@@ -46,9 +47,10 @@ def _ci(values) -> str:
     if s["n"] == 0:
         return "–"
     if not np.isfinite(s["mean_ci_low"]):
-        return f"{s['mean']:.3f} (n={s['n']})"
-    return (f"{s['mean']:.3f} [{s['mean_ci_low']:.3f}, {s['mean_ci_high']:.3f}], median "
-            f"{s['median']:.3f} (n={s['n']})")
+        return f"{number_text(s['mean'])} (n={s['n']})"
+    return (f"{number_text(s['mean'])} [{number_text(s['mean_ci_low'])}, "
+            f"{number_text(s['mean_ci_high'])}], median {number_text(s['median'])} "
+            f"(n={s['n']})")
 
 
 def _pivot(d, metric: str):

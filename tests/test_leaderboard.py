@@ -766,3 +766,66 @@ def test_an_extraction_per_seed_is_its_own_video():
     ranked = extractor_ranking(df, "v").set_index("observation")
     assert ranked.videos.tolist() == [2, 2]
     assert "seed" not in extraction_table(df[df.seed == 0], "v").columns
+
+
+def test_a_small_efficiency_is_never_printed_as_zero(tmp_path):
+    """An extraction's frequency efficiency of a few 1e-4 (errors far above the bound) and a
+    relative frequency error of 1e-5 keep their significant figures on the board's page and
+    in its extraction tables, where three decimals would show 0.000; an undefined one is a
+    dash."""
+    from vvtbench.reporting.leaderboard import extraction_sources, extraction_table
+
+    rows = []
+    for scene, eff, err in (("a", 2.5e-4, 1.2e-5), ("b", 4.5e-4, 3.4e-5)):
+        rows.append({"track": "v", "solver": "vvt", "observation": "extracted",
+                     "scene": scene, "variation": "base", "seed": 0, "nc_w": 0.5, "status": "ok",
+                     "extraction_precision": 1.0, "extraction_recall": 0.5,
+                     "extraction_mean_rel_freq_error": err,
+                     "extraction_frequency_efficiency": eff,
+                     "extraction_damping_efficiency": float("nan")})
+    df = pd.DataFrame(rows)
+    table = extraction_table(df, "v")
+    mean = table[table.scene.str.startswith("mean of 2")].iloc[0]
+    assert mean["frequency efficiency"] == "3.50e-04"  # two videos: no interval
+    assert mean["damping efficiency"] == "–"
+    from vvtbench.reporting.leaderboard import _md_frame
+
+    page = _md_frame(extraction_table(df, "v"))
+    assert "| 2.50e-04 |" in page and "| 1.20e-05 |" in page and "0.000" not in page
+    sources = extraction_sources(df, "v").iloc[0]
+    assert sources["frequency efficiency"].startswith("3.50e-04")
+
+
+def test_extraction_sources_keep_the_suites_order_of_variations():
+    """A sweep over n_modes = 8, 10, 20 is shown in that order, not as text sorts it."""
+    from vvtbench.reporting.leaderboard import extraction_sources
+
+    rows = [{"track": "v", "solver": "vvt", "observation": "extracted", "scene": "a",
+             "variation": f"n_modes={n}", "seed": 0, "nc_w": 0.5, "status": "ok",
+             "extraction_precision": 1.0, "extraction_recall": 0.5} for n in (8, 10, 20)]
+    table = extraction_sources(pd.DataFrame(rows), "v")
+    assert table.variation.tolist() == ["n_modes=8", "n_modes=10", "n_modes=20"]
+
+
+def test_one_extraction_shared_by_a_sweep_is_one_video():
+    """A sweep over views (or the number of modes) re-uses one extraction of the video: its
+    rows count it once in the mean and in the extractor ranking, under every variation it
+    stands for; a variation whose extraction differs stays its own row."""
+    from vvtbench.reporting.leaderboard import extraction_table, extractor_ranking
+
+    rows = []
+    for obs, recall in (("extracted", 0.4), ("extracted@picker", 0.2)):
+        for scene, shift in (("a", 0.0), ("b", 0.1)):
+            for views in (1, 2, 3):
+                rows.append({"track": "v", "solver": "vvt", "observation": obs,
+                             "scene": scene, "variation": f"views={views}", "seed": 0,
+                             "extraction_precision": 1.0,
+                             "extraction_recall": recall + shift})
+    rows.append(rows[0] | {"variation": "fmax=50", "extraction_recall": 0.9})
+    table = extraction_table(pd.DataFrame(rows), "v")
+    mine = table[table.observation == "extracted"]
+    assert sorted(mine.variation.tolist()[:3]) == ["fmax=50", "views=1, views=2, views=3",
+                                                   "views=1, views=2, views=3"]
+    assert mine.scene.iloc[-1] == "mean of 3"  # three videos: no interval
+    ranked = extractor_ranking(pd.DataFrame(rows), "v").set_index("observation")
+    assert ranked.videos.tolist() == [3, 2]

@@ -217,6 +217,28 @@ def _num(x, digits: int = 2, sign: bool = False) -> str:
     return f"{float(x):{'+' if sign else ''}.{digits}f}" if ok else "–"
 
 
+def number_text(x, digits: int = 3, sign: bool = False) -> str:
+    """``x`` with ``digits`` decimals or, when it is non-zero and below 0.01 in magnitude,
+    with ``digits`` significant figures in scientific notation (an efficiency of 2e-4 is
+    never printed as 0.000); "–" when ``x`` is not a finite number.
+
+    >>> number_text(0.81234), number_text(2.163e-4), number_text(0.0), number_text(float("nan"))
+    ('0.812', '2.16e-04', '0.000', '–')
+    >>> number_text(-0.0421, 2, sign=True), number_text(3.5e-5, 2, sign=True)
+    ('-0.04', '+3.5e-05')
+    """
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return "–"
+    if not np.isfinite(x):
+        return "–"
+    plus = "+" if sign else ""
+    if x != 0 and abs(x) < 0.01:
+        return f"{x:{plus}.{digits - 1}e}"
+    return f"{x:{plus}.{digits}f}"
+
+
 def ci_cell(value, low, high, n: int | None = None, of: int | None = None,
             sign: bool = False, digits: int = 2) -> str:
     """``0.41 [0.33, 0.49]``: a value with its interval (the interval left out when there is
@@ -1009,7 +1031,7 @@ def _pages(df, results, run_dir, tracks, groups, rows, paired, figs, headroom=No
                           + RULER_NOTE + "\n")
                 body.append(f"<h3>{html.escape(track)} — {html.escape(title)}</h3>"
                             + '<div class="scroll">'
-                            + frame.to_html(index=False, float_format=lambda x: f"{x:.3f}",
+                            + frame.to_html(index=False, float_format=number_text,
                                             na_rep="–", border=0) + "</div>"
                             + f"<p>{html.escape(RULER_NOTE)}</p>")
         for caption, rel in figs[track]:
@@ -1066,8 +1088,7 @@ def suite_track_order(results: str | Path, tracks: list[str]) -> list[str]:
 
 def _md_frame(t) -> str:
     def cell(x):
-        return f"{x:.3f}" if isinstance(x, float) and np.isfinite(x) else (
-            "–" if isinstance(x, float) else str(x))
+        return number_text(x) if isinstance(x, float) else str(x)
 
     lines = ["| " + " | ".join(map(md_cell, t.columns)) + " |", "|" + "---|" * len(t.columns)]
     lines += ["| " + " | ".join(md_cell(cell(x)) for x in row) + " |"
@@ -1107,8 +1128,14 @@ _VIDEO = ["scene", "variation", "seed"]
 
 
 def _extractions(df, track: str):
-    """(one row per extracted source, scene and variation with the extraction columns, the
-    columns), or None when the track has no extraction scores."""
+    """(one row per extraction of ``track`` with the extraction columns, the columns), or
+    None when the track has no extraction scores.
+
+    An extraction is a source, scene, variation and seed; variations of one video whose
+    scores are all equal are one extraction scored once (a sweep over the number of modes
+    or of views re-uses the extraction of the sample's video), kept under its first
+    variation, with every variation it stands for in ``variations``: counting it once per
+    variation would make one video look like several."""
     from ..bench.suite import observation_kind
 
     cols = [c for c in _EXTRACTION_NAMES if c in df.columns]
@@ -1120,16 +1147,14 @@ def _extractions(df, track: str):
     if d.empty:
         return None
     keys = ["observation"] + [k for k in _VIDEO if k in d.columns]
-    return d.groupby(keys, sort=False)[cols].first().reset_index(), cols
-
-
-def _mean_cell(values) -> object:
-    from ..scoring.stats import summarize
-
-    st = summarize(np.asarray(values, dtype=float))
-    if np.isfinite(st.get("mean_ci_low", np.nan)):
-        return f"{st['mean']:.3f} [{st['mean_ci_low']:.2f}, {st['mean_ci_high']:.2f}]"
-    return st["mean"]
+    t = d.groupby(keys, sort=False)[cols].first().reset_index()
+    same = [k for k in keys if k != "variation"] + cols
+    if "variation" in t.columns:
+        filled = t[same].astype(object).where(t[same].notna(), "nan").astype(str)
+        group = filled.apply(tuple, axis=1)
+        names = t.groupby(group, sort=False).variation.agg(lambda v: ", ".join(map(str, v)))
+        t = t[~group.duplicated()].assign(variations=group[~group.duplicated()].map(names))
+    return t.reset_index(drop=True), cols
 
 
 def extraction_table(df, track: str):
@@ -1143,6 +1168,8 @@ def extraction_table(df, track: str):
     if got is None:
         return None
     t, cols = got
+    if "variations" in t.columns:
+        t = t.assign(variation=t.pop("variations"))
     if "seed" in t.columns and t.seed.nunique() <= 1:  # one video per scene and variation
         t = t.drop(columns="seed")
     blank = {k: "" for k in ("variation", "seed") if k in t.columns}
@@ -1151,8 +1178,9 @@ def extraction_table(df, track: str):
     for src in sources:
         ts = t[t.observation == src]
         if len(ts) > 1:
-            ts = _with_row(ts, {"observation": src, "scene": f"mean of {len(ts)} [{_PCT} CI]",
-                                **blank, **{c: _mean_cell(ts[c]) for c in cols}})
+            label = f"mean of {len(ts)}" + (f" [{_PCT} CI]" if len(ts) >= MIN_RANK_N else "")
+            ts = _with_row(ts, {"observation": src, "scene": label,
+                                **blank, **{c: _stat_cell(ts[c]) for c in cols}})
         parts.append(ts)
     import pandas as pd
 
@@ -1172,6 +1200,7 @@ def extractor_ranking(df, track: str):
     if got is None:
         return None
     t, cols = got
+    t = t.drop(columns="variations", errors="ignore")
     sources = list(dict.fromkeys(t.observation))
     if len(sources) < 2:
         return None
@@ -1188,16 +1217,18 @@ def extractor_ranking(df, track: str):
         ts = t[t.observation == src]
         row = {"observation": src,
                "extractor": _extractor_label(src),
-               "videos": len(ts), "F1": _mean_cell(ts.f1)}
+               "videos": len(ts), "F1": _stat_cell(ts.f1)}
         if src == best:
             row[f"ΔF1 vs {best}"] = "–"
         else:
             a, b = per[src].align(per[best], join="inner")
             pc = paired_comparison(a.to_numpy(), b.to_numpy())
             row[f"ΔF1 vs {best}"] = (
-                f"{pc['mean_diff']:+.3f} [{pc['ci_low']:+.2f}, {pc['ci_high']:+.2f}] ({pc['n']})"
-                if np.isfinite(pc["ci_low"]) else pc["mean_diff"])
-        rows.append(row | {_EXTRACTION_NAMES[c]: _mean_cell(ts[c]) for c in cols})
+                f"{number_text(pc['mean_diff'], sign=True)} [{number_text(pc['ci_low'], 2, True)}, "
+                f"{number_text(pc['ci_high'], 2, True)}] ({pc['n']})"
+                if np.isfinite(pc["ci_low"]) and pc["n"] >= MIN_RANK_N
+                else f"{number_text(pc['mean_diff'], sign=True)} ({pc['n']})")
+        rows.append(row | {_EXTRACTION_NAMES[c]: _stat_cell(ts[c]) for c in cols})
     import pandas as pd
 
     return pd.DataFrame(rows).astype(object)
@@ -1217,33 +1248,34 @@ def _extractor_label(source: str) -> str:
 
 
 def _stat_cell(values) -> str:
-    """The mean of the finite ``values`` with its bootstrap interval and, when some are
-    undefined, over how many: ``0.812 [0.74, 0.88]``, ``0.10 (n=3 of 4)``; ``–`` when none is
-    finite (an undefined metric is never a number)."""
+    """The mean of the finite ``values`` with its bootstrap interval (from
+    :data:`~vvtbench.scoring.stats.MIN_RANK_N` values on, as on the ranking tables) and, when
+    some are undefined, over how many: ``0.812 [0.74, 0.88]``, ``0.10 (n=3 of 4)``; ``–``
+    when none is finite (an undefined metric is never a number)."""
     from ..scoring.stats import summarize
 
     x = np.asarray(values, dtype=float)
     st = summarize(x)
     if st["n"] == 0:
         return "–"
-    cell = f"{st['mean']:.3f}"
-    if np.isfinite(st["mean_ci_low"]):
-        cell += f" [{st['mean_ci_low']:.2f}, {st['mean_ci_high']:.2f}]"
+    cell = number_text(st["mean"])
+    if np.isfinite(st["mean_ci_low"]) and st["n"] >= MIN_RANK_N:
+        cell += f" [{number_text(st['mean_ci_low'], 2)}, {number_text(st['mean_ci_high'], 2)}]"
     return cell + (f" (n={st['n']} of {x.size})" if st["n"] < x.size else "")
 
 
 def _diff_cell(a, b) -> str:
     """``a - b`` paired over the items where both are finite: the mean difference, its
-    bootstrap interval and the number of pairs (``+0.120 [+0.05, +0.19] (n=8)``); ``–`` when
-    no pair is finite."""
+    bootstrap interval (from :data:`~vvtbench.scoring.stats.MIN_RANK_N` pairs on) and the
+    number of pairs (``+0.120 [+0.05, +0.19] (n=8)``); ``–`` when no pair is finite."""
     from ..scoring.stats import paired_comparison
 
     pc = paired_comparison(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
     if pc["n"] == 0:
         return "–"
-    ci = (f" [{pc['ci_low']:+.2f}, {pc['ci_high']:+.2f}]" if np.isfinite(pc["ci_low"])
-          else "")
-    return f"{pc['mean_diff']:+.3f}{ci} (n={pc['n']})"
+    ci = (f" [{number_text(pc['ci_low'], 2, True)}, {number_text(pc['ci_high'], 2, True)}]"
+          if np.isfinite(pc["ci_low"]) and pc["n"] >= MIN_RANK_N else "")
+    return f"{number_text(pc['mean_diff'], sign=True)}{ci} (n={pc['n']})"
 
 
 def _source_frames(df, track: str):
@@ -1269,8 +1301,12 @@ def _source_frames(df, track: str):
     return scores, nc, solvers
 
 
-def _variation_groups(index) -> list[str]:
-    return list(dict.fromkeys(index.get_level_values("variation")))
+def _variation_groups(index, order: list) -> list[str]:
+    """The variations of ``index`` in ``order`` (the table's, i.e. the suite's: n_modes=8
+    before n_modes=10), any not in it after them."""
+    present = set(index.get_level_values("variation"))
+    return ([v for v in order if v in present]
+            + sorted(present.difference(order), key=str))
 
 
 def extraction_sources(df, track: str):
@@ -1286,7 +1322,7 @@ def extraction_sources(df, track: str):
     variations = list(dict.fromkeys(df[df.track == track].variation))
     rows = []
     for src, t in scores.items():
-        for var in _variation_groups(t.index):
+        for var in _variation_groups(t.index, variations):
             tv = t.xs(var, level="variation", drop_level=False)
             row = {"observation": src, "variation": var, "videos": len(tv)}
             row |= {name: _stat_cell(tv[c]) if c in tv else "–"
@@ -1321,7 +1357,7 @@ def extraction_variants(df, track: str):
         if observation_variant(src) is None or base not in scores:
             continue
         a, b = t.align(scores[base], join="inner")
-        for var in _variation_groups(a.index) if len(a) else []:
+        for var in _variation_groups(a.index, variations) if len(a) else []:
             at = a.index.get_level_values("variation") == var
             row = {"observation": src, "against": base, "variation": var,
                    "videos": int(at.sum())}
