@@ -11,7 +11,9 @@ Prints, per track (instances of the families' test split):
 3. the instances where the reference (oracle) is below a ranked solver in NC w, with both values;
 4. extraction on the video tracks: precision, recall over the detectable modes, recall over
    all modes in band (mean [CI] over the instances); with several extractors, their ranking
-   (the leaderboard's) and each solver's paired NC w between them on the same videos;
+   (the leaderboard's) and each solver's paired NC w between them on the same videos; and
+   what the video costs each solver: its NC w from video minus from the same instances' true
+   modes (paired over the instances the suite solves both ways);
 5. calibration: the 95 % interval coverage of the solvers that state standard deviations;
 6. runtimes: median and maximum per solver, and the run's wall time from run.json;
 7. tracks that sweep ``views`` (several cameras): per solver and number of views, the fraction
@@ -39,7 +41,7 @@ import numpy as np
 
 from vvtbench.bench import read_results
 from vvtbench.reporting.leaderboard import number_text
-from vvtbench.scoring.stats import paired_comparison, summarize, win_rate_text
+from vvtbench.scoring.stats import MIN_RANK_N, paired_comparison, summarize, win_rate_text
 
 
 def _ci(values) -> str:
@@ -131,7 +133,39 @@ def main() -> None:
             print("  runtime s (median / max): " + ", ".join(
                 f"{k} {r['median']:.1f} / {r['max']:.1f}" for k, r in rt.iterrows()))
         _extractors(d)
+    _video_against_true(df, order)
     _damping_intervals(df, Path(args.results).parent, order)
+
+
+def _video_against_true(df, order: list[str]) -> None:
+    """What the video costs each solver: per track of extracted modes (one view), its NC w
+    paired with the same solver's on the same instances from their true modes (any track of
+    true modes holding the scene, the same number of modes, the base variation), video - true:
+    mean [CI], the instances each way and the worst instance."""
+    ok = df[(df.status == "ok") & (df.variation.astype(str) == "base")]
+    true = ok[ok.observation == "true"]
+    if true.empty:
+        return
+    key = ["scene", "solver", "n_modes"]
+    true_nc = true.groupby(key).nc_w.first()
+    for track in order:
+        d = ok[(ok.track == track) & ok.observation.astype(str).str.startswith("extracted")]
+        if d.empty:
+            continue
+        for obs in dict.fromkeys(d.observation):
+            v = d[d.observation == obs].groupby(key).nc_w.first()
+            both = v.to_frame("video").join(true_nc.rename("true"), how="inner").dropna()
+            if both.empty:
+                continue
+            print(f"\n== {track} ({obs} modes) against the same instances' true modes")
+            for solver, b in both.groupby(level="solver"):
+                p = paired_comparison(b.video.to_numpy(), b.true.to_numpy())
+                ci = (f" [{p['ci_low']:+.3f}, {p['ci_high']:+.3f}]"
+                      if np.isfinite(p["ci_low"]) and p["n"] >= MIN_RANK_N else "")
+                diff = (b.video - b.true).droplevel(["solver", "n_modes"])
+                print(f"  {solver}: NC w video - true {p['mean_diff']:+.3f}{ci} (n={p['n']}; "
+                      f"video higher on {p['wins']}, median {np.median(diff):+.3f}, worst "
+                      f"{diff.min():+.3f} on {diff.idxmin()})")
 
 
 def _extractors(d) -> None:
